@@ -1,0 +1,1 @@
+"""The `handloop` command line. Each command lives in its own module under `commands/`."""

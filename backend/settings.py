@@ -1,0 +1,95 @@
+"""Settings from the environment (prefix HANDLOOP_) or a .env file, one typed class for all processes."""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from pathlib import Path
+from typing import Literal
+
+from pydantic import Field, model_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+DEFAULT_SECRET_KEY = "change-me-in-production"
+
+
+class Settings(BaseSettings):
+    """handloop's configuration. Every field can be set as HANDLOOP_<FIELD_NAME>."""
+
+    model_config = SettingsConfigDict(env_prefix="HANDLOOP_", env_file=".env", extra="ignore")
+
+    data_dir: Path = Field(default=Path("data"), description="Root for captures, uploads, caches, exports.")
+    mano_path: Path | None = Field(
+        default=None,
+        description="Your licensed MANO_RIGHT.pkl (or a folder holding MANO_RIGHT.pkl / MANO_LEFT.pkl). "
+        "Unset: the built-in procedural stand-in hand is used.",
+    )
+    render_width_px: int = Field(default=320, ge=32, le=4096, description="Working image width for synthesis.")
+    torch_threads: int = Field(default=0, ge=0, le=256, description="torch intra-op threads; 0 = torch default.")
+
+    # --- backend service -------------------------------------------------------------------------
+    environment: Literal["development", "test", "production"] = Field(
+        default="development", description="Outside 'development' the default secret key is refused."
+    )
+    database_url: str | None = Field(
+        default=None,
+        description="SQLAlchemy URL, e.g. postgresql+psycopg://user@host/db. Unset: SQLite file "
+        "<data_dir>/handloop.sqlite3.",
+    )
+    db_pool_size: int = Field(default=10, ge=1, le=200, description="Connection pool size (PostgreSQL).")
+    db_max_overflow: int = Field(default=20, ge=0, le=500, description="Extra connections beyond the pool.")
+    secret_key: str = Field(default=DEFAULT_SECRET_KEY, min_length=16, description="Signs access tokens.")
+    access_token_minutes: int = Field(default=12 * 60, ge=1, le=60 * 24 * 30, description="Token lifetime.")
+    max_upload_bytes: int = Field(
+        default=8 * 1024 * 1024, ge=1024, le=1024**3, description="Largest accepted request body, bytes."
+    )
+    max_clicks_per_submission: int = Field(default=21 * 64, ge=1, le=100_000)
+    lease_seconds: int = Field(default=300, ge=1, le=24 * 3600, description="How long a queue lease lives.")
+    image_cache_seconds: int = Field(default=3600, ge=0, le=365 * 24 * 3600, description="Cache-Control max-age.")
+    sse_poll_seconds: float = Field(default=1.0, gt=0, le=60, description="Job progress stream poll interval.")
+
+    # Heuristic verification (paper, "Iterative Refinement"); distances in metres.
+    heuristic_min_mean_confidence: float = Field(default=0.8, ge=0, le=1, description="Mean must be above.")
+    heuristic_min_keypoint_confidence: float = Field(default=0.6, ge=0, le=1, description="Each at least.")
+    heuristic_min_mean_iou: float = Field(default=0.7, ge=0, le=1, description="Mean IoU over views, at least.")
+    heuristic_low_iou: float = Field(default=0.5, ge=0, le=1, description="A view below this is 'low'.")
+    heuristic_max_low_iou_views: int = Field(default=2, ge=0, le=1000, description="At most this many low views.")
+    heuristic_max_mean_distance_m: float = Field(default=0.005, ge=0, le=1, description="Mean 3D distance.")
+    heuristic_max_keypoint_distance_m: float = Field(default=0.010, ge=0, le=1, description="Each 3D distance.")
+
+    # Reviewer queue policy (paper, "Manual Verification and Annotation").
+    review_min_confidence_percentile: float = Field(default=50.0, ge=0, le=100)
+    review_min_time_gap_s: float = Field(
+        default=1.0, ge=0, le=3600, description="Minimal time between frames picked from one sequence."
+    )
+    review_min_pose_distance: float = Field(
+        default=0.5, ge=0, le=100, description="Minimal Euclidean norm of the articulation from the flat hand."
+    )
+    review_max_batch: int = Field(default=1000, ge=1, le=1_000_000, description="Most samples queued per build.")
+
+    @model_validator(mode="after")
+    def _refuse_default_secret(self) -> Settings:
+        if self.environment != "development" and self.secret_key == DEFAULT_SECRET_KEY:
+            raise ValueError(
+                f"HANDLOOP_SECRET_KEY must be set outside development (environment={self.environment!r})"
+            )
+        return self
+
+    @property
+    def cache_dir(self) -> Path:
+        return self.data_dir / "cache"
+
+    @property
+    def storage_dir(self) -> Path:
+        return self.data_dir / "storage"
+
+    @property
+    def resolved_database_url(self) -> str:
+        """The database URL, defaulting to a SQLite file in the data directory."""
+        if self.database_url:
+            return self.database_url
+        return f"sqlite:///{(self.data_dir / 'handloop.sqlite3').resolve()}"
+
+
+@lru_cache
+def get_settings() -> Settings:
+    return Settings()

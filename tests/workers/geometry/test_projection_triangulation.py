@@ -1,0 +1,98 @@
+"""Projection against OpenCV's, undistortion round trips, and triangulation."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from workers.geometry.projection import project_points, project_points_torch, stack_cameras, undistort_pixels
+from workers.geometry.rig import default_rig
+from workers.geometry.triangulation import triangulate
+
+RIG = default_rig()
+
+
+def _points(seed: int, n: int = 21, spread_m: float = 0.08) -> np.ndarray:
+    return np.random.default_rng(seed).normal(0, spread_m, (n, 3))
+
+
+def test_projection_matches_opencv():
+    points = _points(0)
+    pixels, depth = project_points(points, RIG)
+    for c, cam in enumerate(RIG):
+        ref, _ = cv2.projectPoints(points, cv2.Rodrigues(cam.R)[0], cam.t, cam.K, cam.dist)
+        assert np.allclose(pixels[c], ref.reshape(-1, 2), atol=1e-9)
+        assert np.allclose(depth[c], (points @ cam.R.T + cam.t)[:, 2])
+
+
+def test_torch_projection_is_differentiable():
+    points = torch.tensor(_points(1)[None], requires_grad=True)
+    pixels, _ = project_points_torch(points, **stack_cameras(RIG, dtype=torch.float64))
+    pixels.sum().backward()
+    assert torch.isfinite(points.grad).all() and points.grad.abs().sum() > 0
+
+
+def test_undistort_inverts_distortion():
+    cam = RIG[3]  # a 4 mm lens: the strongest distortion in the rig
+    points = _points(2, spread_m=0.15)
+    pixels, _ = project_points(points, [cam])
+    ideal = (points @ cam.R.T + cam.t) @ cam.K.T
+    ideal = ideal[:, :2] / ideal[:, 2:]
+    assert np.abs(pixels[0] - ideal).max() > 0.5  # distortion matters at this spread
+    assert np.allclose(undistort_pixels(pixels[0], cam), ideal, atol=1e-6)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.tuples(*[st.floats(-0.15, 0.15)] * 3), min_size=1, max_size=8))
+def test_project_then_triangulate_returns_the_points(points):
+    points = np.asarray(points)
+    pixels, _ = project_points(points, RIG)
+    result = triangulate(pixels, RIG)
+    assert result.valid.all()
+    assert np.abs(result.points_world - points).max() < 1e-6
+    assert result.inliers.all()
+
+
+def test_outlier_view_is_rejected():
+    points = _points(3)
+    pixels, _ = project_points(points, RIG)
+    noisy = pixels + np.random.default_rng(0).normal(0, 0.5, pixels.shape)
+    noisy[5] += 60.0  # one view clicked far off
+    result = triangulate(noisy, RIG)
+    assert not result.inliers[5].any()
+    error_mm = 1000 * np.linalg.norm(result.points_world - points, axis=1)
+    assert error_mm.max() < 3.0
+    # A plain least-squares solution over all views is dragged away by the outlier.
+    naive = triangulate(noisy, RIG, outlier_px=1e9)
+    assert 1000 * np.linalg.norm(naive.points_world - points, axis=1).mean() > 2 * error_mm.mean()
+
+
+def test_weights_missing_views_and_too_few_views():
+    points = _points(4, n=3)
+    pixels, _ = project_points(points, RIG)
+    pixels[:, 0] = np.nan
+    pixels[2:, 0] = pixels[2:, 1]  # point 0 only in views 2..7 with values of point 1
+    pixels[:, 2] = np.nan
+    pixels[0, 2] = 10.0  # point 2: a single view
+    weights = np.ones((8, 3))
+    weights[:, 1] = 0.0
+    weights[:2, 1] = 1.0  # point 1 from two views only
+    result = triangulate(pixels, RIG, weights)
+    assert np.allclose(result.points_world[0], points[1], atol=1e-6)
+    assert np.allclose(result.points_world[1], points[1], atol=1e-6)
+    assert not result.valid[2] and np.isnan(result.points_world[2]).all()
+
+
+@pytest.mark.parametrize(("kwargs", "message"), [
+    ({"pixels": np.zeros((7, 2, 2))}, "pixels must have shape"),
+    ({"weights": -np.ones((8, 2))}, "weights must be finite and non-negative"),
+    ({"weights": np.ones((8, 3))}, "weights must have shape"),
+])
+def test_bad_triangulation_input(kwargs, message):
+    args = {"pixels": np.zeros((8, 2, 2)), "cameras": RIG} | kwargs
+    with pytest.raises(ValueError, match=message):
+        triangulate(**args)

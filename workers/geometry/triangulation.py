@@ -1,0 +1,107 @@
+"""Multi-view triangulation: confidence-weighted DLT with pairwise-hypothesis outlier rejection.
+
+Written here rather than taken from OpenCV because cv2.triangulatePoints handles two views only and
+has neither weights nor outlier rejection. Pixels are undistorted with OpenCV first.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from itertools import combinations
+
+import numpy as np
+
+from workers.geometry.camera import Camera
+from workers.geometry.projection import project_points, undistort_pixels
+
+
+@dataclass(frozen=True)
+class Triangulation:
+    """Result for N points seen by C cameras.
+
+    Attributes:
+        points_world: (N, 3) metres; NaN where fewer than two views were usable.
+        inliers: (C, N) bool, the views used for each point.
+        reprojection_px: (N,) mean reprojection error over the inlier views, pixels (NaN if invalid).
+        valid: (N,) bool.
+    """
+
+    points_world: np.ndarray
+    inliers: np.ndarray
+    reprojection_px: np.ndarray
+    valid: np.ndarray
+
+
+def _dlt_point(P: np.ndarray, uv: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """P (C,3,4), undistorted pixels uv (C,2), weights w (C,) -> (3,) world point by weighted DLT."""
+    rows = np.concatenate([
+        uv[:, 0:1] * P[:, 2] - P[:, 0],
+        uv[:, 1:2] * P[:, 2] - P[:, 1],
+    ])  # (2C, 4)
+    # Normalise each row so a view's weight is not scaled by its focal length or depth.
+    rows /= np.linalg.norm(rows[:, :3], axis=1, keepdims=True) + 1e-12
+    rows *= np.concatenate([w, w])[:, None]
+    _, _, vt = np.linalg.svd(rows)
+    X = vt[-1]
+    return X[:3] / X[3]
+
+
+def triangulate(pixels: np.ndarray, cameras: list[Camera], weights: np.ndarray | None = None,
+                outlier_px: float = 8.0) -> Triangulation:
+    """Triangulate N points from C views, rejecting views that disagree with the consensus.
+
+    Args:
+        pixels: (C, N, 2) distorted pixel coordinates; NaN where not observed.
+        cameras: the C cameras.
+        weights: (C, N) confidence in [0, inf); 0 or NaN pixel = not observed. Defaults to 1.
+        outlier_px: reprojection error above which a view is an outlier for that point.
+    Returns:
+        Triangulation. Each point first takes the two-view hypothesis with the most inliers (ties by
+        lower mean error), then is re-solved by weighted DLT over its inliers. With no hypothesis
+        agreed by two views, all observed views are used.
+    """
+    pixels = np.asarray(pixels, dtype=np.float64)
+    C = len(cameras)
+    if pixels.ndim != 3 or pixels.shape[0] != C or pixels.shape[2] != 2:
+        raise ValueError(f"pixels must have shape (C={C}, N, 2), got {pixels.shape}")
+    N = pixels.shape[1]
+    w = np.ones((C, N)) if weights is None else np.asarray(weights, dtype=np.float64)
+    if w.shape != (C, N):
+        raise ValueError(f"weights must have shape ({C}, {N}), got {w.shape}")
+    if np.any(w < 0) or np.any(np.isinf(w)):
+        raise ValueError("weights must be finite and non-negative")
+    observed = np.isfinite(pixels).all(axis=2) & (np.nan_to_num(w) > 0)
+    ideal = np.full_like(pixels, np.nan)
+    for c, cam in enumerate(cameras):
+        if observed[c].any():
+            ideal[c, observed[c]] = undistort_pixels(pixels[c, observed[c]], cam)
+    P = np.stack([cam.P for cam in cameras])
+
+    points = np.full((N, 3), np.nan)
+    inliers = np.zeros((C, N), dtype=bool)
+    error = np.full(N, np.nan)
+    for n in range(N):
+        views = np.flatnonzero(observed[:, n])
+        if len(views) < 2:
+            continue
+        pairs = np.asarray(list(combinations(views, 2)))  # (H, 2) two-view hypotheses
+        hypotheses = np.stack([_dlt_point(P[p], ideal[p, n], np.ones(2)) for p in pairs])
+        err = _reprojection_errors(hypotheses, cameras, pixels[:, n])  # (H, C)
+        inl_h = observed[None, :, n] & (err < outlier_px)
+        count = inl_h.sum(axis=1)
+        mean_err = np.where(inl_h, err, 0).sum(axis=1) / np.maximum(count, 1)
+        best = np.lexsort((mean_err, -count))[0]
+        inl = inl_h[best] if count[best] >= 2 else observed[:, n]
+        X = _dlt_point(P[inl], ideal[inl, n], w[inl, n])
+        err = _reprojection_errors(X[None], cameras, pixels[:, n])[0]
+        points[n], inliers[:, n], error[n] = X, inl, float(np.mean(err[inl]))
+    return Triangulation(points, inliers, error, np.isfinite(points).all(axis=1))
+
+
+def _reprojection_errors(X: np.ndarray, cameras: list[Camera], observed_px: np.ndarray) -> np.ndarray:
+    """Points (H, 3), observed pixels (C, 2) (NaN allowed) -> (H, C) pixel errors (inf where
+    unobserved or behind the camera)."""
+    projected, depth = project_points(X, cameras)  # (C, H, 2), (C, H)
+    err = np.linalg.norm(projected - observed_px[:, None, :], axis=2).T
+    err[~np.isfinite(err) | (depth.T <= 0)] = np.inf
+    return err

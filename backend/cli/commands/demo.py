@@ -1,0 +1,126 @@
+"""`handloop demo`: everything a first look needs, on this machine, with nothing else installed.
+
+Synthesises a small capture (once), draws a preview, migrates the embedded SQLite database, imports the
+capture as a project, makes an admin account (once; the password is kept in the data folder so a
+second run can print it again) and serves the API.
+"""
+
+from __future__ import annotations
+
+import logging
+import secrets
+import sys
+from pathlib import Path
+
+import typer
+
+log = logging.getLogger("handloop.demo")
+
+DEMO_PROJECT = "demo"
+DEMO_ADMIN = "admin@handloop.local"
+
+
+def register(app: typer.Typer, bench: typer.Typer) -> None:
+    @app.command("demo")
+    def demo(
+        sequences: int = typer.Option(4, min=1, max=64, help="Sequences in the demo capture."),
+        frames: int = typer.Option(12, min=1, max=1000, help="Frames per sequence."),
+        width: int | None = typer.Option(None, min=32, max=4096, help="Image width (default: settings)."),
+        serve: bool = typer.Option(True, help="Start the API server at the end."),
+        host: str = typer.Option("127.0.0.1", help="Interface to bind (loopback by default)."),
+        port: int = typer.Option(8000, min=1, max=65535),
+    ) -> None:
+        """Set up a demo: synthetic capture, preview, database, import, admin login; then serve."""
+        from backend.settings import get_settings
+
+        settings = get_settings()
+        data_dir = settings.data_dir.resolve()
+        data_dir.mkdir(parents=True, exist_ok=True)
+        capture_dir = data_dir / "demo-capture"
+        _ensure_capture(capture_dir, sequences, frames, width or settings.render_width_px, settings.mano_path)
+        preview = data_dir / "demo-preview.png"
+        _write_preview(capture_dir, preview)
+        password = _ensure_database(capture_dir, data_dir)
+        notice = _hand_model_notice(settings.mano_path)
+        typer.echo("")
+        typer.echo(f"  capture : {capture_dir}")
+        typer.echo(f"  preview : {preview}")
+        typer.echo(f"  database: {settings.resolved_database_url}")
+        typer.echo(f"  login   : {DEMO_ADMIN} / {password}")
+        typer.echo(f"  model   : {notice}")
+        if serve:
+            typer.echo(f"  API     : http://{host}:{port}/docs  (Ctrl-C stops the server)")
+            typer.echo("")
+            import uvicorn
+
+            uvicorn.run("backend.app:create_app", factory=True, host=host, port=port, log_level="info")
+
+
+def _ensure_capture(capture_dir: Path, sequences: int, frames: int, width: int, mano_path: Path | None) -> None:
+    """Synthesise the demo capture unless a valid one is already there."""
+    from tqdm import tqdm
+
+    from workers.capture import CaptureError, read_capture
+    from workers.synth.generator import generate_capture
+    from workers.synth.plan import SynthConfig
+
+    if capture_dir.exists():
+        try:
+            read_capture(capture_dir, check_images=False)
+            log.info("reusing the demo capture in %s", capture_dir)
+            return
+        except CaptureError as exc:
+            log.warning("re-creating the demo capture: %s", exc)
+    config = SynthConfig(num_sequences=sequences, frames_per_sequence=frames, seed=0, width_px=width)
+    with tqdm(total=sequences * frames, unit="frame", desc="synthesising", file=sys.stderr) as bar:
+        generate_capture(capture_dir, config, force=True, mano_path=mano_path, progress=bar.update)
+
+
+def _write_preview(capture_dir: Path, out: Path) -> None:
+    import cv2
+
+    from workers.capture import read_capture
+    from workers.capture.preview import preview_frame
+
+    capture = read_capture(capture_dir, check_images=False)
+    grid = preview_frame(capture, capture.sequences[0].frames[0])
+    cv2.imwrite(str(out), cv2.cvtColor(grid, cv2.COLOR_RGB2BGR))
+
+
+def _ensure_database(capture_dir: Path, data_dir: Path) -> str:
+    """Migrate, import the capture as project 'demo' and make the admin; return the admin's password."""
+    from sqlalchemy import select
+
+    from backend.db.migrate import upgrade
+    from backend.db.session import create_engine_from_url, make_session_factory
+    from backend.models.capture import Project
+    from backend.models.enums import Role
+    from backend.models.users import User
+    from backend.services.importer import import_capture
+    from backend.services.storage import LocalDiskStorage
+    from backend.services.users import create_user
+    from backend.settings import get_settings
+
+    settings = get_settings()
+    upgrade(settings.resolved_database_url)
+    factory = make_session_factory(create_engine_from_url(settings.resolved_database_url))
+    password_file = data_dir / "demo-admin-password.txt"
+    with factory.begin() as session:
+        if session.execute(select(Project.id).where(Project.name == DEMO_PROJECT)).first() is None:
+            result = import_capture(session, LocalDiskStorage(settings.storage_dir), capture_dir,
+                                    project_name=DEMO_PROJECT)
+            log.info("imported the demo capture: %s", result.model_dump_json())
+        if session.execute(select(User.id).where(User.email == DEMO_ADMIN)).first() is None:
+            password = secrets.token_urlsafe(12)
+            create_user(session, DEMO_ADMIN, password, Role.admin, "Demo admin")
+            password_file.write_text(password + "\n")
+            password_file.chmod(0o600)
+    if not password_file.exists():
+        return "(set before; reset it with `handloop users`)"
+    return password_file.read_text().strip()
+
+
+def _hand_model_notice(mano_path: Path | None) -> str:
+    from workers.handmodel.loading import STAND_IN_NOTICE
+
+    return f"MANO from {mano_path}" if mano_path else STAND_IN_NOTICE

@@ -39,6 +39,10 @@ class Settings(BaseSettings):
     db_max_overflow: int = Field(default=20, ge=0, le=500, description="Extra connections beyond the pool.")
     secret_key: str = Field(default=DEFAULT_SECRET_KEY, min_length=16, description="Signs access tokens.")
     access_token_minutes: int = Field(default=12 * 60, ge=1, le=60 * 24 * 30, description="Token lifetime.")
+    auth_cache_seconds: float = Field(
+        default=2.0, ge=0, le=60, description="How long a server process reuses a token's user row (0: read it on "
+        "every request). A revoked token stops working at once in the process that revoked it, within this time in "
+        "the others.")
     max_upload_bytes: int = Field(
         default=8 * 1024 * 1024, ge=1024, le=1024**3, description="Largest accepted request body, bytes."
     )

@@ -1,0 +1,1 @@
+"""HTTP edge: dependencies, routers, error mapping."""

@@ -1,0 +1,45 @@
+from __future__ import annotations
+
+from fastapi import APIRouter, Response
+
+from backend.api.deps import AnnotatorUser, JobQueueDep, SessionDep, SettingsDep, StorageDep
+from backend.api.routes.tasks_common import json_response, task_of
+from backend.models.enums import LeaseKind
+from backend.schemas.tasks import LeasePublic, LeaseRequest, SubmissionCreate, SubmissionPublic, TaskPublic
+from backend.services import queues, submissions
+
+router = APIRouter(prefix="/annotate", tags=["annotator queue"])
+
+
+@router.post("/next", response_model=TaskPublic, responses={204: {"description": "The queue is empty."}})
+def next_task(session: SessionDep, settings: SettingsDep, user: AnnotatorUser) -> Response:
+    """Lease the next sample needing annotation (or return the one you already hold, renewed)."""
+    lease = queues.acquire(session, user, LeaseKind.annotate, settings.lease_seconds)
+    if lease is None:
+        return Response(status_code=204)
+    return json_response(task_of(session, lease))
+
+
+@router.post("/samples/{sample_id}/lease/renew", response_model=LeasePublic)
+def renew(sample_id: int, body: LeaseRequest, session: SessionDep, settings: SettingsDep,
+          user: AnnotatorUser) -> LeasePublic:
+    lease = queues.renew(session, user, sample_id, LeaseKind.annotate, body.lease_token, settings.lease_seconds)
+    return LeasePublic(sample_id=lease.sample_id, lease_token=lease.token, lease_expires_at=lease.expires_at)
+
+
+@router.post("/samples/{sample_id}/lease/release", status_code=204)
+def release(sample_id: int, body: LeaseRequest, session: SessionDep, user: AnnotatorUser) -> None:
+    queues.release(session, user, sample_id, LeaseKind.annotate, body.lease_token)
+
+
+@router.post("/samples/{sample_id}/submissions", response_model=SubmissionPublic, status_code=201,
+             responses={200: {"description": "Already submitted with this submission_id: nothing new written."}})
+def submit(sample_id: int, body: SubmissionCreate, session: SessionDep, settings: SettingsDep,
+           queue: JobQueueDep, storage: StorageDep, user: AnnotatorUser) -> Response:
+    """Clicks and mask corrections for a leased sample; queues a fit. Idempotent on `submission_id`."""
+    result = submissions.submit(session, queue, storage, user, sample_id, body, settings.max_clicks_per_submission)
+    s = result.submission
+    public = SubmissionPublic.model_construct(
+        id=s.id, submission_id=s.client_id, sample_id=s.sample_id, n_clicks=s.n_clicks, n_masks=s.n_masks,
+        fit_job_id=s.fit_job_id, duplicate=result.duplicate, created_at=s.created_at)
+    return json_response(public, status_code=200 if result.duplicate else 201)

@@ -1,0 +1,41 @@
+from __future__ import annotations
+
+from fastapi import APIRouter, Response
+
+from backend.api.deps import ReviewerUser, SessionDep, SettingsDep
+from backend.api.routes.tasks_common import task_of
+from backend.models.enums import LeaseKind
+from backend.schemas.tasks import DecisionCreate, DecisionPublic, LeasePublic, LeaseRequest, TaskPublic
+from backend.services import queues, review
+
+router = APIRouter(prefix="/review", tags=["reviewer queue"])
+
+
+@router.post("/next", response_model=TaskPublic, responses={204: {"description": "The queue is empty."}})
+def next_task(session: SessionDep, settings: SettingsDep, user: ReviewerUser) -> TaskPublic | Response:
+    """Lease the most confident sample awaiting verification, with its fit."""
+    lease = queues.acquire(session, user, LeaseKind.review, settings.lease_seconds)
+    if lease is None:
+        return Response(status_code=204)
+    return task_of(session, lease, with_fit=True)
+
+
+@router.post("/samples/{sample_id}/lease/renew", response_model=LeasePublic)
+def renew(sample_id: int, body: LeaseRequest, session: SessionDep, settings: SettingsDep,
+          user: ReviewerUser) -> LeasePublic:
+    lease = queues.renew(session, user, sample_id, LeaseKind.review, body.lease_token, settings.lease_seconds)
+    return LeasePublic(sample_id=lease.sample_id, lease_token=lease.token, lease_expires_at=lease.expires_at)
+
+
+@router.post("/samples/{sample_id}/lease/release", status_code=204)
+def release(sample_id: int, body: LeaseRequest, session: SessionDep, user: ReviewerUser) -> None:
+    queues.release(session, user, sample_id, LeaseKind.review, body.lease_token)
+
+
+@router.post("/samples/{sample_id}/decision", response_model=DecisionPublic, status_code=201)
+def decide(sample_id: int, body: DecisionCreate, session: SessionDep, user: ReviewerUser) -> DecisionPublic:
+    """Accept, reject, or send back for annotation (with a reason) a sample whose review lease you hold."""
+    row, sample, stream = review.decide(session, user, sample_id, body.decision, body.reason, body.lease_token)
+    return DecisionPublic(id=row.id, sample_id=sample_id, fit_id=row.fit_id, decision=row.decision,
+                          reason=row.reason, state=sample.state, stream=stream.value if stream else None,
+                          created_at=row.created_at)

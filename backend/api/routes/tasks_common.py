@@ -1,0 +1,42 @@
+"""Shared by the annotator and reviewer queues: how a leased sample is shown."""
+
+from __future__ import annotations
+
+from fastapi import Response
+from pydantic import BaseModel
+from sqlalchemy.orm import Session
+
+from backend.models.enums import SampleState
+from backend.models.fits import Fit
+from backend.schemas.tasks import TaskPublic, ViewPublic
+from backend.services.queues import Lease
+from backend.services.samples import get_sample, views_of
+from workers.handmodel.keypoints import SPARSE_KEYPOINTS
+
+
+def task_of(session: Session, lease: Lease, with_fit: bool = False) -> TaskPublic:
+    """Built with `model_construct` from rows the database already typed: validating our own output again
+    cost more than the queries on the annotators' hot path."""
+    sample = lease.head or get_sample(session, lease.sample_id)  # head: returned by the lease statement
+    views = [
+        ViewPublic.model_construct(id=v.id, camera=v.camera, width=v.width, height=v.height,
+                                   image_url=f"/api/files/views/{v.id}/image",
+                                   mask_url=f"/api/files/masks/{v.mask_id}" if v.mask_id is not None else None)
+        for v in views_of(session, sample.id)
+    ]
+    fit = None
+    if with_fit and sample.current_fit_id is not None:
+        row = session.get(Fit, sample.current_fit_id)
+        if row is not None:
+            fit = {"id": row.id, "keypoints_m": row.keypoints_m, "params": row.params, "view_ious": row.view_ious,
+                   "heuristic": row.heuristic, "pose_distance": row.pose_distance, "model_file": row.model_file}
+    return TaskPublic.model_construct(
+        sample_id=sample.id, state=SampleState(sample.state), lease_token=lease.token,
+        lease_expires_at=lease.expires_at, sequence_id=sample.sequence_id, frame_index=sample.frame_index,
+        time_s=sample.time_s, keypoints_to_click=list(SPARSE_KEYPOINTS), views=views, fit=fit)
+
+
+def json_response(model: BaseModel, status_code: int = 200) -> Response:
+    """The model's JSON as the response, serialised once by pydantic-core (FastAPI would validate a
+    returned model against `response_model` again first; the route keeps `response_model` for OpenAPI)."""
+    return Response(model.model_dump_json(), status_code=status_code, media_type="application/json")

@@ -1,0 +1,41 @@
+"""The FastAPI application factory. Imports no torch (see tests/backend/test_app.py)."""
+
+from __future__ import annotations
+
+import logging
+
+from fastapi import FastAPI
+
+from backend.api import errors
+from backend.api.limits import BodySizeLimit
+from backend.api.main import api_router
+from backend.db.session import create_engine_from_url, make_session_factory
+from backend.services.auth_cache import AuthCache, watch_user_changes
+from backend.services.jobs import DatabaseJobQueue, JobQueue
+from backend.services.storage import LocalDiskStorage, Storage
+from backend.settings import Settings, get_settings
+
+logger = logging.getLogger(__name__)
+
+
+def create_app(settings: Settings | None = None, *, job_queue: JobQueue | None = None,
+               storage: Storage | None = None) -> FastAPI:
+    settings = settings or get_settings()
+    app = FastAPI(title="handloop", version="0.1.0", docs_url="/docs", openapi_url="/openapi.json",
+                  description="Human-in-the-loop 3D hand labeling (FreiHAND's procedure): annotator and "
+                  "reviewer queues with leases, bootstrap rounds, jobs.")
+    url = settings.resolved_database_url
+    if url.startswith("sqlite"):
+        settings.data_dir.mkdir(parents=True, exist_ok=True)
+    engine = create_engine_from_url(url, pool_size=settings.db_pool_size, max_overflow=settings.db_max_overflow)
+    app.state.settings = settings
+    app.state.engine = engine
+    app.state.session_factory = make_session_factory(engine)
+    app.state.auth_cache = AuthCache(settings.auth_cache_seconds)
+    watch_user_changes(app.state.session_factory, app.state.auth_cache)
+    app.state.job_queue = job_queue or DatabaseJobQueue()
+    app.state.storage = storage or LocalDiskStorage(settings.storage_dir)
+    errors.install(app)
+    app.include_router(api_router)
+    app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes)
+    return app

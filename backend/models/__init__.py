@@ -1,0 +1,29 @@
+"""All tables; importing this package registers them on Base.metadata (Alembic relies on it)."""
+
+from backend.models.audit import AuditEvent
+from backend.models.capture import CameraCalibration, Project, Sample, Sequence, Subject, View
+from backend.models.enums import (
+    DecisionKind,
+    JobKind,
+    JobState,
+    LeaseKind,
+    MaskKind,
+    Role,
+    RoundState,
+    SampleState,
+    Split,
+    Stream,
+    Visibility,
+)
+from backend.models.fits import Fit, Prediction
+from backend.models.jobs import Job
+from backend.models.labels import Click, Mask, Submission
+from backend.models.review import Decision, Round, RoundMember
+from backend.models.users import User
+
+__all__ = [
+    "AuditEvent", "CameraCalibration", "Click", "Decision", "DecisionKind", "Fit", "Job", "JobKind",
+    "JobState", "LeaseKind", "Mask", "MaskKind", "Prediction", "Project", "Role", "Round", "RoundMember",
+    "RoundState", "Sample", "SampleState", "Sequence", "Split", "Stream", "Subject", "Submission", "User",
+    "View", "Visibility",
+]  # fmt: skip

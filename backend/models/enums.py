@@ -1,0 +1,98 @@
+"""String enums stored as short strings, with CHECK constraints, on both backends."""
+
+from __future__ import annotations
+
+from enum import StrEnum
+
+from sqlalchemy import CheckConstraint
+
+
+class Role(StrEnum):
+    """Ranked: each role may do what the roles below it may."""
+
+    annotator = "annotator"
+    reviewer = "reviewer"
+    admin = "admin"
+
+    @property
+    def rank(self) -> int:
+        return ROLE_RANK[self]
+
+
+ROLE_RANK = {Role.annotator: 0, Role.reviewer: 1, Role.admin: 2}
+
+
+class SampleState(StrEnum):
+    unlabeled = "unlabeled"
+    needs_annotation = "needs_annotation"
+    annotated = "annotated"
+    fitting = "fitting"
+    fitted = "fitted"
+    in_review = "in_review"
+    accepted = "accepted"
+    rejected = "rejected"
+
+
+class Split(StrEnum):
+    train = "train"
+    evaluation = "evaluation"
+
+
+class LeaseKind(StrEnum):
+    annotate = "annotate"
+    review = "review"
+
+
+class Visibility(StrEnum):
+    visible = "visible"
+    occluded = "occluded"
+    not_annotated = "not_annotated"
+
+
+class MaskKind(StrEnum):
+    chroma_key = "chroma_key"
+    predicted = "predicted"
+    corrected = "corrected"
+    model = "model"
+
+
+class DecisionKind(StrEnum):
+    accept = "accept"
+    reject = "reject"
+    annotate = "annotate"
+
+
+class Stream(StrEnum):
+    """The paper's streams into D_{i+1}: heuristic (D^h), manual (D^m), annotated (D^l)."""
+
+    heuristic = "heuristic"
+    manual = "manual"
+    annotated = "annotated"
+
+
+class RoundState(StrEnum):
+    running = "running"
+    completed = "completed"
+    cancelled = "cancelled"
+
+
+class JobState(StrEnum):
+    queued = "queued"
+    running = "running"
+    succeeded = "succeeded"
+    failed = "failed"
+    cancelled = "cancelled"
+
+
+class JobKind(StrEnum):
+    fit = "fit"
+    predict = "predict"
+    train = "train"
+    round = "round"
+    import_capture = "import_capture"
+    export = "export"
+
+
+def enum_check(column: str, enum: type[StrEnum], name: str | None = None) -> CheckConstraint:
+    values = ", ".join(f"'{member.value}'" for member in enum)
+    return CheckConstraint(f"{column} IN ({values})", name=name or f"{column}_valid")

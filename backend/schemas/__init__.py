@@ -1,0 +1,1 @@
+"""Pydantic request and response models; every number has limits (finite, ranges)."""

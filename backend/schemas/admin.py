@@ -1,0 +1,90 @@
+"""Admin: rounds, jobs, statistics, imports, review-queue builds."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Any
+
+from pydantic import Field
+
+from backend.models.enums import JobKind, JobState, RoundState
+from backend.schemas.base import Public, Strict
+
+
+class RoundCreate(Strict):
+    mvnet_version: str | None = Field(default=None, max_length=100)
+    handsegnet_version: str | None = Field(default=None, max_length=100)
+    note: str = Field(default="", max_length=2000)
+
+
+class RoundPublic(Public):
+    id: int
+    index: int
+    state: RoundState
+    mvnet_version: str | None
+    handsegnet_version: str | None
+    note: str
+    counts: dict[str, Any]
+    created_at: datetime
+    finished_at: datetime | None
+
+
+class RoundLaunched(Public):
+    round: RoundPublic
+    job_id: int
+
+
+class JobPublic(Public):
+    id: int
+    kind: JobKind
+    state: JobState
+    progress: float
+    message: str
+    error: str | None
+    sample_id: int | None
+    round_id: int | None
+    created_at: datetime
+    updated_at: datetime
+    finished_at: datetime | None
+
+
+class StreamCounts(Public):
+    heuristic: int = 0
+    manual: int = 0
+    annotated: int = 0
+
+
+class RoundStats(Public):
+    round_id: int
+    index: int
+    state: RoundState
+    added: StreamCounts
+    added_total: int
+    dataset_size_after: int  # |D_{i+1}| = |D_i| + added
+
+
+class Statistics(Public):
+    samples_by_state: dict[str, int]
+    rounds: list[RoundStats]
+    submissions: int
+    clicks: int
+
+
+class ImportRequest(Strict):
+    path: str = Field(min_length=1, max_length=4096, description="Capture directory on the server.")
+    project: str | None = Field(default=None, max_length=200)
+    queue_for_annotation: bool = True
+
+
+class ImportPublic(Public):
+    project_id: int
+    project: str
+    cameras: int
+    sequences: int
+    samples: int
+    views: int
+    masks: int
+
+
+class ReviewQueueBuilt(Public):
+    queued: list[int]

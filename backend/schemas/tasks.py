@@ -1,0 +1,121 @@
+"""Annotator and reviewer queues: tasks, submissions, decisions."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Annotated, Any
+
+from pydantic import Field, model_validator
+
+from backend.models.enums import DecisionKind, SampleState, Visibility
+from backend.schemas.base import Finite, Id, Pixel, Public, Strict
+
+ClientId = Annotated[str, Field(min_length=8, max_length=64, pattern=r"^[A-Za-z0-9_.:-]+$")]
+LeaseToken = Annotated[str, Field(min_length=1, max_length=64)]
+
+
+class ViewPublic(Public):
+    id: int
+    camera: str
+    width: int
+    height: int
+    image_url: str
+    mask_url: str | None
+
+
+class TaskPublic(Public):
+    sample_id: int
+    state: SampleState
+    lease_token: str
+    lease_expires_at: datetime
+    sequence_id: int
+    frame_index: int
+    time_s: float
+    keypoints_to_click: list[int]
+    views: list[ViewPublic]
+    fit: dict[str, Any] | None = None
+
+
+class LeasePublic(Public):
+    sample_id: int
+    lease_token: str
+    lease_expires_at: datetime
+
+
+class LeaseRequest(Strict):
+    lease_token: LeaseToken | None = None
+
+
+class ClickIn(Strict):
+    view_id: Id
+    keypoint: int = Field(ge=0, le=20)
+    x: Pixel | None = None
+    y: Pixel | None = None
+    visibility: Visibility = Visibility.visible
+
+    @model_validator(mode="after")
+    def _position_matches_visibility(self) -> ClickIn:
+        has_xy = self.x is not None and self.y is not None
+        if self.visibility is Visibility.not_annotated:
+            if self.x is not None or self.y is not None:
+                raise ValueError("a keypoint that is not annotated has no x, y")
+        elif not has_xy:
+            raise ValueError(f"a {self.visibility.value} keypoint needs both x and y")
+        return self
+
+
+class MaskIn(Strict):
+    """A corrected mask, row-major run lengths starting with a run of background (0) pixels."""
+
+    view_id: Id
+    width: int = Field(ge=1, le=100_000)
+    height: int = Field(ge=1, le=100_000)
+    rle: list[Annotated[int, Field(ge=0, le=10**10)]] = Field(min_length=1, max_length=4_000_000)
+
+
+class SubmissionCreate(Strict):
+    submission_id: ClientId = Field(description="Client-chosen unique id: resubmitting it is a no-op.")
+    lease_token: LeaseToken | None = None
+    time_spent_s: Finite = Field(ge=0, le=24 * 3600)
+    clicks: list[ClickIn] = Field(default_factory=list, max_length=100_000)
+    masks: list[MaskIn] = Field(default_factory=list, max_length=64)
+
+    @model_validator(mode="after")
+    def _not_empty(self) -> SubmissionCreate:
+        if not self.clicks and not self.masks:
+            raise ValueError("a submission needs clicks or masks")
+        return self
+
+
+class SubmissionPublic(Public):
+    id: int
+    submission_id: str
+    sample_id: int
+    n_clicks: int
+    n_masks: int
+    fit_job_id: int | None
+    duplicate: bool
+    created_at: datetime
+
+
+class DecisionCreate(Strict):
+    decision: DecisionKind
+    reason: str = Field(default="", max_length=2000)
+    lease_token: LeaseToken | None = None
+
+    @model_validator(mode="after")
+    def _reason_when_not_accepting(self) -> DecisionCreate:
+        if self.decision is not DecisionKind.accept and not self.reason.strip():
+            raise ValueError(f"a '{self.decision.value}' decision needs a reason")
+        return self
+
+
+class DecisionPublic(Public):
+    id: int
+    sample_id: int
+    fit_id: int | None
+    decision: DecisionKind
+    reason: str
+    state: SampleState
+    stream: str | None
+    created_at: datetime

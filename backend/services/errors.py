@@ -1,0 +1,40 @@
+"""Domain exceptions. Each names what is wrong in words a client can act on; the API maps the class
+to an HTTP status in one place (backend.api.errors)."""
+
+from __future__ import annotations
+
+
+class DomainError(Exception):
+    """Base class; `message` is shown to the client."""
+
+    def __init__(self, message: str) -> None:
+        super().__init__(message)
+        self.message = message
+
+
+class NotFoundError(DomainError):
+    pass
+
+
+class AuthError(DomainError):
+    """Missing, invalid or expired credentials."""
+
+
+class PermissionDeniedError(DomainError):
+    pass
+
+
+class InvalidInputError(DomainError):
+    """Well-formed but wrong: a keypoint outside the image, an unknown view, a mask of the wrong size."""
+
+
+class ConflictError(DomainError):
+    """The request is valid but the current state forbids it: wrong sample state, lease held by another."""
+
+
+class LeaseExpiredError(ConflictError):
+    pass
+
+
+class TooLargeError(DomainError):
+    pass

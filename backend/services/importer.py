@@ -1,0 +1,89 @@
+"""Capture import: validate with the capture reader, then create the project's rows and copy images and
+chroma-key masks into storage. One transaction: a capture that fails validation writes no rows."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from backend.models.capture import CameraCalibration, Project, Sample, Sequence, Subject, View
+from backend.models.enums import MaskKind, SampleState
+from backend.models.labels import Mask
+from backend.schemas.admin import ImportPublic
+from backend.services import audit
+from backend.services.errors import ConflictError, InvalidInputError
+from backend.services.storage import Storage
+
+logger = logging.getLogger(__name__)
+
+
+def import_capture(session: Session, storage: Storage, path: Path, *, project_name: str | None = None,
+                   queue_for_annotation: bool = True, actor_id: int | None = None) -> ImportPublic:
+    """Import the capture at `path` as a new project; samples start 'needs_annotation' (round 0's queue)
+    or 'unlabeled'."""
+    from workers.capture import CaptureError, read_capture  # local: the reader pulls in cv2 and PIL
+
+    try:
+        capture = read_capture(path)
+    except CaptureError as exc:
+        raise InvalidInputError(f"capture rejected: {exc}") from exc
+    name = project_name or capture.name
+    if session.execute(select(Project.id).where(Project.name == name)).first() is not None:
+        raise ConflictError(f"a project named {name!r} already exists; pass another project name")
+    project = Project(name=name, hand_model=capture.hand_model.name, synthetic=capture.synthetic,
+                      description=f"imported from {capture.root}")
+    session.add(project)
+    session.flush()
+    cameras = {}
+    for cam in capture.cameras:
+        row = CameraCalibration(project_id=project.id, name=cam.name, width=cam.width, height=cam.height,
+                                K=cam.K.tolist(), dist=cam.dist.tolist(), R=cam.R.tolist(), t=cam.t.tolist())
+        session.add(row)
+        cameras[cam.name] = row
+    subjects = {}
+    for sid in capture.subjects:
+        subjects[sid] = Subject(project_id=project.id, external_id=sid)
+        session.add(subjects[sid])
+    session.flush()
+    state = SampleState.needs_annotation if queue_for_annotation else SampleState.unlabeled
+    prefix = f"captures/{project.id}"
+    n_samples = n_views = n_masks = 0
+    for seq in capture.sequences:
+        seq_row = Sequence(project_id=project.id, subject_id=subjects[seq.subject_id].id, external_id=seq.id,
+                           split=seq.split, green_screen=seq.green_screen, fps=seq.fps,
+                           holds_object=seq.holds_object)
+        session.add(seq_row)
+        session.flush()
+        for frame in seq.frames:
+            gt_key = None
+            if frame.ground_truth_path is not None:
+                gt_key = f"{prefix}/{seq.id}/ground_truth/{frame.ground_truth_path.name}"
+                storage.put_file(gt_key, frame.ground_truth_path)
+            sample = Sample(sequence_id=seq_row.id, frame_index=frame.index, time_s=frame.time_s, split=seq.split,
+                            green_screen=seq.green_screen, ground_truth_key=gt_key, state=state)
+            session.add(sample)
+            session.flush()
+            n_samples += 1
+            for cam in capture.cameras:
+                image = frame.image_paths[cam.name]
+                key = f"{prefix}/{seq.id}/images/{cam.name}/{image.name}"
+                storage.put_file(key, image)
+                view = View(sample_id=sample.id, camera_id=cameras[cam.name].id, image_key=key, width=cam.width,
+                            height=cam.height)
+                session.add(view)
+                n_views += 1
+                mask_path = frame.mask_paths.get(cam.name)
+                if mask_path is not None:
+                    session.flush()
+                    mask_key = f"{prefix}/{seq.id}/masks/{cam.name}/{mask_path.name}"
+                    storage.put_file(mask_key, mask_path)
+                    session.add(Mask(view_id=view.id, kind=MaskKind.chroma_key, version=1, storage_key=mask_key,
+                                     created_by_id=actor_id))
+                    n_masks += 1
+    audit.record(session, actor_id, "project.import", "project", project.id, path=str(path), samples=n_samples)
+    logger.info("imported %s: %d samples, %d views, %d masks", name, n_samples, n_views, n_masks)
+    return ImportPublic(project_id=project.id, project=name, cameras=len(cameras), sequences=len(capture.sequences),
+                        samples=n_samples, views=n_views, masks=n_masks)

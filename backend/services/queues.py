@@ -1,0 +1,186 @@
+"""Work queues with leases: an expiring lock held in the sample's row.
+
+Taking a lease is one atomic statement, `UPDATE samples SET lease... WHERE id = (SELECT id ... LIMIT 1
+FOR UPDATE SKIP LOCKED) RETURNING id`: on PostgreSQL concurrent callers skip each other's rows; on SQLite
+every transaction begins IMMEDIATE (backend.db.session), so writers are serialised. An expired lease is
+simply a free row again: no sweeper is needed for the sample to return to the queue.
+"""
+
+from __future__ import annotations
+
+import secrets
+from dataclasses import dataclass
+from datetime import datetime, timedelta
+from typing import Protocol
+
+from sqlalchemy import and_, or_, select, update
+from sqlalchemy.orm import Session
+
+from backend.db.base import utcnow
+from backend.models.capture import Sample
+from backend.models.enums import LeaseKind, SampleState
+from backend.services import audit
+from backend.services.errors import ConflictError, LeaseExpiredError, NotFoundError, PermissionDeniedError
+from backend.services.users import Actor
+
+QUEUE_STATE = {LeaseKind.annotate: SampleState.needs_annotation, LeaseKind.review: SampleState.in_review}
+
+
+@dataclass(frozen=True, slots=True)
+class SampleHead:
+    """The sample columns a task shows, returned by the statement that took or renewed the lease."""
+
+    id: int
+    sequence_id: int
+    frame_index: int
+    time_s: float
+    state: str
+    current_fit_id: int | None
+
+
+@dataclass(frozen=True)
+class Lease:
+    sample_id: int
+    token: str
+    expires_at: datetime
+    kind: LeaseKind
+    head: SampleHead | None = None
+
+
+def _lease_of(sample: Sample) -> Lease:
+    assert sample.lease_token is not None and sample.lease_expires_at is not None
+    return Lease(sample.id, sample.lease_token, sample.lease_expires_at, LeaseKind(sample.lease_kind))
+
+
+_SAMPLES = Sample.__table__  # Core columns: the hot path skips the ORM's statement machinery
+
+
+def _order(kind: LeaseKind) -> tuple:
+    # Reviewers see the most confident first (paper); annotators take frames in capture order.
+    if kind is LeaseKind.review:
+        return (_SAMPLES.c.confidence.desc().nulls_last(), _SAMPLES.c.id)
+    return (_SAMPLES.c.id,)
+
+
+_HEAD = (_SAMPLES.c.id, _SAMPLES.c.sequence_id, _SAMPLES.c.frame_index, _SAMPLES.c.time_s, _SAMPLES.c.state,
+         _SAMPLES.c.current_fit_id)
+
+
+def acquire(session: Session, user: Actor, kind: LeaseKind, lease_seconds: int,
+            now: datetime | None = None) -> Lease | None:
+    """The caller's live lease of this kind if it has one (renewed), else a new one; None if the queue is
+    empty. Never hands a sample held by someone else.
+
+    Core statements on the session's connection (no ORM objects): renewing the own lease is one
+    UPDATE ... RETURNING (usually matching nothing), taking a free sample another; the audit row a third."""
+    now = now or utcnow()
+    expires = now + timedelta(seconds=lease_seconds)
+    state = QUEUE_STATE[kind]
+    conn = session.connection()
+    c = _SAMPLES.c
+    mine = (c.leased_by_id == user.id, c.lease_kind == kind.value, c.state == state.value, c.lease_expires_at > now)
+    # The conditions again outside the subquery: on PostgreSQL they are re-checked on the newest row
+    # version if a concurrent transaction (the same user's submit) changed it meanwhile.
+    own = conn.execute(
+        update(_SAMPLES)
+        .where(c.id == select(c.id).where(*mine).limit(1).scalar_subquery(), *mine)
+        .values(lease_expires_at=expires)
+        .returning(*_HEAD, c.lease_token)
+    ).first()
+    if own is not None:
+        return Lease(own.id, own.lease_token, expires, kind, SampleHead(*own[:6]))
+    free = (
+        select(c.id)
+        .where(c.state == state.value, or_(c.lease_expires_at.is_(None), c.lease_expires_at <= now))
+        .order_by(*_order(kind))
+        .limit(1)
+        .with_for_update(skip_locked=True)
+        .scalar_subquery()
+    )
+    token = secrets.token_urlsafe(16)
+    taken = conn.execute(
+        update(_SAMPLES)
+        .where(c.id == free)
+        .values(leased_by_id=user.id, lease_kind=kind.value, lease_token=token, lease_expires_at=expires)
+        .returning(*_HEAD)
+    ).first()
+    if taken is None:
+        return None
+    audit.write_rows(session, [audit.row(user.id, "lease.acquire", "sample", taken.id, at=now, kind=kind.value)])
+    return Lease(taken.id, token, expires, kind, SampleHead(*taken))
+
+
+def load_locked(session: Session, sample_id: int) -> Sample:
+    """The sample row, locked for the rest of the transaction (PostgreSQL; SQLite is already serialised)."""
+    session.flush()  # pending changes first: populate_existing below would otherwise discard them
+    sample = session.execute(
+        select(Sample).where(Sample.id == sample_id).with_for_update()
+        .execution_options(populate_existing=True)
+    ).scalar_one_or_none()
+    if sample is None:
+        raise NotFoundError(f"sample {sample_id} not found")
+    return sample
+
+
+class LeaseState(Protocol):
+    """A sample's lease columns: a `Sample` or a Core row holding them."""
+
+    @property
+    def id(self) -> int: ...
+    @property
+    def state(self) -> str: ...
+    @property
+    def leased_by_id(self) -> int | None: ...
+    @property
+    def lease_kind(self) -> str | None: ...
+    @property
+    def lease_token(self) -> str | None: ...
+    @property
+    def lease_expires_at(self) -> datetime | None: ...
+
+
+def check_lease(sample: LeaseState, user: Actor, kind: LeaseKind, token: str | None,
+                now: datetime | None = None) -> None:
+    """Raise unless `user` holds a live lease of `kind` on `sample` (and `token` matches, if given)."""
+    now = now or utcnow()
+    if sample.leased_by_id != user.id or sample.lease_kind != kind:
+        if sample.state != QUEUE_STATE[kind]:
+            raise ConflictError(f"sample {sample.id} is '{sample.state}', not in the {kind.value} queue")
+        raise PermissionDeniedError(f"you hold no {kind.value} lease on sample {sample.id}; ask for the next task")
+    if token is not None and sample.lease_token != token:
+        raise PermissionDeniedError(f"lease token does not match your lease on sample {sample.id}")
+    if sample.lease_expires_at is None or sample.lease_expires_at <= now:
+        raise LeaseExpiredError(f"your lease on sample {sample.id} expired; ask for the next task")
+
+
+def renew(session: Session, user: Actor, sample_id: int, kind: LeaseKind, token: str | None,
+          lease_seconds: int) -> Lease:
+    sample = load_locked(session, sample_id)
+    check_lease(sample, user, kind, token)
+    sample.lease_expires_at = utcnow() + timedelta(seconds=lease_seconds)
+    return _lease_of(sample)
+
+
+def release(session: Session, user: Actor, sample_id: int, kind: LeaseKind, token: str | None) -> None:
+    sample = load_locked(session, sample_id)
+    check_lease(sample, user, kind, token)
+    clear(sample)
+    audit.record(session, user.id, "lease.release", "sample", sample_id, kind=kind.value)
+
+
+def clear(sample: Sample) -> None:
+    sample.leased_by_id = None
+    sample.lease_kind = None
+    sample.lease_token = None
+    sample.lease_expires_at = None
+
+
+def queue_length(session: Session, kind: LeaseKind, now: datetime | None = None) -> int:
+    from sqlalchemy import func
+
+    now = now or utcnow()
+    return session.execute(
+        select(func.count()).select_from(Sample).where(
+            and_(Sample.state == QUEUE_STATE[kind],
+                 or_(Sample.lease_expires_at.is_(None), Sample.lease_expires_at <= now)))
+    ).scalar_one()

@@ -1,0 +1,118 @@
+"""Bootstrap rounds: D_{i+1} = D_i + D^h_i + D^m_i + D^l_i.
+
+One round is open ('running') at a time; accepted samples join it by stream. Launching round i+1
+completes round i and queues the round job (train MVNet and HandSegNet on D_{i+1}, predict the rest, fit,
+heuristic, build the review queue) for the workers. A decision with no round open opens round 0 (the
+initial, manually annotated D_0).
+"""
+
+from __future__ import annotations
+
+from sqlalchemy import func, select
+from sqlalchemy.orm import Session
+
+from backend.db.base import utcnow
+from backend.models.capture import Sample
+from backend.models.enums import JobKind, JobState, RoundState, Stream
+from backend.models.jobs import Job
+from backend.models.labels import Click, Submission
+from backend.models.review import Round, RoundMember
+from backend.schemas.admin import RoundStats, Statistics, StreamCounts
+from backend.services import audit, jobs
+from backend.services.errors import ConflictError, NotFoundError
+
+
+def open_round_id(session: Session) -> int | None:
+    return session.execute(select(Round.id).where(Round.state == RoundState.running)
+                           .order_by(Round.index.desc()).limit(1)).scalar_one_or_none()
+
+
+def open_round(session: Session, actor_id: int | None) -> Round:
+    """The running round, or a new one after the last."""
+    round_ = session.execute(select(Round).where(Round.state == RoundState.running)
+                             .order_by(Round.index.desc()).limit(1).with_for_update()).scalar_one_or_none()
+    if round_ is not None:
+        return round_
+    last = session.execute(select(func.max(Round.index))).scalar_one()
+    round_ = Round(index=0 if last is None else last + 1, state=RoundState.running, counts={},
+                   created_by_id=actor_id)
+    session.add(round_)
+    session.flush()
+    audit.record(session, actor_id, "round.open", "round", round_.id, index=round_.index)
+    return round_
+
+
+def add_member(session: Session, round_: Round, sample_id: int, fit_id: int | None, stream: Stream) -> None:
+    session.add(RoundMember(round_id=round_.id, sample_id=sample_id, fit_id=fit_id, stream=stream))
+    audit.record(session, None, "round.member", "round", round_.id, sample_id=sample_id, stream=stream.value)
+
+
+def list_rounds(session: Session) -> list[Round]:
+    return list(session.execute(select(Round).order_by(Round.index)).scalars())
+
+
+def get_round(session: Session, round_id: int) -> Round:
+    round_ = session.get(Round, round_id)
+    if round_ is None:
+        raise NotFoundError(f"round {round_id} not found")
+    return round_
+
+
+def _counts(session: Session, round_id: int) -> dict[str, int]:
+    rows = session.execute(select(RoundMember.stream, func.count()).where(RoundMember.round_id == round_id)
+                           .group_by(RoundMember.stream)).all()
+    return {stream: int(n) for stream, n in rows}
+
+
+def launch(session: Session, queue: jobs.JobQueue, actor_id: int, mvnet_version: str | None,
+           handsegnet_version: str | None, note: str) -> tuple[Round, Job]:
+    current = open_round(session, actor_id)
+    current.state = RoundState.completed
+    current.finished_at = utcnow()
+    current.counts = _counts(session, current.id)
+    audit.record(session, actor_id, "round.complete", "round", current.id, counts=current.counts)
+    session.flush()
+    round_ = Round(index=current.index + 1, state=RoundState.running, mvnet_version=mvnet_version,
+                   handsegnet_version=handsegnet_version, note=note, counts={}, created_by_id=actor_id)
+    session.add(round_)
+    session.flush()
+    audit.record(session, actor_id, "round.launch", "round", round_.id, index=round_.index)
+    job = jobs.create(session, queue, JobKind.round, actor_id=actor_id, round_id=round_.id,
+                      payload={"train_on_rounds_up_to": current.index})
+    return round_, job
+
+
+def cancel(session: Session, queue: jobs.JobQueue, round_id: int, actor_id: int) -> Round:
+    round_ = get_round(session, round_id)
+    if round_.state != RoundState.running:
+        raise ConflictError(f"round {round_.index} is '{round_.state}'; only a running round can be cancelled")
+    round_.state = RoundState.cancelled
+    round_.finished_at = utcnow()
+    round_.counts = _counts(session, round_.id)
+    for job in session.execute(select(Job).where(Job.round_id == round_id,
+                                                 Job.state.in_([JobState.queued, JobState.running]))).scalars():
+        jobs.cancel(session, queue, job.id, actor_id)
+    audit.record(session, actor_id, "round.cancel", "round", round_.id)
+    return round_
+
+
+def statistics(session: Session) -> Statistics:
+    by_state = dict(session.execute(select(Sample.state, func.count()).group_by(Sample.state)).all())
+    members = session.execute(select(RoundMember.round_id, RoundMember.stream, func.count())
+                              .group_by(RoundMember.round_id, RoundMember.stream)).all()
+    per_round: dict[int, dict[str, int]] = {}
+    for round_id, stream, n in members:
+        per_round.setdefault(round_id, {})[stream] = int(n)
+    stats, size = [], 0
+    for round_ in list_rounds(session):
+        counts = StreamCounts(**per_round.get(round_.id, {}))
+        added = counts.heuristic + counts.manual + counts.annotated
+        size += added
+        stats.append(RoundStats(round_id=round_.id, index=round_.index, state=round_.state, added=counts,
+                                added_total=added, dataset_size_after=size))
+    return Statistics(
+        samples_by_state={k: int(v) for k, v in by_state.items()},
+        rounds=stats,
+        submissions=session.execute(select(func.count()).select_from(Submission)).scalar_one(),
+        clicks=session.execute(select(func.count()).select_from(Click)).scalar_one(),
+    )

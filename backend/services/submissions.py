@@ -1,0 +1,232 @@
+"""Annotator submissions: clicks and mask corrections, idempotent on the client's submission id; each
+new submission queues a fit.
+
+The annotators' hot path, so written with Core statements on the session's connection (no ORM objects):
+six round trips for a submission of clicks. Lock the sample (with its views and any submission already
+stored under this client id, in the same statement); insert the job, the submission, all clicks (one
+statement); update the sample; insert the audit rows (one multi-row INSERT).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from datetime import datetime
+from typing import Any
+
+from sqlalchemy import bindparam, func, insert, select, text, update
+from sqlalchemy.dialects import postgresql, sqlite
+from sqlalchemy.orm import Session
+
+from backend.db.base import UTCDateTime, utcnow
+from backend.models.capture import Sample, View
+from backend.models.enums import JobKind, LeaseKind, MaskKind, SampleState, Visibility
+from backend.models.labels import Click, Mask, Submission
+from backend.schemas.tasks import SubmissionCreate
+from backend.services import audit, jobs, queues
+from backend.services.errors import ConflictError, DomainError, InvalidInputError, NotFoundError
+from backend.services.masks import decode_rle, encode_png
+from backend.services.state_machine import check_path
+from backend.services.storage import Storage
+from backend.services.users import Actor
+
+_SAMPLES = Sample.__table__
+_VIEWS = View.__table__
+_SUBMISSIONS = Submission.__table__
+_CLICKS = Click.__table__
+
+
+@dataclass(frozen=True, slots=True)
+class SubmissionInfo:
+    id: int
+    client_id: str
+    sample_id: int
+    user_id: int
+    n_clicks: int
+    n_masks: int
+    fit_job_id: int | None
+    created_at: datetime
+
+
+@dataclass(frozen=True)
+class SubmitResult:
+    submission: SubmissionInfo
+    duplicate: bool
+
+
+def _existing(session: Session, client_id: str, user: Actor, sample_id: int) -> SubmissionInfo | None:
+    """The committed submission under `client_id` (a resubmission), or None; ConflictError if that id was
+    used for another sample or user."""
+    c = _SUBMISSIONS.c
+    found = session.connection().execute(
+        select(c.id, c.client_id, c.sample_id, c.user_id, c.n_clicks, c.n_masks, c.fit_job_id, c.created_at)
+        .where(c.client_id == client_id)
+    ).first()
+    if found is None:
+        return None
+    info = SubmissionInfo(*found)
+    if info.sample_id != sample_id or info.user_id != user.id:
+        raise ConflictError(f"submission id {client_id!r} was already used for another sample or user")
+    return info
+
+
+def in_image(x: float, y: float, width: int, height: int) -> bool:
+    """Pixel centres are integers, so the image spans [-0.5, W - 0.5] x [-0.5, H - 0.5]."""
+    return -0.5 <= x <= width - 0.5 and -0.5 <= y <= height - 0.5
+
+
+def _lock_with_views(session: Session, sample_id: int, client_id: str) -> list[Any]:
+    """The sample row locked for the rest of the transaction (PostgreSQL: FOR UPDATE OF samples; SQLite is
+    serialised by BEGIN IMMEDIATE), one result row per view, and the id of a submission already stored under
+    `client_id` (seen as of this statement's snapshot)."""
+    s, v = _SAMPLES.c, _VIEWS.c
+    existing = select(_SUBMISSIONS.c.id).where(_SUBMISSIONS.c.client_id == client_id).scalar_subquery()
+    return session.connection().execute(
+        select(s.id, s.state, s.leased_by_id, s.lease_kind, s.lease_token, s.lease_expires_at,
+               existing.label("existing_id"), v.id.label("view_id"), v.width.label("view_width"),
+               v.height.label("view_height"))
+        .select_from(_SAMPLES.outerjoin(_VIEWS, v.sample_id == s.id))
+        .where(s.id == sample_id)
+        .with_for_update(of=_SAMPLES)
+    ).all()
+
+
+def _insert_submission(session: Session, values: dict[str, Any]) -> int | None:
+    """INSERT ... ON CONFLICT (client_id) DO NOTHING RETURNING id: None when a concurrent request committed
+    a submission under the same client id after our lock statement's snapshot (the unique constraint decides,
+    not a racy pre-select)."""
+    conn = session.connection()
+    dialect = postgresql if conn.dialect.name == "postgresql" else sqlite
+    return conn.execute(
+        dialect.insert(_SUBMISSIONS).values(**values).on_conflict_do_nothing(index_elements=["client_id"])
+        .returning(_SUBMISSIONS.c.id)
+    ).scalar_one_or_none()
+
+
+# PostgreSQL: every click in one statement whose text does not depend on the number of clicks, so psycopg
+# caches its parsing and PostgreSQL its plan (a multi-row VALUES of 48 rows is over psycopg's 4 KiB cache limit
+# and was re-parsed on every request).
+_CLICKS_UNNEST = text(
+    "INSERT INTO clicks (submission_id, sample_id, view_id, keypoint, x_px, y_px, visibility, user_id, time_spent_s,"
+    " created_at) SELECT :submission_id, :sample_id, t.view_id, t.keypoint, t.x, t.y, t.visibility, :user_id,"
+    " :time_spent_s, :created_at FROM unnest(CAST(:view_ids AS integer[]), CAST(:keypoints AS integer[]),"
+    " CAST(:xs AS double precision[]), CAST(:ys AS double precision[]), CAST(:visibilities AS varchar[]))"
+    " AS t(view_id, keypoint, x, y, visibility)"
+).bindparams(bindparam("created_at", type_=UTCDateTime()))
+
+
+def _insert_clicks(session: Session, body: SubmissionCreate, submission_id: int, sample_id: int, user_id: int,
+                   now: datetime) -> None:
+    conn = session.connection()
+    if conn.dialect.name == "postgresql":
+        conn.execute(_CLICKS_UNNEST, {
+            "submission_id": submission_id, "sample_id": sample_id, "user_id": user_id,
+            "time_spent_s": body.time_spent_s, "created_at": now,
+            "view_ids": [c.view_id for c in body.clicks], "keypoints": [c.keypoint for c in body.clicks],
+            "xs": [c.x for c in body.clicks], "ys": [c.y for c in body.clicks],
+            "visibilities": [Visibility(c.visibility).value for c in body.clicks]})
+        return
+    # SQLite: the driver's executemany (a C loop over one prepared statement).
+    conn.execute(insert(_CLICKS), [
+        {"submission_id": submission_id, "sample_id": sample_id, "view_id": c.view_id, "keypoint": c.keypoint,
+         "x_px": c.x, "y_px": c.y, "visibility": Visibility(c.visibility).value, "user_id": user_id,
+         "time_spent_s": body.time_spent_s, "created_at": now}
+        for c in body.clicks
+    ])
+
+
+def submit(session: Session, queue: jobs.JobQueue, storage: Storage, user: Actor, sample_id: int,
+           body: SubmissionCreate, max_clicks: int) -> SubmitResult:
+    rows = _lock_with_views(session, sample_id, body.submission_id)
+    if not rows:
+        found = _existing(session, body.submission_id, user, sample_id)  # same precedence as before: 409 first
+        if found is not None:
+            return SubmitResult(found, duplicate=True)
+        raise NotFoundError(f"sample {sample_id} not found")
+    sample = rows[0]
+    if sample.existing_id is not None:
+        found = _existing(session, body.submission_id, user, sample_id)
+        assert found is not None  # submissions are never deleted while their sample exists
+        return SubmitResult(found, duplicate=True)
+    try:
+        queues.check_lease(sample, user, LeaseKind.annotate, body.lease_token)
+    except DomainError:
+        # A concurrent twin of this request may have committed while we waited for the lock (it cleared the
+        # lease); this statement runs with a fresh snapshot on PostgreSQL, so it sees the twin.
+        found = _existing(session, body.submission_id, user, sample_id)
+        if found is not None:
+            return SubmitResult(found, duplicate=True)
+        raise
+    check_path(sample_id, sample.state, SampleState.annotated, SampleState.fitting)
+    if len(body.clicks) > max_clicks:
+        raise InvalidInputError(f"{len(body.clicks)} clicks in one submission; at most {max_clicks}")
+
+    views = {r.view_id: (r.view_width, r.view_height) for r in rows if r.view_id is not None}
+    seen: set[tuple[int, int]] = set()
+    for i, click in enumerate(body.clicks):
+        size = views.get(click.view_id)
+        if size is None:
+            raise InvalidInputError(f"clicks[{i}]: view {click.view_id} is not a view of sample {sample_id}")
+        if (click.view_id, click.keypoint) in seen:
+            raise InvalidInputError(f"clicks[{i}]: keypoint {click.keypoint} of view {click.view_id} is given twice")
+        seen.add((click.view_id, click.keypoint))
+        if click.x is not None and click.y is not None and not in_image(click.x, click.y, *size):
+            raise InvalidInputError(f"clicks[{i}]: ({click.x}, {click.y}) lies outside view {click.view_id}'s "
+                                    f"{size[0]}x{size[1]} image")
+    decoded = []
+    for i, mask in enumerate(body.masks):
+        size = views.get(mask.view_id)
+        if size is None:
+            raise InvalidInputError(f"masks[{i}]: view {mask.view_id} is not a view of sample {sample_id}")
+        if (mask.width, mask.height) != size:
+            raise InvalidInputError(f"masks[{i}]: mask is {mask.width}x{mask.height}; view {mask.view_id} is "
+                                    f"{size[0]}x{size[1]}")
+        try:
+            decoded.append((mask.view_id, decode_rle(mask.rle, mask.width, mask.height)))
+        except InvalidInputError as exc:
+            raise InvalidInputError(f"masks[{i}]: {exc.message}") from exc
+    if len({view_id for view_id, _ in decoded}) != len(decoded):
+        raise InvalidInputError("masks: one view is given twice")
+
+    now = utcnow()
+    audit_rows: list[dict[str, Any]] = []
+    # The fit job first, so the submission row is written once, already pointing at it.
+    # (the worker finds the submission through submissions.fit_job_id)
+    job_id = jobs.insert_row(session, queue, JobKind.fit, audit_rows, actor_id=user.id, sample_id=sample_id,
+                             payload={"client_submission_id": body.submission_id, "source": "annotation"}, now=now)
+    submission_id = _insert_submission(session, {
+        "fit_job_id": job_id, "client_id": body.submission_id, "sample_id": sample_id, "user_id": user.id,
+        "time_spent_s": body.time_spent_s, "n_clicks": len(body.clicks), "n_masks": len(decoded), "created_at": now})
+    if submission_id is None:  # raising rolls back the job too: a failed request writes nothing
+        raise ConflictError(f"submission id {body.submission_id!r} was already used for another sample or user")
+    if body.clicks:
+        _insert_clicks(session, body, submission_id, sample_id, user.id, now)
+    if decoded:
+        versions = dict(session.execute(
+            select(Mask.view_id, func.max(Mask.version)).where(Mask.view_id.in_([v for v, _ in decoded]))
+            .group_by(Mask.view_id)).all())
+        for view_id, mask in decoded:
+            # Written before commit under a key unique to this submission: a rollback leaves at most an
+            # unreferenced file, never a row pointing at nothing.
+            key = f"masks/corrected/{view_id}/{body.submission_id}.png"
+            storage.put_bytes(key, encode_png(mask))
+            session.add(Mask(view_id=view_id, kind=MaskKind.corrected, version=(versions.get(view_id) or 0) + 1,
+                             storage_key=key, submission_id=submission_id, created_by_id=user.id, created_at=now))
+
+    # needs_annotation -> annotated -> fitting (checked above) and the lease cleared, in one UPDATE.
+    session.connection().execute(
+        update(_SAMPLES).where(_SAMPLES.c.id == sample_id)
+        .values(state=SampleState.fitting.value, leased_by_id=None, lease_kind=None, lease_token=None,
+                lease_expires_at=None))
+    audit_rows += [
+        audit.row(user.id, "sample.state", "sample", sample_id, at=now, **{
+            "from": SampleState(sample.state).value, "to": SampleState.annotated.value,
+            "reason": f"submission {submission_id}"}),
+        audit.row(user.id, "sample.state", "sample", sample_id, at=now, **{
+            "from": SampleState.annotated.value, "to": SampleState.fitting.value, "reason": "fit queued"}),
+        audit.row(user.id, "submission.create", "sample", sample_id, at=now, submission_id=submission_id,
+                  client_id=body.submission_id, clicks=len(body.clicks), masks=len(decoded)),
+    ]
+    audit.write_rows(session, audit_rows)
+    info = SubmissionInfo(submission_id, body.submission_id, sample_id, user.id, len(body.clicks), len(decoded),
+                          job_id, now)
+    return SubmitResult(info, duplicate=False)

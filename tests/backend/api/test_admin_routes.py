@@ -1,0 +1,112 @@
+"""Admin: users, rounds, jobs (polling and SSE), statistics, exports; images and masks."""
+
+from __future__ import annotations
+
+import json
+
+from sqlalchemy import text
+
+from backend.models.enums import JobState, Role
+from backend.services import jobs
+
+ADMIN = Role.admin
+
+
+def test_login_and_user_management(sqlite_env):
+    env = sqlite_env
+    bad = env.client.post("/api/auth/token", data={"username": "admin@example.org", "password": "wrong-password"})
+    assert bad.status_code == 401 and "incorrect" in bad.json()["detail"]
+    created = env.client.post("/api/admin/users", headers=env.headers(ADMIN),
+                              json={"email": "New@Example.org", "password": "longenough", "role": "reviewer"})
+    assert created.status_code == 201 and created.json()["email"] == "new@example.org"
+    dup = env.client.post("/api/admin/users", headers=env.headers(ADMIN),
+                          json={"email": "new@example.org", "password": "longenough"})
+    assert dup.status_code == 409 and "already exists" in dup.json()["detail"]
+    token = env.client.post("/api/auth/token", data={"username": "new@example.org", "password": "longenough"})
+    assert token.status_code == 200
+    auth = {"Authorization": f"Bearer {token.json()['access_token']}"}
+    assert env.client.get("/api/auth/me", headers=auth).json()["role"] == "reviewer"
+    uid = created.json()["id"]
+    demoted = env.client.patch(f"/api/admin/users/{uid}", headers=env.headers(ADMIN), json={"is_active": False})
+    assert demoted.status_code == 200 and demoted.json()["is_active"] is False
+    assert env.client.get("/api/auth/me", headers=auth).status_code == 401  # old token revoked
+    short = env.client.post("/api/admin/users", headers=env.headers(ADMIN), json={"email": "x@y.z", "password": "1"})
+    assert short.status_code == 422 and "password" in short.json()["detail"]
+
+
+def test_last_admin_cannot_be_demoted(sqlite_env):
+    env = sqlite_env
+    response = env.client.patch(f"/api/admin/users/{env.user_ids[ADMIN]}", headers=env.headers(ADMIN),
+                                json={"role": "annotator"})
+    assert response.status_code == 409 and "last active admin" in response.json()["detail"]
+
+
+def test_rounds_launch_cancel_and_jobs(env, h):
+    launched = env.client.post("/api/admin/rounds", headers=env.headers(ADMIN), json={"mvnet_version": "mv-1"})
+    assert launched.status_code == 201, launched.text
+    body = launched.json()
+    assert body["round"]["index"] == 1 and body["round"]["state"] == "running"
+    assert env.queue.enqueued == [(body["job_id"], "round")]
+    rounds = env.client.get("/api/admin/rounds", headers=env.headers(ADMIN)).json()
+    assert [(r["index"], r["state"]) for r in rounds] == [(0, "completed"), (1, "running")]
+    job = env.client.get(f"/api/admin/jobs/{body['job_id']}", headers=env.headers(ADMIN)).json()
+    assert job["state"] == "queued" and job["kind"] == "round"
+    cancelled = env.client.post(f"/api/admin/rounds/{body['round']['id']}/cancel", headers=env.headers(ADMIN))
+    assert cancelled.status_code == 200 and cancelled.json()["state"] == "cancelled"
+    assert env.queue.revoked == [body["job_id"]]
+    again = env.client.post(f"/api/admin/rounds/{body['round']['id']}/cancel", headers=env.headers(ADMIN))
+    assert again.status_code == 409 and "only a running round" in again.json()["detail"]
+    listed = env.client.get("/api/admin/jobs?state=cancelled", headers=env.headers(ADMIN)).json()
+    assert [j["id"] for j in listed] == [body["job_id"]]
+
+
+def test_job_progress_stream(sqlite_env, h):
+    env = sqlite_env
+    job_id = env.client.post("/api/admin/rounds", headers=env.headers(ADMIN), json={}).json()["job_id"]
+    with env.session() as s, s.begin():
+        jobs.update_progress(s, job_id, 0.5, "training")
+        jobs.finish(s, job_id, JobState.succeeded)
+    with env.client.stream("GET", f"/api/admin/jobs/{job_id}/events", headers=env.headers(ADMIN)) as response:
+        assert response.headers["content-type"].startswith("text/event-stream")
+        lines = [line for line in response.iter_lines() if line.startswith("data:")]
+    final = json.loads(lines[-1][5:])
+    assert final["state"] == "succeeded" and final["progress"] == 1.0
+    missing = env.client.get("/api/admin/jobs/999/events", headers=env.headers(ADMIN))
+    assert missing.status_code == 404 and "job 999 not found" in missing.json()["detail"]
+
+
+def test_export_lists_accepted_samples(sqlite_env, h):
+    env = sqlite_env
+    ids = h.seed(env, frames=1, cameras=2, state="fitting")
+    h.record_fit(env, ids[0], prediction={"confidences": [0.95] * 21})
+    data = env.client.get("/api/admin/exports/dataset", headers=env.headers(ADMIN)).json()
+    assert data["count"] == 1 and data["samples"][0]["stream"] == "heuristic"
+    assert len(data["samples"][0]["fit"]["params"]) == 61
+
+
+def test_images_and_masks_are_served_with_cache_headers(sqlite_env, h):
+    env = sqlite_env
+    ids = h.seed(env, frames=1, cameras=1)
+    storage = env.client.app.state.storage
+    with env.session() as s:
+        view_id, key = s.execute(text("SELECT id, image_key FROM views")).one()
+    storage.put_bytes(key, b"\x89PNG fake")
+    url = f"/api/files/views/{view_id}/image"
+    first = env.client.get(url, headers=env.headers(Role.annotator))
+    assert first.status_code == 200 and first.content == b"\x89PNG fake"
+    assert first.headers["content-type"] == "image/png" and "max-age=3600" in first.headers["cache-control"]
+    cached = env.client.get(url, headers={**env.headers(Role.annotator), "If-None-Match": first.headers["etag"]})
+    assert cached.status_code == 304
+    assert env.client.get(url).status_code == 401
+    # a corrected mask is stored as a PNG and served as the view's newest mask
+    task = h.next_task(env)
+    rle = [96 * 96 - 10, 10]
+    body = h.body(task, masks=[{"view_id": view_id, "width": 96, "height": 96, "rle": rle}])
+    assert env.client.post(f"/api/annotate/samples/{ids[0]}/submissions", json=body,
+                           headers=env.headers(Role.annotator)).status_code == 201
+    with env.session() as s:
+        mask_id, kind, version = s.execute(text("SELECT id, kind, version FROM masks")).one()
+    assert (kind, version) == ("corrected", 1)
+    png = env.client.get(f"/api/files/masks/{mask_id}", headers=env.headers(Role.annotator))
+    assert png.status_code == 200 and png.content.startswith(b"\x89PNG")
+    assert env.client.get("/api/files/masks/999", headers=env.headers(Role.annotator)).status_code == 404

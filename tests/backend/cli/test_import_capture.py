@@ -1,0 +1,77 @@
+"""Import of a real (tiny, synthetic) capture through the admin endpoint and `handloop import`."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from sqlalchemy import text
+
+from backend.models.enums import Role
+
+REPO = Path(__file__).resolve().parents[3]
+HANDLOOP = str(Path(sys.executable).parent / "handloop")
+
+
+@pytest.fixture(scope="module")
+def capture_dir(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("capture") / "tiny"
+    result = subprocess.run([HANDLOOP, "synth", "--out", str(out), "--sequences", "1",
+                             "--frames", "2", "--seed", "3", "--width", "64", "--workers", "1"],
+                            cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-2000:]
+    return out
+
+
+def test_admin_import_creates_rows_and_serves_images(sqlite_env, capture_dir):
+    env = sqlite_env
+    response = env.client.post("/api/admin/imports", headers=env.headers(Role.admin),
+                               json={"path": str(capture_dir), "project": "tiny"})
+    assert response.status_code == 201, response.text
+    data = response.json()
+    assert data["samples"] == 2 and data["cameras"] == data["views"] // 2 >= 1
+    task = env.client.post("/api/annotate/next", headers=env.headers(Role.annotator)).json()
+    view = task["views"][0]
+    assert (view["width"], view["height"]) == (64, 64) or view["width"] == 64
+    image = env.client.get(view["image_url"], headers=env.headers(Role.annotator))
+    assert image.status_code == 200 and image.headers["content-type"] in ("image/jpeg", "image/png")
+    again = env.client.post("/api/admin/imports", headers=env.headers(Role.admin),
+                            json={"path": str(capture_dir), "project": "tiny"})
+    assert again.status_code == 409 and "already exists" in again.json()["detail"]
+
+
+def test_broken_capture_is_refused_and_writes_nothing(sqlite_env, capture_dir, tmp_path):
+    env = sqlite_env
+    broken = tmp_path / "broken"
+    subprocess.run(["cp", "-r", str(capture_dir), str(broken)], check=True)
+    (broken / "calibration.json").write_text("{not json")
+    response = env.client.post("/api/admin/imports", headers=env.headers(Role.admin), json={"path": str(broken)})
+    assert response.status_code == 422
+    assert "capture rejected" in response.json()["detail"] and "calibration.json" in response.json()["detail"]
+    with env.session() as s:
+        assert s.execute(text("SELECT count(*) FROM projects")).scalar_one() == 0
+
+
+def test_cli_import_and_users(capture_dir, tmp_path):
+    env = {**os.environ, "HANDLOOP_DATA_DIR": str(tmp_path), "HANDLOOP_NEW_USER_PASSWORD": "password-123"}
+    env.pop("HANDLOOP_DATABASE_URL", None)
+
+    def cli(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run([HANDLOOP, *args], cwd=REPO, env=env,
+                              capture_output=True, text=True, timeout=300)
+
+    assert cli("db", "upgrade").returncode == 0
+    assert cli("db", "current").stdout.strip() == "0001"
+    imported = cli("import", str(capture_dir))
+    assert imported.returncode == 0, imported.stderr[-2000:]
+    assert json.loads(imported.stdout.strip().splitlines()[-1])["samples"] == 2
+    created = cli("users", "create", "boss@example.org", "--role", "admin")
+    assert created.returncode == 0 and "admin" in created.stdout
+    assert "boss@example.org" in cli("users", "list").stdout
+    refused = cli("import", str(tmp_path / "nowhere"))
+    assert refused.returncode == 2 and "capture folder not found" in refused.stderr
+    assert cli("db", "downgrade", "base").returncode == 0

@@ -1,0 +1,38 @@
+"""The migrations upgrade and downgrade on SQLite and PostgreSQL and match the models."""
+
+from __future__ import annotations
+
+import pytest
+from alembic.autogenerate import compare_metadata
+from alembic.runtime.migration import MigrationContext
+from sqlalchemy import create_engine, inspect
+
+import backend.models  # noqa: F401
+from backend.db.base import Base
+from backend.db.migrate import current, downgrade, upgrade
+
+
+@pytest.fixture(params=["sqlite", pytest.param("postgres", marks=pytest.mark.postgres)])
+def empty_url(request, tmp_path):
+    if request.param == "sqlite":
+        return f"sqlite:///{tmp_path / 'empty.sqlite3'}"
+    url = request.getfixturevalue("pg_url")
+    downgrade(url, "base")  # the per-test copy of the template is migrated: start from nothing
+    return url
+
+
+def test_upgrade_downgrade_upgrade(empty_url):
+    upgrade(empty_url)
+    assert current(empty_url) == "0001"
+    engine = create_engine(empty_url)
+    assert set(Base.metadata.tables) <= set(inspect(engine).get_table_names())
+    with engine.connect() as conn:
+        diff = compare_metadata(MigrationContext.configure(conn, opts={"compare_type": True}), Base.metadata)
+    assert diff == [], diff  # the migrations build exactly the models' schema
+    engine.dispose()
+    downgrade(empty_url, "base")
+    engine = create_engine(empty_url)
+    assert set(inspect(engine).get_table_names()) <= {"alembic_version"}
+    engine.dispose()
+    upgrade(empty_url)
+    assert current(empty_url) == "0001"

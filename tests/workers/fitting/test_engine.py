@@ -1,0 +1,108 @@
+"""The fitting engine recovers known hands from exact synthetic inputs and refuses bad input."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from workers.fitting.config import FitConfig
+from workers.fitting.engine import FittingEngine
+from workers.fitting.inputs import FitInputError, FrameObservations
+
+
+@pytest.fixture(scope="module")
+def engine(hand, rig):
+    return FittingEngine(hand, rig, FitConfig())
+
+
+def test_recovers_known_hands_from_exact_inputs(engine, known_frames):
+    frames, truth = known_frames
+    progress = []
+    results = engine.fit(frames, progress=lambda fraction, message: progress.append(fraction))
+    for b, result in enumerate(results):
+        vertex_mm = 1000 * np.linalg.norm(result.vertices - truth["vertices"][b], axis=1).mean()
+        keypoint_mm = 1000 * np.linalg.norm(result.keypoints - truth["keypoints"][b], axis=1).mean()
+        assert vertex_mm < 6.0, vertex_mm
+        assert keypoint_mm < 6.0, keypoint_mm
+        d = result.diagnostics
+        assert np.nanmean(d.residual_2d_px) < 1.5
+        assert np.all(d.iou_per_view > 0.6) and np.mean(d.iou_per_view) > 0.8
+        assert set(d.loss_terms) >= {"kp2d", "seg", "shape", "pose", "nn", "limits"}
+        assert result.theta.shape == (61,)
+        assert len(result.model_masks) == 8 and result.model_masks[0].shape == (256, 320)
+    assert progress[-1] == 1.0 and progress == sorted(progress)
+
+
+def test_deterministic_for_a_seed(hand, rig, known_frames):
+    frames, _ = known_frames
+    config = FitConfig(global_iterations=10, full_iterations=15, seed=3)
+    a = FittingEngine(hand, rig, config).fit(frames[:1])[0]
+    b = FittingEngine(hand, rig, config).fit(frames[:1])[0]
+    assert np.array_equal(a.vertices, b.vertices)
+
+
+def test_silhouette_improves_over_keypoints_alone(hand, rig, known_frames):
+    frames, truth = known_frames
+    errors = {}
+    for silhouette in (True, False):
+        result = FittingEngine(hand, rig, FitConfig(use_silhouette=silhouette)).fit(frames[1:])[0]
+        errors[silhouette] = np.linalg.norm(result.vertices - truth["vertices"][1], axis=1).mean()
+    assert errors[True] < errors[False]
+
+
+def test_a_mislabeled_click_does_not_drag_the_robust_fit(hand, rig, known_frames):
+    frames, truth = known_frames
+    clicks = frames[0].clicks_px.copy()
+    clicks[2, 8] = clicks[2, 20]  # index tip clicked on the pinky tip in one view
+    bad = dataclasses.replace(frames[0], clicks_px=clicks, masks=None)
+    errors = {}
+    for robust in ("geman_mcclure", "none"):
+        result = FittingEngine(hand, rig, FitConfig(robust=robust)).fit([bad])[0]
+        errors[robust] = np.linalg.norm(result.keypoints[8] - truth["keypoints"][0][8])
+    assert errors["geman_mcclure"] < errors["none"]
+
+
+def _frame(rig, **changes):
+    clicks = np.full((len(rig), 21, 2), 100.0)
+    weights = np.zeros((len(rig), 21))
+    weights[:, [0, 4, 8, 12, 16, 20]] = 1.0
+    return dataclasses.replace(FrameObservations(clicks, weights), **changes)
+
+
+@pytest.mark.parametrize(("make", "message"), [
+    (lambda rig: FrameObservations.empty(len(rig)), "no clicks and no 3D keypoints"),
+    (lambda rig: _frame(rig, click_weights=np.eye(len(rig), 21) * 0 + np.pad(np.ones((1, 21)), ((0, 7), (0, 0)))),
+     "clicks in at least two views"),
+    (lambda rig: _frame(rig, clicks_px=np.full((len(rig), 21, 2), np.inf)), "is not a finite number"),
+    (lambda rig: _frame(rig, clicks_px=np.full((len(rig), 21, 2), 5000.0)), "outside its 320x256 image"),
+    (lambda rig: _frame(rig, clicks_px=np.zeros((3, 21, 2))), r"clicks_px must have shape \(8, 21, 2\)"),
+    (lambda rig: _frame(rig, click_weights=-np.ones((len(rig), 21))), "finite and non-negative"),
+    (lambda rig: _frame(rig, masks=tuple(np.zeros((10, 10), bool) for _ in rig)),
+     "mask of view cam0 has size 10x10, the camera's image is 320x256"),
+    (lambda rig: _frame(rig, masks=(np.zeros((256, 320), bool),)), "expected 8 masks"),
+    (lambda rig: _frame(rig, keypoints_3d=np.full((21, 3), np.inf)), "infinite or implausible"),
+])
+def test_bad_input_fails_with_a_clear_error(engine, rig, make, message):
+    with pytest.raises(FitInputError, match=message):
+        engine.fit([make(rig)])
+
+
+def test_two_located_keypoints_cannot_place_the_hand(engine, rig, known_frames):
+    frames, _ = known_frames
+    weights = np.zeros_like(frames[0].click_weights)
+    weights[:, [0, 4]] = 1.0  # wrist and thumb tip only: the hand's roll is undetermined
+    obs = dataclasses.replace(frames[0], click_weights=weights, masks=None)
+    with pytest.raises(FitInputError, match="frame 0: at least three keypoints must be located in 3D"):
+        engine.fit([obs])
+
+
+def test_fit_from_3d_keypoints_alone(hand, rig, known_frames):
+    _, truth = known_frames
+    obs = FrameObservations.empty(len(rig))
+    obs = dataclasses.replace(obs, keypoints_3d=truth["keypoints"][0])
+    config = FitConfig().with_weights(kp3d=1000.0)
+    result = FittingEngine(hand, rig, config).fit([obs])[0]
+    assert 1000 * np.linalg.norm(result.keypoints - truth["keypoints"][0], axis=1).mean() < 5.0
+    assert np.all(np.isnan(result.diagnostics.iou_per_view))

@@ -1,0 +1,318 @@
+"""The fitting engine: multi-view clicks, 3D keypoints and silhouettes -> hand pose and shape.
+
+Minimises L = L2D_kp + L3D_kp + L_seg + L_shape + L_pose (+ joint limits) with Adam, as the paper
+does (section "Hand Model Fitting with Sparse Annotations"), over a batch of frames at once (each frame
+keeps its own parameters; the terms are summed, so frames stay independent). Two stages: global pose
+and coarse articulation from keypoints, then everything with silhouettes against wrist-cut masks.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+
+import numpy as np
+import torch
+
+from workers.fitting import losses
+from workers.fitting.config import FitConfig
+from workers.fitting.init import observed_points_3d, place_hand
+from workers.fitting.inputs import FitInputError, FrameObservations
+from workers.fitting.masks import boundary_points, cut_forearm, outside_distance_px
+from workers.fitting.result import FitDiagnostics, FitResult
+from workers.geometry.camera import Camera
+from workers.geometry.projection import project_points_torch, stack_cameras
+from workers.handmodel.arrays import HandModelArrays
+from workers.handmodel.layer import HandLayer
+from workers.rendering import model_mask
+
+log = logging.getLogger(__name__)
+
+ProgressCallback = Callable[[float, str], None]
+
+
+def farthest_point_ids(points: np.ndarray, count: int) -> np.ndarray:
+    """Deterministic farthest-point sampling: (N, 3) -> (min(count, N),) indices spread over the surface."""
+    count = min(count, len(points))
+    chosen = np.zeros(count, dtype=np.int64)
+    dist = np.full(len(points), np.inf)
+    for i in range(1, count):
+        dist = np.minimum(dist, np.linalg.norm(points - points[chosen[i - 1]], axis=1))
+        chosen[i] = int(np.argmax(dist))
+    return chosen
+
+
+class FittingEngine:
+    """Fits a hand model to observations from one calibrated rig.
+
+    Args:
+        arrays: the hand model (MANO or the built-in stand-in).
+        cameras: the C calibrated views every frame is seen from.
+        config: weights and schedule.
+        device, dtype: where and in what precision to optimise.
+        pose_bank: (N, 45) articulations for the nearest-neighbour prior (default: the pose sampler's).
+        init_poses: (M, 45) candidate articulations for initialisation (default: canonical poses).
+    """
+
+    def __init__(self, arrays: HandModelArrays, cameras: list[Camera], config: FitConfig | None = None, *,
+                 device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32,
+                 pose_bank: np.ndarray | None = None, init_poses: np.ndarray | None = None) -> None:
+        from workers.handmodel import limits, pose_sampler
+
+        self.arrays = arrays
+        self.cameras = list(cameras)
+        self.config = config or FitConfig()
+        self.device = torch.device(device)
+        self.dtype = dtype
+        k = self.config.num_pca_comps
+        # flat_hand_mean=False: zero PCA coefficients mean MANO's mean pose, where the PCA prior pulls.
+        self.layer = HandLayer(arrays, use_pca=True, num_pca_comps=k, flat_hand_mean=False, dtype=dtype).to(device)
+        self.cam = stack_cameras(self.cameras, dtype, self.device)
+        # Loss distances are in pixels at the reference (full sensor) width, see LossWeights.
+        self.px_scale = torch.tensor([self.config.reference_width_px / c.width for c in self.cameras],
+                                     dtype=dtype, device=self.device)
+        self.silhouette_ids = torch.as_tensor(
+            farthest_point_ids(arrays.v_template, self.config.silhouette_vertices), device=self.device)
+        bank = pose_bank if pose_bank is not None else pose_sampler.pose_bank(2048, seed=0, arrays=arrays)
+        self.pose_bank = torch.as_tensor(np.asarray(bank), dtype=dtype, device=self.device)
+        self.limit_frames = limits.joint_frames(arrays)
+        self._limit_penalty = limits.joint_limit_penalty
+        if init_poses is None:
+            init_poses = np.stack(list(pose_sampler.canonical_poses(arrays).values()))
+        self.init_coefficients = self._to_coefficients(np.asarray(init_poses, dtype=np.float64))
+
+    # -- parameter helpers -------------------------------------------------------------------------
+    def _to_coefficients(self, poses: np.ndarray) -> np.ndarray:
+        """Absolute articulations (M, 45) -> PCA coefficients (M, k) (least squares)."""
+        comps = self.arrays.hands_components[: self.config.num_pca_comps]  # (k, 45)
+        coeffs, *_ = np.linalg.lstsq(comps.T, (poses - self.arrays.hands_mean).T, rcond=None)
+        return coeffs.T
+
+    def _tensor(self, value: np.ndarray) -> torch.Tensor:
+        return torch.as_tensor(np.asarray(value), dtype=self.dtype, device=self.device)
+
+    # -- public API --------------------------------------------------------------------------------
+    def fit(self, frames: list[FrameObservations], progress: ProgressCallback | None = None) -> list[FitResult]:
+        """Fit every frame (optimised together as one batch). Raises FitInputError on bad input."""
+        threads = self.config.torch_threads
+        previous = torch.get_num_threads()
+        if threads:
+            torch.set_num_threads(threads)
+        try:
+            return self._fit(frames, progress)
+        finally:
+            torch.set_num_threads(previous)
+
+    def _fit(self, frames: list[FrameObservations], progress: ProgressCallback | None) -> list[FitResult]:
+        if not frames:
+            raise FitInputError("no frames to fit")
+        for i, obs in enumerate(frames):
+            try:
+                obs.validate(self.cameras)
+            except FitInputError as exc:
+                raise FitInputError(f"frame {i}: {exc}") from None
+        started = time.perf_counter()
+        cfg = self.config
+        torch.manual_seed(cfg.seed)
+        rng = np.random.default_rng(cfg.seed)
+        B = len(frames)
+        notify = progress or (lambda fraction, message: None)
+
+        clicks = self._tensor(np.stack([np.nan_to_num(f.clicks_px, nan=0.0) for f in frames]))
+        click_w = self._tensor(np.stack([f.click_weights for f in frames]))
+        kp3d, kp3d_w = self._targets_3d(frames)
+        params = self._initial_parameters(frames)
+        total = cfg.global_iterations + cfg.full_iterations
+
+        # Stage 1: global pose and coarse articulation from keypoints only.
+        stage1 = [params["global_orient"], params["transl"], params["coefficients"]]
+        self._optimise(stage1, params, cfg.global_iterations, clicks, click_w, kp3d, kp3d_w, None,
+                       lambda i: notify(i / total, "placing the hand"), coarse=True)
+
+        # Masks are cut at the wrist of the stage-1 model, then stage 2 refines everything.
+        silhouettes = None
+        if cfg.use_silhouette and any(f.masks is not None for f in frames):
+            with torch.no_grad():
+                stage1 = self._forward(params)
+            silhouettes = self._prepare_silhouettes(frames, stage1.joints.double().cpu().numpy(),
+                                                    stage1.vertices.double().cpu().numpy(), rng)
+        everything = [params["global_orient"], params["transl"], params["coefficients"], params["betas"]]
+        iterations = cfg.global_iterations + self._optimise(
+            everything, params, cfg.full_iterations, clicks, click_w, kp3d, kp3d_w, silhouettes,
+            lambda i: notify((cfg.global_iterations + i) / total, "fitting pose and shape"))
+
+        with torch.no_grad():
+            terms = self._loss_terms(params, clicks, click_w, kp3d, kp3d_w, silhouettes)
+            out = self._forward(params)
+        notify(1.0, "done")
+        seconds = (time.perf_counter() - started) / B
+        return [self._result(b, frames[b], params, out, terms, silhouettes, iterations, seconds) for b in range(B)]
+
+    # -- stages --------------------------------------------------------------------------------------
+    def _targets_3d(self, frames: list[FrameObservations]) -> tuple[torch.Tensor, torch.Tensor]:
+        targets = np.zeros((len(frames), 21, 3))
+        weights = np.zeros((len(frames), 21))
+        for b, f in enumerate(frames):
+            if f.keypoints_3d is None:
+                continue
+            kp = np.asarray(f.keypoints_3d, dtype=np.float64)
+            w = np.ones(21) if f.keypoint_3d_weights is None else np.asarray(f.keypoint_3d_weights, float)
+            ok = np.isfinite(kp).all(1) & (w > 0)
+            targets[b, ok], weights[b, ok] = kp[ok], w[ok]
+        return self._tensor(targets), self._tensor(weights)
+
+    def _initial_parameters(self, frames: list[FrameObservations]) -> dict[str, torch.Tensor]:
+        B, M = len(frames), len(self.init_coefficients)
+        with torch.no_grad():
+            rest = self.layer(pose=self._tensor(self.init_coefficients), batch_size=M)
+        candidate_kp = rest.keypoints.double().cpu().numpy()
+        candidate_wrist = rest.joints[:, 0].double().cpu().numpy()
+        orient, transl, coeffs = np.zeros((B, 3)), np.zeros((B, 3)), np.zeros((B, len(self.init_coefficients[0])))
+        for b, obs in enumerate(frames):
+            targets, weights = observed_points_3d(obs, self.cameras)
+            try:
+                placement = place_hand(candidate_kp, candidate_wrist, targets, weights)
+            except ValueError as exc:
+                raise FitInputError(f"frame {b}: {exc} (clicks agreeing across views, or 3D keypoints)") from None
+            orient[b], transl[b] = placement.global_orient, placement.transl
+            coeffs[b] = self.init_coefficients[placement.candidate]
+        return {
+            "global_orient": self._tensor(orient).requires_grad_(),
+            "transl": self._tensor(transl).requires_grad_(),
+            "coefficients": self._tensor(coeffs).requires_grad_(),
+            "betas": torch.zeros(B, 10, dtype=self.dtype, device=self.device, requires_grad=True),
+        }
+
+    def _prepare_silhouettes(self, frames: list[FrameObservations], joints: np.ndarray, vertices: np.ndarray,
+                             rng: np.random.Generator) -> dict[str, torch.Tensor]:
+        """Wrist-cut masks -> padded outside-distance fields (B, C, H, W), boundary samples (B, C, N, 2)."""
+        cfg = self.config
+        B, C = len(frames), len(self.cameras)
+        H = max(c.height for c in self.cameras)
+        W = max(c.width for c in self.cameras)
+        N = cfg.boundary_points
+        dist = np.zeros((B, C, H, W), dtype=np.float32)
+        boundary = np.zeros((B, C, N, 2))
+        valid = np.zeros((B, C, N), dtype=bool)
+        view_w = np.zeros((B, C))
+        cut_masks: list[list[np.ndarray | None]] = []
+        for b, f in enumerate(frames):
+            row: list[np.ndarray | None] = []
+            for c, cam in enumerate(self.cameras):
+                mask = None if f.masks is None else f.masks[c]
+                if mask is None or not np.any(mask):
+                    row.append(None)
+                    continue
+                mask = np.asarray(mask, dtype=bool)
+                # The model must lie inside the whole silhouette (forearm included: it may hide part
+                # of the hand), and must cover the hand part, whose cut line is no real edge.
+                hand = mask
+                if cfg.cut_forearm and f.masks_include_forearm:
+                    # Hand direction: wrist joint -> middle finger base (MANO joint 4).
+                    hand = cut_forearm(mask, cam, joints[b, 0], joints[b, 4] - joints[b, 0],
+                                       model_silhouette=model_mask(vertices[b], self.arrays.faces, cam))
+                row.append(hand)
+                canvas = np.zeros((H, W), dtype=bool)
+                canvas[: cam.height, : cam.width] = mask
+                dist[b, c] = outside_distance_px(canvas)
+                pts = boundary_points(hand, N, rng, exclude=mask & ~hand)
+                boundary[b, c, : len(pts)], valid[b, c, : len(pts)] = pts, True
+                view_w[b, c] = 1.0
+            cut_masks.append(row)
+        return {
+            "outside": self._tensor(dist),
+            "boundary": self._tensor(boundary),
+            "valid": torch.as_tensor(valid, device=self.device),
+            "view_weights": self._tensor(view_w),
+            "cut_masks": cut_masks,  # type: ignore[dict-item]
+        }
+
+    def _forward(self, params: dict[str, torch.Tensor]):
+        return self.layer(betas=params["betas"], pose=params["coefficients"],
+                          global_orient=params["global_orient"], transl=params["transl"])
+
+    def _loss_terms(self, params, clicks, click_w, kp3d, kp3d_w, silhouettes, coarse: bool = False):
+        cfg, w = self.config, self.config.weights
+        out = self._forward(params)
+        projected, _ = project_points_torch(out.keypoints, **self.cam)  # (B, C, 21, 2)
+        terms = {
+            "kp2d": w.kp2d * losses.keypoint_2d_loss(projected, clicks, click_w, self.px_scale, cfg.robust,
+                                                     cfg.robust_scale_px),
+            "shape": w.shape * losses.shape_prior(params["betas"]),
+            "pose": w.pose * losses.pca_pose_prior(params["coefficients"]),
+            "nn": w.nn * losses.nearest_pose_prior(out.full_pose[:, 3:], self.pose_bank, cfg.nn_neighbours),
+            "limits": w.limits * self._limit_penalty(out.full_pose[:, 3:], self.limit_frames),
+        }
+        if w.kp3d > 0 and bool(kp3d_w.sum() > 0):
+            terms["kp3d"] = w.kp3d * losses.keypoint_3d_loss(out.keypoints, kp3d, kp3d_w)
+        elif bool(kp3d_w.sum() > 0) and coarse:
+            # Without a 3D weight (round 0) given 3D points still help placement in the first stage.
+            terms["kp3d"] = 100.0 * losses.keypoint_3d_loss(out.keypoints, kp3d, kp3d_w)
+        if silhouettes is not None and not coarse:
+            verts = out.vertices[:, self.silhouette_ids]
+            verts_px, _ = project_points_torch(verts, **self.cam)  # (B, C, Vs, 2)
+            outside = losses.silhouette_outside_loss(verts_px, silhouettes["outside"], silhouettes["view_weights"],
+                                                     self.px_scale, cfg.silhouette_cap_px)
+            cover = losses.silhouette_coverage_loss(verts_px, silhouettes["boundary"], silhouettes["valid"],
+                                                    silhouettes["view_weights"], self.px_scale, cfg.coverage_cap_px)
+            terms["seg"] = w.seg * (outside + cover)
+        return terms
+
+    def _optimise(self, variables, params, iterations, clicks, click_w, kp3d, kp3d_w, silhouettes,
+                  tick: Callable[[int], None], coarse: bool = False) -> int:
+        if iterations <= 0:
+            return 0
+        lr = self.config.learning_rate
+        groups = [{"params": [v], "lr": lr * (0.2 if v is params["transl"] else 1.0)} for v in variables]
+        optimizer = torch.optim.Adam(groups)
+        schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=iterations, eta_min=lr * 0.05)
+        every = max(1, iterations // 20)
+        for i in range(iterations):
+            optimizer.zero_grad(set_to_none=True)
+            terms = self._loss_terms(params, clicks, click_w, kp3d, kp3d_w, silhouettes, coarse=coarse)
+            torch.stack(list(terms.values())).sum().backward()
+            optimizer.step()
+            schedule.step()
+            if i % every == 0:
+                tick(i)
+        return iterations
+
+    # -- results -------------------------------------------------------------------------------------
+    def _result(self, b, obs, params, out, terms, silhouettes, iterations, seconds) -> FitResult:
+        vertices = out.vertices[b].double().cpu().numpy()
+        keypoints = out.keypoints[b].double().cpu().numpy()
+        faces = self.arrays.faces
+        masks = tuple(model_mask(vertices, faces, cam) for cam in self.cameras)
+        iou = np.full(len(self.cameras), np.nan)
+        given = silhouettes["cut_masks"][b] if silhouettes is not None else [None] * len(self.cameras)
+        for c, (model, target) in enumerate(zip(masks, given, strict=True)):
+            if target is not None:
+                union = np.logical_or(model, target).sum()
+                iou[c] = np.logical_and(model, target).sum() / union if union else np.nan
+        projected, _ = project_points_torch(out.keypoints[b: b + 1].double(),
+                                            **{k: v.double() for k, v in self.cam.items()})
+        residual_2d = np.linalg.norm(projected[0].cpu().numpy() - obs.clicks_px, axis=-1)
+        residual_2d[obs.click_weights <= 0] = np.nan
+        residual_3d = np.full(21, np.nan)
+        if obs.keypoints_3d is not None:
+            residual_3d = 1000 * np.linalg.norm(keypoints - np.asarray(obs.keypoints_3d), axis=1)
+        diagnostics = FitDiagnostics(
+            iou_per_view=iou,
+            residual_2d_px=residual_2d,
+            residual_3d_mm=residual_3d,
+            loss_terms={name: float(value[b]) for name, value in terms.items()},
+            iterations=iterations,
+            seconds=seconds,
+        )
+        return FitResult(
+            betas=params["betas"][b].detach().double().cpu().numpy(),
+            pose=out.full_pose[b, 3:].detach().double().cpu().numpy(),
+            global_orient=params["global_orient"][b].detach().double().cpu().numpy(),
+            transl=params["transl"][b].detach().double().cpu().numpy(),
+            vertices=vertices,
+            keypoints=keypoints,
+            model_masks=masks,
+            diagnostics=diagnostics,
+            hand_model=self.arrays.name,
+        )

@@ -75,7 +75,10 @@ def silhouette_coverage_loss(vertices_px: torch.Tensor, boundary_px: torch.Tenso
     """Mask not covered by the model (the ||M - M~|| half of eq. 4), summed over views: each mask boundary sample should
     have a projected model vertex nearby. vertices_px (B, C, Vs, 2); boundary_px (B, C, N, 2);
     boundary_valid (B, C, N) bool; view_weights (B, C)."""
-    nearest2 = torch.cdist(boundary_px, vertices_px).amin(-1).square()  # (B, C, N)
+    # Squared distances as |b|^2 + |v|^2 - 2 b.v: one matmul, whose backward is ~5x cheaper than cdist's.
+    cross = boundary_px @ vertices_px.transpose(-1, -2)  # (B, C, N, Vs)
+    d2 = (boundary_px * boundary_px).sum(-1, keepdim=True) + (vertices_px * vertices_px).sum(-1)[..., None, :]
+    nearest2 = (d2 - 2 * cross).amin(-1).clamp_min(0.0)  # (B, C, N)
     nearest2 = nearest2 * px_scale[None, :, None] ** 2
     penalty = robust_penalty(nearest2, cap_px, "geman_mcclure")
     per_view = weighted_mean(penalty, boundary_valid.to(penalty.dtype), (2,))

@@ -92,7 +92,18 @@ class JointFrames:
     side: str
 
     def torch_axes(self, like: torch.Tensor) -> torch.Tensor:
-        return torch.as_tensor(self.axes, dtype=like.dtype, device=like.device)
+        return self._tensor("axes", like)
+
+    def torch_limits(self, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return self._tensor("lower_rad", like), self._tensor("upper_rad", like)
+
+    def _tensor(self, name: str, like: torch.Tensor) -> torch.Tensor:
+        # Cached per dtype and device: the fitting loop asks every iteration.
+        cache = self.__dict__.setdefault("_torch_cache", {})
+        key = (name, like.dtype, like.device)
+        if key not in cache:
+            cache[key] = torch.as_tensor(getattr(self, name), dtype=like.dtype, device=like.device)
+        return cache[key]
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -211,8 +222,7 @@ def joint_limit_penalty(pose: torch.Tensor, frames: JointFrames) -> torch.Tensor
     PCA is used). Zero inside the limits; differentiable.
     """
     ang = pose_to_angles_torch(pose, frames)
-    lo = torch.as_tensor(frames.lower_rad, dtype=pose.dtype, device=pose.device)
-    hi = torch.as_tensor(frames.upper_rad, dtype=pose.dtype, device=pose.device)
+    lo, hi = frames.torch_limits(pose)
     excess = torch.relu(lo - ang) + torch.relu(ang - hi)
     return (excess * excess).sum(dim=(-1, -2))
 

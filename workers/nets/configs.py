@@ -1,0 +1,178 @@
+"""Network configurations: frozen dataclasses with sizes and units (docs/networks.md).
+
+`cpu-small` trains to usefulness in minutes on a laptop CPU; `paper` reproduces the sizes of the FreiHAND
+supplementary ("MVNet", implementation details): 224 px crops, 28 x 28 x 128 features after 12
+convolutions, a 64^3 grid of side 0.4 m, Adam, 8 views (one frame) per step. `tiny` exists for tests.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any, Literal
+
+LossKind = Literal["scorevolume", "softargmax"]
+
+
+@dataclass(frozen=True)
+class MVNetConfig:
+    """MVNet sizes and training settings.
+
+    Attributes:
+        crop_px: side of the square hand crop fed to the 2D CNN, pixels.
+        crop_radius_m: half side of the square the crop covers at the hand centre's depth, metres (the
+            crop's pixel size follows from each camera's focal length and depth).
+        backbone_widths: channels of the 2D CNN, one stage per entry; a 2x max-pool between stages.
+        convs_per_stage: 3x3 convolutions per 2D stage.
+        feature_channels: channels of the 2D feature map f_i (last 1x1 convolution).
+        grid_size: voxels per side N of the cubic grid.
+        grid_side_m: side of the cubic grid centred on the hand, metres (paper: 0.4).
+        unet_widths: channels of the 3D U-Net per level (level 0 = full grid resolution).
+        sigma_voxels: standard deviation of the Gaussian score targets, voxels (paper: 2).
+        loss: "scorevolume" (paper eq. 7, L2 to peak-normalised Gaussians) or "softargmax".
+        batch_frames: frames per training step (each frame brings all its views to the 2D CNN).
+        lr: Adam learning rate.
+        weight_decay: Adam weight decay.
+        center_jitter_m: standard deviation of the random grid-centre shift in training, metres.
+        cut_paste_prob: probability of replacing a green-screen view's background in training.
+        color_jitter: amplitude of the random per-view gain and offset in training.
+    """
+
+    crop_px: int = 32
+    crop_radius_m: float = 0.15
+    backbone_widths: tuple[int, ...] = (16, 32)
+    convs_per_stage: int = 2
+    feature_channels: int = 16
+    grid_size: int = 16
+    grid_side_m: float = 0.4
+    unet_widths: tuple[int, ...] = (16, 32, 48)
+    sigma_voxels: float = 2.0
+    loss: LossKind = "scorevolume"
+    batch_frames: int = 4
+    lr: float = 1e-3
+    weight_decay: float = 0.0
+    center_jitter_m: float = 0.015
+    cut_paste_prob: float = 0.5
+    color_jitter: float = 0.15
+
+    def __post_init__(self) -> None:
+        if self.loss not in ("scorevolume", "softargmax"):
+            raise ValueError(f"loss must be 'scorevolume' or 'softargmax', got {self.loss!r}")
+        stride = 2 ** (len(self.backbone_widths) - 1)
+        if self.crop_px % stride:
+            raise ValueError(f"crop_px={self.crop_px} must be divisible by the backbone stride {stride}")
+        if self.grid_size % 2 ** (len(self.unet_widths) - 1):
+            raise ValueError(f"grid_size={self.grid_size} must be divisible by 2^(levels-1) of the U-Net")
+        if not (self.grid_side_m > 0 and self.crop_radius_m > 0 and self.sigma_voxels > 0):
+            raise ValueError("grid_side_m, crop_radius_m and sigma_voxels must be positive")
+
+    @property
+    def feature_px(self) -> int:
+        """Side of the 2D feature map, pixels of the feature grid."""
+        return self.crop_px // 2 ** (len(self.backbone_widths) - 1)
+
+    @property
+    def voxel_m(self) -> float:
+        """Edge length of one voxel, metres."""
+        return self.grid_side_m / self.grid_size
+
+
+@dataclass(frozen=True)
+class HandSegNetConfig:
+    """HandSegNet (hand3d, Zimmermann & Brox 2017) sizes and training settings.
+
+    A fully convolutional encoder-decoder run on square views of the hand at two scales: a coarse pass
+    over the whole image (resampled so that `crop_px` pixels span 2 `coarse_radius_m` at the rig's
+    centre) localises the hand; a fine pass on the crop of half side `crop_radius_m` around the
+    triangulated centre gives the mask, warped back into the image. Training crops take radii between
+    the two, so one network serves both passes.
+
+    Attributes:
+        widths: channels per level (a 2x max-pool between levels).
+        crop_px: side of the network's square input, pixels.
+        crop_radius_m: half side of the fine crop at the hand's depth, metres.
+        coarse_radius_m: half side that `crop_px` pixels cover in the coarse pass, metres.
+        batch_size: crops per training step.
+        lr: Adam learning rate.
+        fine_prob: probability that a training crop is at the fine scale (else log-uniform up to coarse).
+        cut_paste_prob: probability of replacing a green-screen image's background in training.
+        color_jitter: amplitude of the random gain and offset in training.
+        threshold: probability above which a pixel is hand.
+    """
+
+    widths: tuple[int, ...] = (12, 24, 32)
+    crop_px: int = 80
+    crop_radius_m: float = 0.15
+    coarse_radius_m: float = 0.45
+    batch_size: int = 8
+    lr: float = 2e-3
+    fine_prob: float = 0.6
+    cut_paste_prob: float = 0.7
+    color_jitter: float = 0.2
+    threshold: float = 0.5
+
+    def __post_init__(self) -> None:
+        if self.crop_px % 2 ** (len(self.widths) - 1):
+            raise ValueError(f"crop_px={self.crop_px} must be divisible by 2^(levels-1)")
+        if not 0 < self.crop_radius_m <= self.coarse_radius_m:
+            raise ValueError("need 0 < crop_radius_m <= coarse_radius_m")
+
+
+@dataclass(frozen=True)
+class NetsConfig:
+    """A named pair of network configurations."""
+
+    name: str
+    mvnet: MVNetConfig = field(default_factory=MVNetConfig)
+    handsegnet: HandSegNetConfig = field(default_factory=HandSegNetConfig)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> NetsConfig:
+        mv = {k: tuple(v) if isinstance(v, list) else v for k, v in data["mvnet"].items()}
+        hs = {k: tuple(v) if isinstance(v, list) else v for k, v in data["handsegnet"].items()}
+        return cls(name=data["name"], mvnet=MVNetConfig(**mv), handsegnet=HandSegNetConfig(**hs))
+
+
+def config_digest(config: MVNetConfig | HandSegNetConfig) -> str:
+    """A short hash of the fields that define what the weights mean: architecture, loss and metric scales
+    (checkpoints refuse a configuration with another digest)."""
+    data = asdict(config)
+    arch_keys = {
+        "crop_px", "backbone_widths", "convs_per_stage", "feature_channels", "grid_size", "unet_widths", "widths",
+        "loss", "crop_radius_m", "grid_side_m", "coarse_radius_m",
+    }
+    arch = {k: v for k, v in sorted(data.items()) if k in arch_keys}
+    return hashlib.sha1(json.dumps(arch, sort_keys=True).encode()).hexdigest()[:12]
+
+
+CONFIGS: dict[str, NetsConfig] = {
+    "cpu-small": NetsConfig(name="cpu-small"),
+    "paper": NetsConfig(
+        name="paper",
+        mvnet=MVNetConfig(crop_px=224, crop_radius_m=0.15, backbone_widths=(64, 128, 256, 128), convs_per_stage=3,
+                          feature_channels=128, grid_size=64, unet_widths=(32, 64, 128, 256), batch_frames=1,
+                          lr=1e-4, center_jitter_m=0.02),
+        handsegnet=HandSegNetConfig(widths=(64, 128, 256, 512), crop_px=256, batch_size=8, lr=1e-4),
+    ),
+    "tiny": NetsConfig(
+        name="tiny",
+        mvnet=MVNetConfig(crop_px=32, backbone_widths=(8, 8), convs_per_stage=1, feature_channels=8, grid_size=16,
+                          unet_widths=(8, 16), batch_frames=2, lr=3e-3, center_jitter_m=0.0, cut_paste_prob=0.0,
+                          color_jitter=0.0),
+        handsegnet=HandSegNetConfig(widths=(8, 16), crop_px=32, batch_size=4, lr=5e-3),
+    ),
+}
+
+
+def get_config(name: str, **mvnet_overrides: Any) -> NetsConfig:
+    """The named configuration ("cpu-small", "paper", "tiny"), optionally with MVNet fields replaced."""
+    if name not in CONFIGS:
+        raise ValueError(f"unknown network configuration {name!r}; choose from {sorted(CONFIGS)}")
+    config = CONFIGS[name]
+    if mvnet_overrides:
+        config = replace(config, mvnet=replace(config.mvnet, **mvnet_overrides))
+    return config

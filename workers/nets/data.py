@@ -1,0 +1,391 @@
+"""Training data for MVNet and HandSegNet from captures, and their augmentation.
+
+- Crops: a square around the projection of the hand centre, covering `crop_radius_m` either side at the
+  centre's depth, resampled to `crop_px`; the crop's intrinsics K_crop = A K (A the crop's affine map,
+  pixel-centre convention of docs/conventions.md), distortion unchanged.
+- Augmentation (supplementary "Cut&Paste"): green-screen views get a new background through their
+  chroma-key mask; plus colour gain/offset and, for MVNet, a random shift of the voxel grid's centre.
+  The background pool is disjoint from the synthetic evaluation backgrounds (other scikit-image photos
+  and procedural textures of our own), so evaluation stays on unseen backgrounds.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from workers.capture.reader import load_frame_images, load_frame_masks, load_ground_truth
+from workers.capture.schema import Capture, FrameRef
+from workers.geometry.camera import Camera
+from workers.geometry.projection import project_points
+from workers.nets.configs import HandSegNetConfig, MVNetConfig
+from workers.nets.localisation import LocalisationError, localise_hand
+
+log = logging.getLogger(__name__)
+
+# scikit-image's bundled images that `handloop synth` does NOT use as evaluation backgrounds.
+AUGMENTATION_PHOTOS: tuple[str, ...] = (
+    "camera.png", "cell.png", "chessboard_RGB.png", "clock_motion.png", "coins.png", "color.png", "horse.png",
+    "hubble_deep_field.jpg", "ihc.png", "logo.png", "microaneurysms.png", "moon.png", "page.png", "retina.jpg",
+    "text.png",
+)
+
+
+def frame_id(frame: FrameRef) -> str:
+    """A sample's id: "<sequence id>/<frame index>"."""
+    return f"{frame.sequence_id}/{frame.index:06d}"
+
+
+# --- crops -----------------------------------------------------------------------------------------------
+
+
+def crop_transform(camera: Camera, center_world: np.ndarray, crop_px: int, crop_radius_m: float
+                   ) -> tuple[np.ndarray, bool]:
+    """The affine map A (3, 3) from image pixels to crop pixels, and whether the centre is in front.
+
+    The crop's side in image pixels is 2 crop_radius_m fx / depth, centred on the centre's projection.
+    """
+    pixels, depth = project_points(np.asarray(center_world, np.float64)[None], [camera])
+    u0, v0 = pixels[0, 0]
+    z = float(depth[0, 0])
+    if not (z > 1e-3 and np.isfinite(u0) and np.isfinite(v0)):
+        return np.eye(3), False
+    side_px = 2 * crop_radius_m * float(camera.K[0, 0]) / z
+    a = crop_px / side_px
+    # crop pixel centre i <-> image coordinate (u0 - side/2) + (i + 0.5) side / crop_px
+    A = np.array([[a, 0, -(u0 - side_px / 2) * a - 0.5], [0, a, -(v0 - side_px / 2) * a - 0.5], [0, 0, 1.0]])
+    return A, True
+
+
+def crop_views(images: Sequence[np.ndarray], cameras: Sequence[Camera], center_world: np.ndarray, crop_px: int,
+               crop_radius_m: float, masks: Sequence[np.ndarray | None] | None = None
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """Crop every view around the hand centre.
+
+    Args:
+        images: C images (H_c, W_c, 3) uint8 RGB, camera order; sizes must match the cameras.
+        cameras: the C cameras.
+        center_world: (3,) hand centre, metres, world frame.
+        crop_px: output side, pixels; crop_radius_m: half side at the centre's depth, metres.
+        masks: optional C (H_c, W_c) bool masks (or None entries) cropped alike.
+    Returns:
+        crops (C, S, S, 3) uint8; K_crop (C, 3, 3) float64; valid (C,) bool (centre in front of the
+        camera); mask crops (C, S, S) uint8 0 / 255 or None.
+    """
+    if len(images) != len(cameras):
+        raise ValueError(f"got {len(images)} images for {len(cameras)} cameras")
+    C = len(cameras)
+    crops = np.zeros((C, crop_px, crop_px, 3), np.uint8)
+    K_crop = np.zeros((C, 3, 3))
+    valid = np.zeros(C, bool)
+    mask_crops = np.zeros((C, crop_px, crop_px), np.uint8) if masks is not None else None
+    for c, (image, cam) in enumerate(zip(images, cameras, strict=True)):
+        if image is None or image.shape != (cam.height, cam.width, 3):
+            got = None if image is None else image.shape
+            raise ValueError(f"image of {cam.name} is {got}, expected ({cam.height}, {cam.width}, 3) uint8 RGB")
+        A, valid[c] = crop_transform(cam, center_world, crop_px, crop_radius_m)
+        K_crop[c] = A @ cam.K
+        interp = cv2.INTER_AREA if A[0, 0] < 1 else cv2.INTER_LINEAR
+        if valid[c]:
+            src = image
+            if A[0, 0] < 0.7:  # anti-alias before a strong reduction
+                src = cv2.GaussianBlur(image, (0, 0), 0.45 / A[0, 0])
+            crops[c] = cv2.warpAffine(src, A[:2], (crop_px, crop_px), flags=cv2.INTER_LINEAR,
+                                      borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+            if mask_crops is not None and masks[c] is not None:
+                mask_crops[c] = cv2.warpAffine(masks[c].astype(np.uint8) * 255, A[:2], (crop_px, crop_px),
+                                               flags=interp, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return crops, K_crop, valid, mask_crops
+
+
+# --- backgrounds for cut-and-paste ---------------------------------------------------------------------------
+
+
+@lru_cache(maxsize=1)
+def augmentation_backgrounds() -> tuple[np.ndarray, ...]:
+    """The background pool: (H, W, 3) uint8 RGB images (bundled photos not used for evaluation)."""
+    import skimage.data
+
+    root = Path(skimage.data.__file__).parent
+    out = []
+    for name in AUGMENTATION_PHOTOS:
+        image = cv2.imread(str(root / name), cv2.IMREAD_COLOR)
+        if image is None:
+            continue
+        out.append(cv2.cvtColor(image, cv2.COLOR_BGR2RGB))
+    if not out:
+        log.warning("no bundled photos found for cut-and-paste; using procedural backgrounds only")
+    return tuple(out)
+
+
+def random_background(height: int, width: int, rng: np.random.Generator) -> np.ndarray:
+    """A random background (H, W, 3) uint8: a tinted crop of a pool photo or a procedural texture."""
+    pool = augmentation_backgrounds()
+    if pool and rng.random() < 0.7:
+        photo = pool[int(rng.integers(len(pool)))]
+        ph, pw = photo.shape[:2]
+        scale = rng.uniform(0.2, 1.0)
+        ch, cw = max(4, int(ph * scale)), max(4, int(pw * scale))
+        ch, cw = min(ch, ph), min(cw, pw)
+        y0, x0 = int(rng.integers(0, ph - ch + 1)), int(rng.integers(0, pw - cw + 1))
+        out = cv2.resize(photo[y0:y0 + ch, x0:x0 + cw], (width, height), interpolation=cv2.INTER_AREA)
+        tint = rng.uniform(0.5, 1.2, 3)
+        out = out.astype(np.float32) * tint
+    else:
+        cells = int(rng.integers(2, 9))
+        coarse = rng.uniform(0, 255, (cells, cells, 3)).astype(np.float32)
+        out = cv2.resize(coarse, (width, height), interpolation=cv2.INTER_CUBIC)
+        out += rng.normal(0, rng.uniform(2, 20), out.shape).astype(np.float32)
+    if rng.random() < 0.5:
+        out = out[:, ::-1]
+    return np.clip(out, 0, 255).astype(np.uint8)
+
+
+def cut_and_paste(image: np.ndarray, alpha: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Put the foreground of a green-screen image (alpha (H, W) uint8 0..255) on a random background."""
+    a = cv2.GaussianBlur(alpha.astype(np.float32) / 255.0, (3, 3), 0)[..., None]
+    background = random_background(image.shape[0], image.shape[1], rng).astype(np.float32)
+    return np.clip(image.astype(np.float32) * a + background * (1 - a), 0, 255).astype(np.uint8)
+
+
+def color_jitter(image: np.ndarray, amount: float, rng: np.random.Generator) -> np.ndarray:
+    """Random per-channel gain and a common offset, amplitude `amount` (fraction)."""
+    if amount <= 0:
+        return image
+    gain = 1 + rng.uniform(-amount, amount, 3)
+    offset = rng.uniform(-amount, amount) * 60
+    return np.clip(image.astype(np.float32) * gain + offset, 0, 255).astype(np.uint8)
+
+
+# --- MVNet dataset -----------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class MVNetDataset:
+    """Hand crops of M frames with 3D keypoint labels.
+
+    Attributes:
+        crops: (M, C, S, S, 3) uint8 RGB crops around centers_world.
+        alphas: (M, C, S, S) uint8 foreground (chroma-key) masks for cut-and-paste; all 0 without one.
+        has_alpha: (M,) bool, the frame is a green-screen frame with chroma-key masks.
+        K_crop: (M, C, 3, 3) float32 crop intrinsics, pixels.
+        view_valid: (M, C) bool.
+        centers_world: (M, 3) float32 crop centres, metres, world frame.
+        keypoints_3d: (M, K, 3) float32 labels, metres, world frame (NaN rows = unlabelled keypoints).
+        cameras: the rig (C cameras).
+        sample_ids: M ids ("<sequence>/<frame>").
+        crop_px, crop_radius_m: how the crops were made.
+    """
+
+    crops: np.ndarray
+    alphas: np.ndarray
+    has_alpha: np.ndarray
+    K_crop: np.ndarray
+    view_valid: np.ndarray
+    centers_world: np.ndarray
+    keypoints_3d: np.ndarray
+    cameras: tuple[Camera, ...]
+    sample_ids: tuple[str, ...]
+    crop_px: int
+    crop_radius_m: float
+
+    def __len__(self) -> int:
+        return len(self.sample_ids)
+
+    def subset(self, indices: Sequence[int] | np.ndarray) -> MVNetDataset:
+        idx = np.asarray(indices, dtype=int)
+        return MVNetDataset(self.crops[idx], self.alphas[idx], self.has_alpha[idx], self.K_crop[idx],
+                            self.view_valid[idx], self.centers_world[idx], self.keypoints_3d[idx], self.cameras,
+                            tuple(self.sample_ids[i] for i in idx), self.crop_px, self.crop_radius_m)
+
+
+def hand_center_from_labels(masks: Sequence[np.ndarray] | None, keypoints_3d: np.ndarray,
+                            cameras: Sequence[Camera]) -> np.ndarray:
+    """The training crop centre: triangulated box centres of the label masks (as at prediction time),
+    falling back to the mean keypoint. Returns (3,) metres, world frame."""
+    if masks is not None:
+        try:
+            return localise_hand(masks, cameras).center_world
+        except LocalisationError:
+            pass
+    return np.nanmean(keypoints_3d, axis=0)
+
+
+def build_mvnet_dataset(capture: Capture, frames: Sequence[FrameRef], config: MVNetConfig, *,
+                        keypoints_3d: np.ndarray | None = None,
+                        progress: Callable[[int], None] | None = None) -> MVNetDataset:
+    """Crops and labels of `frames`.
+
+    Args:
+        capture: the capture the frames belong to.
+        frames: the labelled frames.
+        config: crop size and radius.
+        keypoints_3d: (M, K, 3) labels, metres (e.g. accepted MANO fits); default: the frames' ground truth.
+        progress: called with 1 per frame done.
+    Returns:
+        MVNetDataset (crop centres from the ground-truth hand masks where there are some).
+    """
+    cameras = capture.cameras
+    M, C, S = len(frames), len(cameras), config.crop_px
+    crops = np.zeros((M, C, S, S, 3), np.uint8)
+    alphas = np.zeros((M, C, S, S), np.uint8)
+    has_alpha = np.zeros(M, bool)
+    K_crop = np.zeros((M, C, 3, 3), np.float32)
+    valid = np.zeros((M, C), bool)
+    centers = np.zeros((M, 3), np.float32)
+    labels = np.zeros((M, 21, 3), np.float32)
+    for m, frame in enumerate(frames):
+        images = load_frame_images(frame, cameras)
+        gt = load_ground_truth(frame) if frame.ground_truth_path is not None else None
+        if keypoints_3d is not None:
+            labels[m] = keypoints_3d[m]
+        elif gt is not None:
+            labels[m] = gt.keypoints_3d
+        else:
+            raise ValueError(f"frame {frame_id(frame)} has no ground truth; pass keypoints_3d")
+        hand_masks = [gt.hand_masks[c.name] for c in cameras] if gt is not None and gt.hand_masks else None
+        centers[m] = hand_center_from_labels(hand_masks, labels[m], cameras)
+        chroma = load_frame_masks(frame)
+        masks = [chroma.get(c.name) for c in cameras] if chroma else None
+        has_alpha[m] = bool(chroma)
+        crops[m], K_crop[m], valid[m], mask_crops = crop_views([images[c.name] for c in cameras], cameras,
+                                                               centers[m], S, config.crop_radius_m, masks)
+        if mask_crops is not None:
+            alphas[m] = mask_crops
+        if progress:
+            progress(1)
+    return MVNetDataset(crops, alphas, has_alpha, K_crop, valid, centers, labels, tuple(cameras),
+                        tuple(frame_id(f) for f in frames), S, config.crop_radius_m)
+
+
+def augment_mvnet_batch(dataset: MVNetDataset, indices: np.ndarray, config: MVNetConfig,
+                        rng: np.random.Generator, augment: bool = True) -> dict[str, np.ndarray]:
+    """One training batch: crops (B, C, S, S, 3) uint8, K_crop, view_valid, centers_world (jittered),
+    keypoints_3d."""
+    crops = dataset.crops[indices].copy()
+    centers = dataset.centers_world[indices].astype(np.float64).copy()
+    if augment:
+        for b, m in enumerate(indices):
+            for c in range(crops.shape[1]):
+                if dataset.has_alpha[m] and rng.random() < config.cut_paste_prob:
+                    crops[b, c] = cut_and_paste(crops[b, c], dataset.alphas[m, c], rng)
+                crops[b, c] = color_jitter(crops[b, c], config.color_jitter, rng)
+        centers += rng.normal(0, config.center_jitter_m, centers.shape) if config.center_jitter_m > 0 else 0
+    return {"crops": crops, "K_crop": dataset.K_crop[indices], "view_valid": dataset.view_valid[indices],
+            "centers_world": centers.astype(np.float32), "keypoints_3d": dataset.keypoints_3d[indices]}
+
+
+# --- HandSegNet dataset ------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class HandSegDataset:
+    """Views of labelled frames with hand masks.
+
+    Attributes:
+        images: M views (H, W, 3) uint8 RGB (sizes may differ between cameras).
+        targets: M (H, W) bool hand masks (accepted samples' masks).
+        alphas: M (H, W) bool foreground (chroma-key) masks for cut-and-paste, or None.
+        camera_index: (M,) int, index of each view's camera in `cameras`.
+        centers_world: (M, 3) the frame's hand centre, metres, world frame.
+        cameras: the rig.
+        sample_ids: M ids ("<sequence>/<frame>/<camera>").
+    """
+
+    images: tuple[np.ndarray, ...]
+    targets: tuple[np.ndarray, ...]
+    alphas: tuple[np.ndarray | None, ...]
+    camera_index: np.ndarray
+    centers_world: np.ndarray
+    cameras: tuple[Camera, ...]
+    sample_ids: tuple[str, ...]
+
+    def __post_init__(self) -> None:
+        M = len(self.images)
+        if not (len(self.targets) == len(self.alphas) == len(self.sample_ids) == len(self.camera_index)
+                == len(self.centers_world) == M):
+            raise ValueError("images, targets, alphas, camera_index, centers_world and sample_ids differ in length")
+        for image, target, c in zip(self.images, self.targets, self.camera_index, strict=True):
+            cam = self.cameras[int(c)]
+            if image.shape != (cam.height, cam.width, 3) or target.shape != image.shape[:2]:
+                raise ValueError(f"image {image.shape} / mask {target.shape} do not match camera {cam.name} "
+                                 f"({cam.height}, {cam.width})")
+
+    def __len__(self) -> int:
+        return len(self.images)
+
+
+def build_handseg_dataset(capture: Capture, frames: Sequence[FrameRef], *,
+                          hand_masks: Sequence[dict[str, np.ndarray]] | None = None,
+                          progress: Callable[[int], None] | None = None) -> HandSegDataset:
+    """All views of `frames` with their hand masks (default: ground truth) and chroma-key masks."""
+    cameras = capture.cameras
+    images, targets, alphas, cam_index, centers, ids = [], [], [], [], [], []
+    for m, frame in enumerate(frames):
+        views = load_frame_images(frame, cameras)
+        gt = load_ground_truth(frame) if hand_masks is None else None
+        masks = hand_masks[m] if hand_masks is not None else gt.hand_masks
+        ordered = [np.asarray(masks[c.name], bool) for c in cameras]
+        fallback = gt.keypoints_3d if gt is not None else np.full((1, 3), np.nan)
+        center = hand_center_from_labels(ordered, fallback, cameras)
+        if not np.isfinite(center).all():
+            log.warning("frame %s: no hand to localise, left out of the HandSegNet set", frame_id(frame))
+            continue
+        chroma = load_frame_masks(frame)
+        for c, cam in enumerate(cameras):
+            images.append(views[cam.name])
+            targets.append(ordered[c])
+            alphas.append(chroma.get(cam.name))
+            cam_index.append(c)
+            centers.append(center)
+            ids.append(f"{frame_id(frame)}/{cam.name}")
+        if progress:
+            progress(1)
+    return HandSegDataset(tuple(images), tuple(targets), tuple(alphas), np.asarray(cam_index, int),
+                          np.asarray(centers, np.float64).reshape(-1, 3), tuple(cameras), tuple(ids))
+
+
+def warp_crop(image: np.ndarray, A: np.ndarray, crop_px: int, interpolation: int = cv2.INTER_LINEAR) -> np.ndarray:
+    """Resample an image (H, W[, 3]) into a crop through the affine map A (3, 3) image -> crop pixels."""
+    if A[0, 0] < 0.7 and image.dtype == np.uint8 and image.ndim == 3:
+        image = cv2.GaussianBlur(image, (0, 0), 0.45 / A[0, 0])
+    return cv2.warpAffine(image, A[:2], (crop_px, crop_px), flags=interpolation, borderMode=cv2.BORDER_CONSTANT,
+                          borderValue=0)
+
+
+def sample_handseg_batch(dataset: HandSegDataset, config: HandSegNetConfig, rng: np.random.Generator,
+                         augment: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Random training crops at the fine or a coarser scale: images (B, S, S, 3) uint8, targets (B, S, S)
+    float32 in [0, 1]."""
+    S, B = config.crop_px, config.batch_size
+    out_img = np.zeros((B, S, S, 3), np.uint8)
+    out_tgt = np.zeros((B, S, S), np.float32)
+    lo, hi = np.log(config.crop_radius_m), np.log(config.coarse_radius_m * 1.1)
+    for b in range(B):
+        m = int(rng.integers(len(dataset)))
+        cam = dataset.cameras[int(dataset.camera_index[m])]
+        if rng.random() < config.fine_prob:
+            radius = config.crop_radius_m * rng.uniform(0.85, 1.15)
+        else:
+            radius = float(np.exp(rng.uniform(lo, hi)))
+        center = dataset.centers_world[m] + (rng.normal(0, 0.1 * radius, 3) if augment else 0)
+        A, ok = crop_transform(cam, center, S, radius)
+        if not ok:
+            continue
+        image = warp_crop(dataset.images[m], A, S)
+        target = warp_crop(dataset.targets[m].astype(np.float32), A, S)
+        alpha = dataset.alphas[m]
+        if augment:
+            if alpha is not None and rng.random() < config.cut_paste_prob:
+                image = cut_and_paste(image, warp_crop(alpha.astype(np.uint8) * 255, A, S), rng)
+            image = color_jitter(image, config.color_jitter, rng)
+            if rng.random() < 0.5:
+                image, target = image[:, ::-1], target[:, ::-1]
+        out_img[b], out_tgt[b] = image, target
+    return out_img, out_tgt

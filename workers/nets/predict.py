@@ -1,0 +1,260 @@
+"""Prediction: hand masks (HandSegNet), hand localisation, 3D keypoints with confidence (MVNet).
+
+Confidence (paper eq. 8): per keypoint the maximum of its score volume; per sample their mean. For a
+soft-argmax network the maximum of its softmax volume ("latent heat map", supplementary).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import torch
+
+from workers.capture.reader import load_frame_images, load_frame_masks
+from workers.capture.schema import FrameRef
+from workers.geometry.camera import Camera
+from workers.geometry.projection import stack_cameras
+from workers.nets.data import crop_views
+from workers.nets.handsegnet import HandSegNet
+from workers.nets.localisation import HandLocation, LocalisationError, localise_hand
+from workers.nets.losses import grid_to_world, refined_argmax, soft_argmax
+from workers.nets.mvnet import MVNet
+
+log = logging.getLogger(__name__)
+
+Views = Sequence[np.ndarray] | Mapping[str, np.ndarray]
+
+
+@dataclass(frozen=True)
+class KeypointPrediction:
+    """MVNet's output for N frames.
+
+    Attributes:
+        keypoints_3d: (N, 21, 3) float64 metres, world frame (NaN for frames that could not be localised).
+        confidence: (N, 21) per-keypoint confidence (max of the score volume); 0 where not predicted.
+        sample_confidence: (N,) mean over the keypoints (eq. 8).
+        centers_world: (N, 3) the voxel grids' centres, metres, world frame.
+    """
+
+    keypoints_3d: np.ndarray
+    confidence: np.ndarray
+    sample_confidence: np.ndarray
+    centers_world: np.ndarray
+
+
+def _model_device(model: torch.nn.Module) -> torch.device:
+    return next(model.parameters()).device
+
+
+def ordered_views(images: Views, cameras: Sequence[Camera], what: str = "image") -> list[np.ndarray]:
+    """Images in camera order from a list or a {camera name: image} mapping; checks count and sizes."""
+    if isinstance(images, Mapping):
+        missing = [c.name for c in cameras if c.name not in images]
+        if missing:
+            raise ValueError(f"missing view(s) {missing}: every camera of the rig needs an {what}")
+        images = [images[c.name] for c in cameras]
+    if len(images) != len(cameras):
+        raise ValueError(f"got {len(images)} views for {len(cameras)} cameras (missing view?)")
+    for image, cam in zip(images, cameras, strict=True):
+        if image is None:
+            raise ValueError(f"missing view {cam.name}")
+        if image.shape[:2] != (cam.height, cam.width):
+            raise ValueError(f"{what} of {cam.name} is {image.shape[1]}x{image.shape[0]} px, the calibration says "
+                             f"{cam.width}x{cam.height}")
+    return list(images)
+
+
+def readout(model: MVNet, scores: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Score volumes (B, K, N, N, N) -> keypoints in voxel indices (B, K, 3) and confidence (B, K)."""
+    if model.config.loss == "softargmax":
+        return soft_argmax(scores)
+    return refined_argmax(scores)
+
+
+@torch.no_grad()
+def predict_from_crops(model: MVNet, crops: np.ndarray, K_crop: np.ndarray, centers_world: np.ndarray,
+                       cameras: Sequence[Camera], view_valid: np.ndarray | None = None,
+                       batch_frames: int = 4) -> KeypointPrediction:
+    """MVNet on prepared crops.
+
+    Args:
+        crops: (N, C, S, S, 3) uint8; K_crop: (N, C, 3, 3); centers_world: (N, 3) metres;
+        view_valid: (N, C) bool (default all); cameras: the C cameras.
+    """
+    model.eval()
+    device = _model_device(model)
+    cams = stack_cameras(list(cameras), device=device)
+    cfg = model.config
+    N = crops.shape[0]
+    keypoints = np.zeros((N, 21, 3))
+    confidence = np.zeros((N, 21))
+    valid = np.ones(crops.shape[:2], bool) if view_valid is None else view_valid
+    for s in range(0, N, batch_frames):
+        sl = slice(s, s + batch_frames)
+        centers = torch.as_tensor(centers_world[sl], dtype=torch.float32, device=device)
+        scores = model(torch.as_tensor(crops[sl], device=device),
+                       torch.as_tensor(K_crop[sl], dtype=torch.float32, device=device), cams["dist"], cams["R"],
+                       cams["t"], centers, torch.as_tensor(valid[sl], device=device))
+        grid, conf = readout(model, scores)
+        keypoints[sl] = grid_to_world(grid, centers, cfg.grid_size, cfg.grid_side_m).cpu().numpy()
+        confidence[sl] = conf.cpu().numpy()
+    return KeypointPrediction(keypoints, confidence, confidence.mean(axis=1), np.asarray(centers_world, float))
+
+
+def predict_keypoints(model: MVNet, frames_views: Sequence[Views], cameras: Sequence[Camera],
+                      centers_world: np.ndarray, batch_frames: int = 4) -> KeypointPrediction:
+    """3D keypoints and confidence of N frames.
+
+    Args:
+        model: a trained MVNet (checkpoints.load_model).
+        frames_views: N frames, each C images (H_c, W_c, 3) uint8 RGB in camera order or by camera name.
+        cameras: the rig's C cameras (image sizes are checked against them).
+        centers_world: (N, 3) hand centres (localise_hand), metres, world frame.
+    Returns:
+        KeypointPrediction.
+    """
+    centers_world = np.asarray(centers_world, float)
+    if centers_world.shape != (len(frames_views), 3):
+        raise ValueError(f"centers_world must be ({len(frames_views)}, 3), got {centers_world.shape}")
+    cfg = model.config
+    prepared = [crop_views(ordered_views(v, cameras), cameras, c, cfg.crop_px, cfg.crop_radius_m)
+                for v, c in zip(frames_views, centers_world, strict=True)]
+    crops = np.stack([p[0] for p in prepared])
+    K_crop = np.stack([p[1] for p in prepared])
+    valid = np.stack([p[2] for p in prepared])
+    return predict_from_crops(model, crops, K_crop, centers_world, cameras, valid, batch_frames)
+
+
+@torch.no_grad()
+def segment(model: HandSegNet, images: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """HandSegNet on whole inputs: images (H, W, 3) uint8 RGB (equal sizes are batched) -> one (H, W) float32
+    hand probability map each."""
+    model.eval()
+    device = _model_device(model)
+    out: list[np.ndarray | None] = [None] * len(images)
+    groups: dict[tuple[int, ...], list[int]] = {}
+    for i, image in enumerate(images):
+        if image.ndim != 3 or image.shape[2] != 3:
+            raise ValueError(f"image {i} must be (H, W, 3) RGB, got {image.shape}")
+        groups.setdefault(image.shape, []).append(i)
+    for indices in groups.values():
+        batch = torch.as_tensor(np.stack([images[i] for i in indices]), device=device)
+        prob = torch.sigmoid(model(batch)).cpu().numpy()
+        for i, p in zip(indices, prob, strict=True):
+            out[i] = p.astype(np.float32)
+    return out  # type: ignore[return-value]
+
+
+@dataclass(frozen=True)
+class MaskPrediction:
+    """HandSegNet's output for one frame.
+
+    Attributes:
+        probabilities: C maps (H_c, W_c) float32 in [0, 1], camera order, at the images' resolution.
+        location: the hand found from them (None when fewer than two views show it).
+    """
+
+    probabilities: list[np.ndarray]
+    location: HandLocation | None
+
+
+def predict_masks(model: HandSegNet, views: Views, cameras: Sequence[Camera]) -> MaskPrediction:
+    """Hand masks of one multi-view frame.
+
+    A coarse pass over each whole image localises the hand (box centres triangulated); a fine pass on the
+    crop around the centre gives the probabilities, warped back into the image (zero outside the crop);
+    the final location is triangulated from the fine masks.
+
+    Args:
+        model: a trained HandSegNet.
+        views: C images (H_c, W_c, 3) uint8 RGB, camera order or by camera name.
+        cameras: the rig.
+    Returns:
+        MaskPrediction (all-zero probabilities and no location when the coarse pass finds no hand).
+    """
+    cfg = model.config
+    images = ordered_views(views, cameras)
+    coarse_cams, coarse_images = [], []
+    for image, cam in zip(images, cameras, strict=True):
+        depth0 = abs(float(cam.t[2]))  # depth of the world origin (the rig's centre)
+        scale = cfg.crop_px / (2 * cfg.coarse_radius_m) * depth0 / float(cam.K[0, 0])
+        width = max(16, round(cam.width * scale))
+        small = cam.scaled(width)
+        coarse_cams.append(small)
+        coarse_images.append(cv2.resize(image, (small.width, small.height), interpolation=cv2.INTER_AREA))
+    coarse = segment(model, coarse_images)
+    try:
+        location = localise_hand([p > cfg.threshold for p in coarse], coarse_cams, min_area_px=4)
+    except LocalisationError as exc:
+        log.info("no hand found: %s", exc)
+        return MaskPrediction([np.zeros((c.height, c.width), np.float32) for c in cameras], None)
+    crops, K_crop, valid, _ = crop_views(images, cameras, location.center_world, cfg.crop_px, cfg.crop_radius_m)
+    fine = segment(model, list(crops))
+    probabilities = []
+    for c, cam in enumerate(cameras):
+        A = K_crop[c] @ np.linalg.inv(cam.K)
+        if not valid[c]:
+            probabilities.append(np.zeros((cam.height, cam.width), np.float32))
+            continue
+        probabilities.append(cv2.warpAffine(fine[c], A[:2], (cam.width, cam.height),
+                                            flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                                            borderMode=cv2.BORDER_CONSTANT, borderValue=0))
+    with contextlib.suppress(LocalisationError):  # else keep the coarse location
+        location = localise_hand([p > cfg.threshold for p in probabilities], cameras)
+    return MaskPrediction(probabilities, location)
+
+
+@dataclass(frozen=True)
+class FramePrediction:
+    """Predictions for N frames: keypoints (NaN where localisation failed), masks per frame (C probability
+    maps, or the chroma-key masks used), locations (None where failed)."""
+
+    keypoints: KeypointPrediction
+    masks: list[list[np.ndarray]]
+    locations: list[HandLocation | None]
+
+
+def predict_frames(mvnet: MVNet, frames: Sequence[FrameRef], cameras: Sequence[Camera],
+                   handsegnet: HandSegNet | None = None, batch_frames: int = 4) -> FramePrediction:
+    """The worker's path: images -> masks (HandSegNet, else the chroma-key masks) -> hand centre -> MVNet.
+
+    Frames whose hand cannot be localised get NaN keypoints and zero confidence.
+    """
+    views_all, masks_all, locations = [], [], []
+    for frame in frames:
+        views = ordered_views(load_frame_images(frame, cameras), cameras)
+        location: HandLocation | None
+        if handsegnet is not None:
+            prediction = predict_masks(handsegnet, views, cameras)
+            masks, location = prediction.probabilities, prediction.location
+        else:
+            chroma = load_frame_masks(frame)
+            if not chroma:
+                raise ValueError(f"frame {frame.sequence_id}/{frame.index} has no chroma-key masks; pass a "
+                                 "trained HandSegNet")
+            masks = [chroma[c.name].astype(np.float32) for c in cameras]
+            try:
+                location = localise_hand(masks, cameras)
+            except LocalisationError:
+                location = None
+        if location is None:
+            log.warning("frame %s/%d: the hand could not be localised", frame.sequence_id, frame.index)
+        views_all.append(views)
+        masks_all.append(masks)
+        locations.append(location)
+    ok = [i for i, loc in enumerate(locations) if loc is not None]
+    N = len(frames)
+    keypoints = np.full((N, 21, 3), np.nan)
+    confidence = np.zeros((N, 21))
+    centers = np.full((N, 3), np.nan)
+    if ok:
+        centers_ok = np.stack([locations[i].center_world for i in ok])  # type: ignore[union-attr]
+        pred = predict_keypoints(mvnet, [views_all[i] for i in ok], cameras, centers_ok, batch_frames)
+        keypoints[ok], confidence[ok], centers[ok] = pred.keypoints_3d, pred.confidence, centers_ok
+    return FramePrediction(KeypointPrediction(keypoints, confidence, confidence.mean(axis=1), centers),
+                           masks_all, locations)

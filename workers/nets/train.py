@@ -1,0 +1,220 @@
+"""Training of MVNet and HandSegNet within a time budget, resumable, on the GPU when there is one.
+
+Both loops: Adam, a cosine learning-rate decay over the budget (time-based, so a budget fits any
+machine; or over `max_steps` when that ends training first), a partial checkpoint every
+`checkpoint_every_s` (weights, optimiser, step, seconds) that `resume=True` continues from, and a final
+checkpoint with metadata (checkpoints.py).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as nnf
+
+from workers.geometry.projection import stack_cameras
+from workers.nets.checkpoints import (
+    CheckpointError,
+    NetKind,
+    build_metadata,
+    check_compatible,
+    checkpoint_path,
+    read_checkpoint,
+    save_checkpoint,
+)
+from workers.nets.configs import HandSegNetConfig, MVNetConfig, NetsConfig
+from workers.nets.data import HandSegDataset, MVNetDataset, augment_mvnet_batch, sample_handseg_batch
+from workers.nets.handsegnet import HandSegNet
+from workers.nets.losses import gaussian_targets, scorevolume_loss, softargmax_loss, world_to_grid
+from workers.nets.mvnet import MVNet
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class TrainProgress:
+    """Reported after every step: step count, training seconds so far, smoothed loss."""
+
+    step: int
+    seconds: float
+    loss: float
+
+
+@dataclass(frozen=True)
+class TrainResult:
+    """model: trained (eval mode); checkpoint: the final .pt; metadata: what it records."""
+
+    model: torch.nn.Module
+    checkpoint: Path
+    metadata: dict[str, Any]
+
+
+def default_device() -> torch.device:
+    """CUDA when available, else CPU."""
+    return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+
+
+def _resolve(config: NetsConfig | MVNetConfig | HandSegNetConfig, kind: NetKind
+             ) -> tuple[MVNetConfig | HandSegNetConfig, str]:
+    if isinstance(config, NetsConfig):
+        return (config.mvnet if kind == "mvnet" else config.handsegnet), config.name
+    return config, "custom"
+
+
+def _cosine_lr(base: float, fraction: float) -> float:
+    return base * max(0.02, 0.5 * (1 + math.cos(math.pi * min(1.0, fraction))))
+
+
+def _train_loop(kind: NetKind, model: torch.nn.Module, config: MVNetConfig | HandSegNetConfig, config_name: str,
+                step_fn: Callable[[np.random.Generator], torch.Tensor], sample_ids: tuple[str, ...], budget_s: float,
+                checkpoint_dir: Path | str, resume: bool, progress: Callable[[TrainProgress], None] | None,
+                seed: int, max_steps: int | None, checkpoint_every_s: float, extra: dict[str, Any] | None
+                ) -> TrainResult:
+    if budget_s <= 0:
+        raise ValueError(f"budget_s must be positive, got {budget_s}")
+    optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
+    step, spent_before = 0, 0.0
+    partial = checkpoint_path(checkpoint_dir, kind, partial=True)
+    if resume and partial.is_file():
+        state = read_checkpoint(partial)
+        check_compatible(state["metadata"], kind, config, partial)
+        if state["metadata"].get("seed") != seed:
+            log.warning("%s: resuming a run of seed %s with seed %s", partial, state["metadata"].get("seed"), seed)
+        model.load_state_dict(state["model"])
+        if "optimizer" not in state:
+            raise CheckpointError(f"{partial}: no optimiser state to resume from")
+        optimizer.load_state_dict(state["optimizer"])
+        step, spent_before = int(state["metadata"]["steps"]), float(state["metadata"]["train_seconds"])
+        log.info("resuming %s from %s: step %d, %.0f s trained", kind, partial, step, spent_before)
+    torch.manual_seed(seed + step)
+    rng = np.random.default_rng([seed, step])
+    model.train()
+    started = time.perf_counter()
+    last_save = started
+    smoothed = float("nan")
+
+    def meta(seconds: float) -> dict[str, Any]:
+        return build_metadata(kind, config, config_name=config_name, seed=seed, sample_ids=sample_ids, steps=step,
+                              train_seconds=seconds, metrics={"train_loss": smoothed}, extra=extra)
+
+    while True:
+        spent = spent_before + time.perf_counter() - started
+        if spent >= budget_s or (max_steps is not None and step >= max_steps):
+            break
+        fraction = max(spent / budget_s, step / max_steps if max_steps else 0.0)
+        for group in optimizer.param_groups:
+            group["lr"] = _cosine_lr(config.lr, fraction)
+        loss = step_fn(rng)
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+        step += 1
+        value = float(loss.detach())
+        smoothed = value if math.isnan(smoothed) else 0.95 * smoothed + 0.05 * value
+        if progress:
+            progress(TrainProgress(step, spent_before + time.perf_counter() - started, smoothed))
+        if time.perf_counter() - last_save > checkpoint_every_s:
+            save_checkpoint(partial, model, meta(spent_before + time.perf_counter() - started), optimizer)
+            last_save = time.perf_counter()
+    seconds = spent_before + time.perf_counter() - started
+    save_checkpoint(partial, model, meta(seconds), optimizer)
+    metadata = meta(seconds)
+    final = save_checkpoint(checkpoint_path(checkpoint_dir, kind), model, metadata)
+    log.info("%s trained: %d steps in %.0f s, loss %.4f -> %s", kind, step, seconds, smoothed, final)
+    return TrainResult(model.eval(), final, metadata)
+
+
+def mvnet_loss(model: MVNet, batch: dict[str, np.ndarray], cams: dict[str, torch.Tensor],
+               device: torch.device) -> torch.Tensor:
+    """The configured loss of one batch from `augment_mvnet_batch` (unlabelled = NaN keypoints ignored)."""
+    cfg = model.config
+    centers = torch.as_tensor(batch["centers_world"], device=device)
+    scores = model(torch.as_tensor(batch["crops"], device=device), torch.as_tensor(batch["K_crop"], device=device),
+                   cams["dist"], cams["R"], cams["t"], centers, torch.as_tensor(batch["view_valid"], device=device))
+    keypoints = torch.as_tensor(batch["keypoints_3d"], device=device)
+    weights = torch.isfinite(keypoints).all(-1).float()
+    grid = world_to_grid(torch.nan_to_num(keypoints), centers, cfg.grid_size, cfg.grid_side_m)
+    if cfg.loss == "softargmax":
+        return softargmax_loss(scores, grid, weights)
+    return scorevolume_loss(scores, gaussian_targets(grid, cfg.grid_size, cfg.sigma_voxels), weights)
+
+
+def train_mvnet(dataset: MVNetDataset, config: NetsConfig | MVNetConfig, budget_s: float,
+                checkpoint_dir: Path | str, *, resume: bool = True,
+                progress: Callable[[TrainProgress], None] | None = None, seed: int = 0, max_steps: int | None = None,
+                device: torch.device | str | None = None, checkpoint_every_s: float = 60.0,
+                extra_metadata: dict[str, Any] | None = None) -> TrainResult:
+    """Train MVNet on `dataset` for `budget_s` seconds of training (cumulative over resumes).
+
+    Args:
+        dataset: crops and 3D labels (data.build_mvnet_dataset); its crop size must match the config.
+        config: a named configuration (its .mvnet is used) or an MVNetConfig.
+        budget_s: training seconds; max_steps: optional step limit as well.
+        checkpoint_dir: the round's folder (checkpoints.round_dir); gets mvnet.pt, mvnet.json, mvnet.partial.pt.
+        resume: continue from mvnet.partial.pt when present (same architecture required).
+        progress: called after every step with TrainProgress.
+        seed: seeds the initialisation, batches and augmentation.
+        device: default CUDA when available, else CPU.
+    Returns:
+        TrainResult with the model in eval mode.
+    """
+    cfg, name = _resolve(config, "mvnet")
+    if dataset.crop_px != cfg.crop_px or not math.isclose(dataset.crop_radius_m, cfg.crop_radius_m):
+        raise ValueError(f"dataset crops ({dataset.crop_px} px, {dataset.crop_radius_m} m) do not match the "
+                         f"configuration ({cfg.crop_px} px, {cfg.crop_radius_m} m)")
+    if len(dataset) == 0:
+        raise ValueError("empty training set")
+    device = torch.device(device) if device is not None else default_device()
+    torch.manual_seed(seed)
+    model = MVNet(cfg).to(device)
+    cams = stack_cameras(list(dataset.cameras), device=device)
+    batch_size = min(cfg.batch_frames, len(dataset))
+
+    def step(rng: np.random.Generator) -> torch.Tensor:
+        indices = rng.choice(len(dataset), size=batch_size, replace=False)
+        return mvnet_loss(model, augment_mvnet_batch(dataset, indices, cfg, rng), cams, device)
+
+    return _train_loop("mvnet", model, cfg, name, step, dataset.sample_ids, budget_s, checkpoint_dir, resume,
+                       progress, seed, max_steps, checkpoint_every_s, extra_metadata)
+
+
+def handseg_loss(logits: torch.Tensor, targets: torch.Tensor) -> torch.Tensor:
+    """Binary cross-entropy plus (1 - soft IoU) over the batch; logits, targets (B, H, W)."""
+    bce = nnf.binary_cross_entropy_with_logits(logits, targets)
+    prob = torch.sigmoid(logits)
+    inter = (prob * targets).sum()
+    union = (prob + targets - prob * targets).sum().clamp(min=1.0)
+    return bce + (1 - inter / union)
+
+
+def train_handsegnet(dataset: HandSegDataset, config: NetsConfig | HandSegNetConfig, budget_s: float,
+                     checkpoint_dir: Path | str, *, resume: bool = True,
+                     progress: Callable[[TrainProgress], None] | None = None, seed: int = 0,
+                     max_steps: int | None = None, device: torch.device | str | None = None,
+                     checkpoint_every_s: float = 60.0, extra_metadata: dict[str, Any] | None = None) -> TrainResult:
+    """Train HandSegNet on random patches of `dataset` for `budget_s` training seconds.
+
+    Arguments as `train_mvnet`; files handsegnet.pt / .json / .partial.pt in `checkpoint_dir`.
+    """
+    cfg, name = _resolve(config, "handsegnet")
+    if len(dataset) == 0:
+        raise ValueError("empty training set")
+    device = torch.device(device) if device is not None else default_device()
+    torch.manual_seed(seed)
+    model = HandSegNet(cfg).to(device)
+
+    def step(rng: np.random.Generator) -> torch.Tensor:
+        images, targets = sample_handseg_batch(dataset, cfg, rng)
+        logits = model(torch.as_tensor(np.ascontiguousarray(images), device=device))
+        return handseg_loss(logits, torch.as_tensor(np.ascontiguousarray(targets), device=device))
+
+    return _train_loop("handsegnet", model, cfg, name, step, dataset.sample_ids, budget_s, checkpoint_dir, resume,
+                       progress, seed, max_steps, checkpoint_every_s, extra_metadata)

@@ -1,0 +1,87 @@
+"""Differentiable unprojection of per-view 2D feature maps into a voxel grid (paper: MVNet, after Kar et
+al. 2017): every voxel centre is projected into every view (with lens distortion) and the view's feature
+map is sampled bilinearly there; voxels behind a camera or outside its crop contribute nothing, and
+the remaining views are averaged.
+
+Grid convention: a cube of side `side_m` centred on `center_world`, axis-aligned with the world frame;
+volume index (i, j, l) along (x, y, z) world; voxel (i, j, l) has its centre at
+center + ((i, j, l) - (N - 1) / 2) * side_m / N. Shapes: B frames, C views, F channels, N voxels per side.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as nnf
+
+from workers.geometry.projection import distort_normalized
+
+
+def voxel_offsets(grid_size: int, side_m: float, device: torch.device | str = "cpu",
+                  dtype: torch.dtype = torch.float32) -> torch.Tensor:
+    """Voxel centres relative to the grid centre: (N, N, N, 3) metres, index (i, j, l) -> (x, y, z)."""
+    step = side_m / grid_size
+    axis = (torch.arange(grid_size, device=device, dtype=dtype) - (grid_size - 1) / 2) * step
+    gx, gy, gz = torch.meshgrid(axis, axis, axis, indexing="ij")
+    return torch.stack([gx, gy, gz], dim=-1)
+
+
+def voxel_centers(center_world: torch.Tensor, grid_size: int, side_m: float) -> torch.Tensor:
+    """center_world (B, 3) metres, world frame -> (B, N, N, N, 3) voxel centres, metres, world frame."""
+    offsets = voxel_offsets(grid_size, side_m, center_world.device, center_world.dtype)
+    return center_world[:, None, None, None, :] + offsets[None]
+
+
+def project_batched(points_world: torch.Tensor, K: torch.Tensor, dist: torch.Tensor, R: torch.Tensor,
+                    t: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Project points with per-frame intrinsics (crops have their own K).
+
+    Args:
+        points_world: (B, P, 3) metres, world frame.
+        K: (B, C, 3, 3) pixel intrinsics of each frame's views (e.g. crop intrinsics).
+        dist: (C, 5) OpenCV distortion; R: (C, 3, 3), t: (C, 3) world -> camera (shared by the batch).
+    Returns:
+        pixels (B, C, P, 2) in the image K refers to; depth_m (B, C, P).
+    """
+    points_cam = torch.einsum("cij,bpj->bcpi", R, points_world) + t[None, :, None, :]
+    depth = points_cam[..., 2]
+    xy = points_cam[..., :2] / depth.clamp(min=1e-4)[..., None]
+    xy = distort_normalized(xy, dist)  # (B, C, P, 2)
+    ones = torch.ones_like(xy[..., :1])
+    uv = torch.einsum("bcij,bcpj->bcpi", K, torch.cat([xy, ones], dim=-1))
+    return uv[..., :2], depth
+
+
+def unproject_features(features: torch.Tensor, K: torch.Tensor, dist: torch.Tensor, R: torch.Tensor,
+                       t: torch.Tensor, center_world: torch.Tensor, grid_size: int, side_m: float,
+                       image_px: int, view_valid: torch.Tensor | None = None) -> torch.Tensor:
+    """Average the views' features over a voxel grid.
+
+    Args:
+        features: (B, C, F, h, w) feature maps of square crops of side `image_px` (any h = w: the map
+            spans the whole crop).
+        K: (B, C, 3, 3) intrinsics of the crops, pixels of the crop (pixel (0, 0) = centre of the top-left).
+        dist: (C, 5); R: (C, 3, 3); t: (C, 3) world -> camera.
+        center_world: (B, 3) grid centres, metres, world frame.
+        grid_size: N; side_m: grid side, metres; image_px: crop side, pixels.
+        view_valid: (B, C) bool, views to use (default all).
+    Returns:
+        (B, F, N, N, N) averaged features, index (i, j, l) along world (x, y, z); zero where no view sees
+        the voxel.
+    """
+    B, C, F, h, w = features.shape
+    if K.shape != (B, C, 3, 3) or center_world.shape != (B, 3):
+        raise ValueError(f"K must be (B={B}, C={C}, 3, 3) and center_world (B, 3); got {tuple(K.shape)}, "
+                         f"{tuple(center_world.shape)}")
+    N = grid_size
+    points = voxel_centers(center_world, N, side_m).reshape(B, N**3, 3)
+    pixels, depth = project_batched(points, K, dist, R, t)  # (B, C, P, 2), (B, C, P)
+    grid = (2 * pixels + 1) / image_px - 1  # align_corners=False: -1 is the crop's left edge
+    inside = (depth > 1e-3) & (grid.abs() <= 1).all(dim=-1)  # (B, C, P)
+    if view_valid is not None:
+        inside = inside & view_valid[:, :, None]
+    sampled = nnf.grid_sample(features.reshape(B * C, F, h, w), grid.reshape(B * C, 1, N**3, 2),
+                              mode="bilinear", padding_mode="zeros", align_corners=False)  # (B*C, F, 1, P)
+    sampled = sampled.reshape(B, C, F, N**3) * inside[:, :, None, :].to(features.dtype)
+    count = inside.sum(dim=1).clamp(min=1).to(features.dtype)  # (B, P)
+    volume = sampled.sum(dim=1) / count[:, None, :]
+    return volume.reshape(B, F, N, N, N)

@@ -1,36 +1,37 @@
+"""Admin exports of the server's records: the accepted dataset, the sample index, MVNet's predictions.
+The FreiHAND-layout files are written by `handloop export --format freihand` from the same records
+(it needs the hand model and torch, which the API process does not load)."""
+
 from __future__ import annotations
 
 from typing import Any
 
 from fastapi import APIRouter, Query
-from sqlalchemy import select
 
 from backend.api.deps import AdminUser, SessionDep
-from backend.models.capture import Sample, Sequence
-from backend.models.fits import Fit
-from backend.models.review import Round, RoundMember
+from backend.services import export
 
 router = APIRouter(prefix="/admin/exports", tags=["admin: exports"])
 
 
 @router.get("/dataset")
 def export_dataset(session: SessionDep, _admin: AdminUser,
-                   up_to_round: int | None = Query(default=None, ge=0, le=1_000_000)) -> dict[str, Any]:
-    """The accepted samples (D_i up to a round index) with their fits and streams, as JSON. The
-    FreiHAND-layout export is the export issue's; this is the server's record of it."""
-    query = (select(RoundMember, Round.index, Sample, Sequence.external_id, Fit)
-             .join(Round, Round.id == RoundMember.round_id)
-             .join(Sample, Sample.id == RoundMember.sample_id)
-             .join(Sequence, Sequence.id == Sample.sequence_id)
-             .outerjoin(Fit, Fit.id == RoundMember.fit_id)
-             .order_by(Round.index, RoundMember.id))
-    if up_to_round is not None:
-        query = query.where(Round.index <= up_to_round)
-    samples = [
-        {"sample_id": sample.id, "sequence": seq, "frame_index": sample.frame_index, "split": sample.split,
-         "round": index, "stream": member.stream,
-         "fit": None if fit is None else {"id": fit.id, "params": fit.params, "keypoints_m": fit.keypoints_m,
-                                          "model_file": fit.model_file}}
-        for member, index, sample, seq, fit in session.execute(query)
-    ]
-    return {"count": len(samples), "samples": samples}
+                   up_to_round: int | None = Query(default=None, ge=0, le=1_000_000),
+                   project: str | None = Query(default=None, min_length=1, max_length=200)) -> dict[str, Any]:
+    """The accepted samples (D_i up to a round index) with their fits, rounds and streams, and the hand
+    models that made the labels."""
+    return export.dataset(session, up_to_round, project)
+
+
+@router.get("/samples")
+def export_samples(session: SessionDep, _admin: AdminUser,
+                   project: str | None = Query(default=None, min_length=1, max_length=200)) -> dict[str, Any]:
+    """Every sample: id, sequence (external id), frame, split, state, current fit."""
+    return export.sample_index(session, project)
+
+
+@router.get("/predictions")
+def export_predictions(session: SessionDep, _admin: AdminUser,
+                       round_index: int | None = Query(default=None, ge=0, le=1_000_000)) -> dict[str, Any]:
+    """MVNet's predictions with their round, keypoints (world frame, metres) and confidences."""
+    return export.predictions(session, round_index)

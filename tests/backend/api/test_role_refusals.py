@@ -32,6 +32,8 @@ ROUTES = [
     ("POST", "/api/admin/jobs/1/cancel", Role.admin),
     ("GET", "/api/admin/jobs/1/events", Role.admin),
     ("GET", "/api/admin/exports/dataset", Role.admin),
+    ("GET", "/api/admin/exports/samples", Role.admin),
+    ("GET", "/api/admin/exports/predictions", Role.admin),
     ("POST", "/api/admin/imports", Role.admin),
 ]
 OPEN = {("GET", "/api/health"), ("POST", "/api/auth/token")}

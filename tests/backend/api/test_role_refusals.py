@@ -35,8 +35,16 @@ ROUTES = [
     ("GET", "/api/admin/exports/samples", Role.admin),
     ("GET", "/api/admin/exports/predictions", Role.admin),
     ("POST", "/api/admin/imports", Role.admin),
+    # The browser UI's routes (tests/backend/api/ui/).
+    ("POST", "/api/annotate/prefetch", Role.annotator),
+    ("GET", "/api/annotate/samples/1/proposals", Role.annotator),
+    ("POST", "/api/review/prefetch", Role.reviewer),
+    ("GET", "/api/review/samples/1/overlay", Role.reviewer),
+    ("POST", "/api/activity", Role.annotator),
+    ("GET", "/api/admin/dashboard", Role.admin),
 ]
-OPEN = {("GET", "/api/health"), ("POST", "/api/auth/token")}
+# The 3D scene takes a scene ticket instead of a bearer token (tests/backend/api/ui/test_viewer_scene.py).
+OPEN = {("GET", "/api/health"), ("POST", "/api/auth/token"), ("GET", "/api/viewer/samples/{x}/scene")}
 
 
 def test_the_table_covers_every_route(sqlite_env):

@@ -1,0 +1,17 @@
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import APIRouter
+
+from backend.api.deps import AdminUser, SessionDep
+from backend.schemas.ui import DashboardPublic
+from backend.services import dashboard
+
+router = APIRouter(prefix="/admin/dashboard", tags=["admin: dashboard"])
+
+
+@router.get("", response_model=DashboardPublic)
+def get_dashboard(session: SessionDep, _admin: AdminUser) -> dict[str, Any]:
+    """Queue lengths, MVNet confidence histogram, sparsification curve, human time per action."""
+    return dashboard.dashboard(session)

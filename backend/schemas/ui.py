@@ -1,0 +1,121 @@
+"""Requests and responses of the routes the browser UI adds: prefetch, proposals, review overlays, the
+3D scene, activity logs, the admin dashboard."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from pydantic import Field
+
+from backend.schemas.base import Finite, Id, Public, Strict
+from backend.schemas.tasks import ClientId
+
+Pixel2 = Annotated[list[float], Field(min_length=2, max_length=2)]
+DAY_MS = 24 * 3600 * 1000
+
+
+class PrefetchRequest(Strict):
+    current_sample_id: Id = Field(description="The sample on screen: the prefetched one is another.")
+
+
+class CameraPublic(Public):
+    view_id: int
+    camera: str
+    width: int
+    height: int
+    K: list[list[float]]
+    dist: list[float]
+    R: list[list[float]]
+    t: list[float]
+
+
+class ClickPublic(Public):
+    view_id: int
+    keypoint: int
+    x: float | None
+    y: float | None
+    visibility: str
+
+
+class ProposalSource(Public):
+    kind: Literal["mvnet", "fit"]
+    label: str
+    confidences: list[float] | None = Field(description="Per keypoint (21), MVNet only.")
+    views: dict[str, list[Pixel2 | None]] = Field(description="View id -> 21 projected keypoints (px) or null.")
+
+
+class ProposalsPublic(Public):
+    sample_id: int
+    cameras: list[CameraPublic]
+    keypoints_to_click: list[int]
+    sources: list[ProposalSource]
+    previous_clicks: list[ClickPublic]
+    review_note: str | None
+
+
+class HandModelPublic(Public):
+    model_file: str
+    stand_in: bool
+    label: str = Field(description="'built-in stand-in hand, not MANO' when the stand-in made the fit.")
+
+
+class ReviewView(CameraPublic):
+    iou: float | None
+    fit_keypoints_px: list[Pixel2 | None]
+    prediction_keypoints_px: list[Pixel2 | None] | None
+    residual_px: dict[str, float] = Field(description="Keypoint -> distance (px) of the fit to the reference.")
+    mean_residual_px: float | None
+    clicks: list[ClickPublic]
+
+
+class MeshPublic(Public):
+    num_vertices: int
+    num_faces: int
+    vertices_f32: str = Field(description="base64 of little-endian float32 (V, 3), metres, world frame.")
+    faces_i32: str = Field(description="base64 of little-endian int32 (F, 3).")
+
+
+class ReviewOverlayPublic(Public):
+    sample_id: int
+    fit_id: int
+    hand_model: HandModelPublic
+    fit: dict[str, Any]
+    prediction: dict[str, Any] | None
+    views: list[ReviewView]
+    mesh: MeshPublic | None
+    mesh_note: str | None
+    skeleton_edges: list[list[int]]
+    scene_path: str = Field(description="The 3D scene of this sample for viser's client (?playbackPath=).")
+    scene_look_at: list[float]
+
+
+class ActionIn(Strict):
+    kind: Literal["click", "accept", "drag", "occlude", "not_annotated", "brush", "erase", "undo", "redo", "view",
+                  "zoom", "toggle", "decide"]
+    at_ms: Finite = Field(ge=0, le=DAY_MS, description="Since the task was shown.")
+    duration_ms: Finite = Field(ge=0, le=DAY_MS, description="Since the previous action (idle time capped).")
+    view_id: Id | None = None
+    keypoint: int | None = Field(default=None, ge=0, le=20)
+
+
+class ActivityCreate(Strict):
+    context: Literal["annotate", "review"]
+    sample_id: Id
+    submission_id: ClientId | None = None
+    decision_id: Id | None = None
+    time_spent_s: Finite = Field(ge=0, le=24 * 3600)
+    actions: list[ActionIn] = Field(default_factory=list, max_length=20_000)
+
+
+class ActivityPublic(Public):
+    id: int
+    duplicate: bool
+    summary: dict[str, Any]
+
+
+class DashboardPublic(Public):
+    queues: dict[str, int]
+    fits: int
+    confidence_histogram: dict[str, Any]
+    sparsification: dict[str, Any] | None
+    human_time: dict[str, Any]

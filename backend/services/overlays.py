@@ -1,0 +1,202 @@
+"""What the annotate and review pages draw over the views: calibrations, proposals, the fit's
+keypoints and mesh, per-view IoU and residuals.
+
+Reads only; each payload is for a sample whose lease the caller holds (the one on screen or the one
+prefetched), so the role rules and the queues decide who sees what, as for the tasks themselves.
+"""
+
+from __future__ import annotations
+
+import base64
+import logging
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from backend.models.enums import DecisionKind, LeaseKind
+from backend.models.fits import Fit, Prediction
+from backend.models.labels import Click, Submission
+from backend.models.review import Decision
+from backend.services import queues, scene_tickets
+from backend.services.errors import ConflictError, NotFoundError
+from backend.services.projection import ViewCamera, pixels_or_none, project, view_cameras
+from backend.services.samples import get_sample
+from backend.services.users import Actor
+from workers.handmodel.keypoints import SKELETON_EDGES, SPARSE_KEYPOINTS
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class ClickRow:
+    view_id: int
+    keypoint: int
+    x: float | None
+    y: float | None
+    visibility: str
+
+    def to_public(self) -> dict[str, Any]:
+        return {"view_id": self.view_id, "keypoint": self.keypoint, "x": self.x, "y": self.y,
+                "visibility": self.visibility}
+
+
+def _held(session: Session, user: Actor, sample_id: int, kind: LeaseKind):
+    sample = get_sample(session, sample_id)
+    queues.check_lease(sample, user, kind, None)
+    return sample
+
+
+def clicks_of(session: Session, sample_id: int, submission_ids: list[int] | None = None) -> list[ClickRow]:
+    """The clicks a fit used (its submissions; the newest one wins per view and keypoint), or those of
+    the sample's newest submission."""
+    if not submission_ids:
+        newest = session.execute(select(Submission.id).where(Submission.sample_id == sample_id)
+                                 .order_by(Submission.id.desc()).limit(1)).scalar_one_or_none()
+        submission_ids = [] if newest is None else [newest]
+    if not submission_ids:
+        return []
+    rows = session.execute(
+        select(Click.view_id, Click.keypoint, Click.x_px, Click.y_px, Click.visibility)
+        .where(Click.sample_id == sample_id, Click.submission_id.in_([int(i) for i in submission_ids]))
+        .order_by(Click.submission_id, Click.id)
+    ).all()
+    latest = {(r.view_id, r.keypoint): ClickRow(*r) for r in rows}
+    return list(latest.values())
+
+
+def newest_prediction(session: Session, sample_id: int) -> Prediction | None:
+    return session.execute(select(Prediction).where(Prediction.sample_id == sample_id)
+                           .order_by(Prediction.id.desc()).limit(1)).scalar_one_or_none()
+
+
+def _projections(points_m: Any, cameras: list[ViewCamera]) -> dict[int, np.ndarray]:
+    points = np.asarray(points_m, dtype=np.float64).reshape(-1, 3)
+    return {cam.view_id: project(points, cam) for cam in cameras}
+
+
+def annotate_proposals(session: Session, user: Actor, sample_id: int) -> dict[str, Any]:
+    """Calibrations (the browser triangulates from the annotator's own clicks), MVNet's prediction and
+    the current fit projected into every view, the previous clicks and the reviewer's note when the
+    sample came back from review."""
+    from backend.viewer.hand_mesh import hand_model_label
+
+    sample = _held(session, user, sample_id, LeaseKind.annotate)
+    cameras = view_cameras(session, sample_id)
+    sources = []
+    prediction = newest_prediction(session, sample_id)
+    if prediction is not None:
+        projected = _projections(prediction.keypoints_m, cameras)
+        sources.append({"kind": "mvnet", "label": f"MVNet {prediction.mvnet_version}",
+                        "confidences": [round(float(c), 4) for c in prediction.confidences],
+                        "views": {str(v): pixels_or_none(p) for v, p in projected.items()}})
+    fit = session.get(Fit, sample.current_fit_id) if sample.current_fit_id is not None else None
+    if fit is not None:
+        projected = _projections(fit.keypoints_m, cameras)
+        sources.append({"kind": "fit", "label": f"fit {fit.id} ({hand_model_label(fit.model_file)})",
+                        "confidences": None, "views": {str(v): pixels_or_none(p) for v, p in projected.items()}})
+    note = session.execute(
+        select(Decision.reason).where(Decision.sample_id == sample_id, Decision.decision == DecisionKind.annotate)
+        .order_by(Decision.id.desc()).limit(1)).scalar_one_or_none()
+    return {"sample_id": sample_id, "cameras": [c.to_public() for c in cameras],
+            "keypoints_to_click": list(SPARSE_KEYPOINTS), "sources": sources,
+            "previous_clicks": [c.to_public() for c in clicks_of(session, sample_id)], "review_note": note}
+
+
+def _residuals(fit_px: dict[int, np.ndarray], clicks: list[ClickRow]) -> dict[int, dict[int, float]]:
+    """view id -> keypoint -> distance (pixels) between the fit's projection and the click."""
+    out: dict[int, dict[int, float]] = {}
+    for c in clicks:
+        if c.x is None or c.y is None or c.view_id not in fit_px:
+            continue
+        p = fit_px[c.view_id][c.keypoint]
+        if np.isfinite(p).all():
+            out.setdefault(c.view_id, {})[c.keypoint] = round(float(np.hypot(p[0] - c.x, p[1] - c.y)), 2)
+    return out
+
+
+def _b64(array: np.ndarray, dtype: str) -> str:
+    return base64.b64encode(np.ascontiguousarray(array, dtype=dtype).tobytes()).decode("ascii")
+
+
+def _mesh_payload(fit: Fit, mano_path) -> tuple[dict[str, Any] | None, str | None, float | None]:
+    """(mesh, note, keypoint offset mm): the fit's mesh as little-endian float32 vertices (V, 3) and int32
+    faces (F, 3), base64; or None and why not."""
+    from backend.viewer.hand_mesh import load_arrays, posed_mesh
+
+    arrays = load_arrays(fit.model_file, mano_path)
+    if arrays is None:
+        return None, f"no mesh: the fit used {fit.model_file} and this server has no HANDLOOP_MANO_PATH", None
+    mesh = posed_mesh(arrays, np.asarray(fit.params))
+    # The mesh is rebuilt from the parameters; its keypoints should land on the stored ones.
+    offset_mm = float(np.max(np.linalg.norm(mesh.keypoints - np.asarray(fit.keypoints_m), axis=1)) * 1000)
+    if offset_mm > 1.0:
+        logger.warning("fit %s: mesh keypoints are %.1f mm from the stored keypoints", fit.id, offset_mm)
+    payload = {"num_vertices": len(mesh.vertices), "num_faces": len(mesh.faces),
+               "vertices_f32": _b64(mesh.vertices, "<f4"), "faces_i32": _b64(mesh.faces, "<i4")}
+    return payload, None, round(offset_mm, 3)
+
+
+def review_overlay(session: Session, user: Actor, sample_id: int, *, secret_key: str, mano_path=None,
+                   with_mesh: bool = True) -> dict[str, Any]:
+    """Everything the review page draws for a sample under the caller's review lease."""
+    from backend.viewer.hand_mesh import hand_model_label, is_stand_in
+
+    sample = _held(session, user, sample_id, LeaseKind.review)
+    if sample.current_fit_id is None:
+        raise ConflictError(f"sample {sample_id} has no fit to review")
+    fit = session.get(Fit, sample.current_fit_id)
+    if fit is None:
+        raise NotFoundError(f"fit {sample.current_fit_id} of sample {sample_id} not found")
+    cameras = view_cameras(session, sample_id)
+    fit_px = _projections(fit.keypoints_m, cameras)
+    submission_ids = (fit.inputs or {}).get("submission_ids") or None
+    clicks = clicks_of(session, sample_id, submission_ids) if submission_ids else []
+    prediction = session.get(Prediction, fit.prediction_id) if fit.prediction_id else None
+    pred_px = _projections(prediction.keypoints_m, cameras) if prediction is not None else {}
+    residuals = _residuals(fit_px, clicks)
+    if not clicks and prediction is not None:  # fitted from MVNet: measure against its keypoints instead
+        residuals = {v: {k: round(float(np.hypot(*(fit_px[v][k] - pred_px[v][k]))), 2) for k in SPARSE_KEYPOINTS
+                         if np.isfinite(fit_px[v][k]).all() and np.isfinite(pred_px[v][k]).all()}
+                     for v in fit_px}
+    ious = {int(k): float(v) for k, v in (fit.view_ious or {}).items()}
+    views = []
+    for cam in cameras:
+        res = residuals.get(cam.view_id, {})
+        views.append({
+            **cam.to_public(),
+            "iou": round(ious[cam.view_id], 4) if cam.view_id in ious else None,
+            "fit_keypoints_px": pixels_or_none(fit_px[cam.view_id]),
+            "prediction_keypoints_px": pixels_or_none(pred_px[cam.view_id]) if pred_px else None,
+            "residual_px": {str(k): v for k, v in sorted(res.items())},
+            "mean_residual_px": round(float(np.mean(list(res.values()))), 2) if res else None,
+            "clicks": [c.to_public() for c in clicks if c.view_id == cam.view_id],
+        })
+    all_res = [v for r in residuals.values() for v in r.values()]
+    mesh, mesh_note, offset_mm = _mesh_payload(fit, mano_path) if with_mesh else (None, "not requested", None)
+    ticket = scene_tickets.issue(secret_key, user.id, sample_id, fit.id)
+    keypoints = np.asarray(fit.keypoints_m, dtype=np.float64)
+    return {
+        "sample_id": sample_id,
+        "fit_id": fit.id,
+        "hand_model": {"model_file": fit.model_file, "stand_in": is_stand_in(fit.model_file),
+                       "label": hand_model_label(fit.model_file)},
+        "fit": {"keypoints_m": keypoints.round(6).tolist(), "source": "annotations" if submission_ids else
+                "prediction", "heuristic": fit.heuristic, "pose_distance": round(float(fit.pose_distance), 4),
+                "mean_iou": round(float(np.mean(list(ious.values()))), 4) if ious else None,
+                "mean_residual_px": round(float(np.mean(all_res)), 2) if all_res else None,
+                "max_residual_px": round(float(np.max(all_res)), 2) if all_res else None,
+                "residual_reference": "clicks" if clicks else ("mvnet" if prediction is not None else None),
+                "mesh_keypoint_offset_mm": offset_mm, "created_at": fit.created_at.isoformat()},
+        "prediction": None if prediction is None else {
+            "mvnet_version": prediction.mvnet_version, "mean_confidence": round(float(prediction.mean_confidence), 4),
+            "confidences": [round(float(c), 4) for c in prediction.confidences]},
+        "views": views,
+        "mesh": mesh,
+        "mesh_note": mesh_note,
+        "skeleton_edges": [list(e) for e in SKELETON_EDGES],
+        "scene_path": f"/api/viewer/samples/{sample_id}/scene?ticket={ticket}",
+        "scene_look_at": keypoints.mean(axis=0).round(4).tolist(),
+    }

@@ -1,0 +1,103 @@
+"""One sample's 3D scene for reviewers: the fitted mesh, its skeleton and keypoints, MVNet's keypoints,
+and the rig's camera frustums showing their images. World frame, metres, z up (docs/conventions.md)."""
+
+from __future__ import annotations
+
+import io
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from workers.handmodel.keypoints import SKELETON_EDGES
+
+# Per finger, the same colours as the 2D overlays (frontend/js/keypoints.js): wrist, thumb .. pinky.
+FINGER_RGB = ((120, 120, 120), (230, 57, 70), (244, 162, 97), (42, 157, 143), (69, 123, 157), (157, 78, 221))
+SKIN_RGB = (222, 170, 140)
+THUMBNAIL_WIDTH_PX = 240
+
+
+def finger_of(keypoint: int) -> int:
+    """0 for the wrist, 1..5 for thumb .. pinky (FreiHAND order)."""
+    return 0 if keypoint == 0 else (keypoint - 1) // 4 + 1
+
+
+@dataclass(frozen=True, eq=False)
+class SceneCamera:
+    """name; image (h, w, 3) uint8 (a thumbnail); fov_y_rad; aspect (w / h); R (3, 3) world -> camera; t (3,)."""
+
+    name: str
+    image: np.ndarray | None
+    fov_y_rad: float
+    aspect: float
+    R: np.ndarray
+    t: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class SampleScene:
+    """What a recording shows. vertices (V, 3) / faces (F, 3) or None; keypoints (21, 3) metres;
+    prediction (21, 3) or None; label: the hand model, shown next to the hand."""
+
+    vertices: np.ndarray | None
+    faces: np.ndarray | None
+    keypoints: np.ndarray
+    prediction: np.ndarray | None
+    cameras: list[SceneCamera]
+    label: str
+
+
+def thumbnail(image_bytes: bytes, width: int = THUMBNAIL_WIDTH_PX) -> np.ndarray:
+    """Decode an image file and shrink it to `width` pixels (RGB uint8)."""
+    from PIL import Image
+
+    with Image.open(io.BytesIO(image_bytes)) as img:
+        img = img.convert("RGB")
+        if img.width > width:
+            img = img.resize((width, max(1, round(img.height * width / img.width))), Image.Resampling.BILINEAR)
+        return np.asarray(img, dtype=np.uint8)
+
+
+def scene_camera(name: str, width: int, height: int, K: np.ndarray, R: np.ndarray, t: np.ndarray,
+                 image: np.ndarray | None) -> SceneCamera:
+    fov_y = 2.0 * math.atan(height / (2.0 * float(K[1][1])))
+    return SceneCamera(name, image, fov_y, width / height, np.asarray(R, float), np.asarray(t, float))
+
+
+def _skeleton_segments(keypoints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    points = np.stack([[keypoints[a], keypoints[b]] for a, b in SKELETON_EDGES])  # (E, 2, 3)
+    colors = np.asarray([[FINGER_RGB[finger_of(b)]] * 2 for _, b in SKELETON_EDGES], dtype=np.uint8)
+    return points, colors
+
+
+def build(scene, content: SampleScene) -> None:
+    """Add `content` to a viser scene (a `viser.SceneApi`)."""
+    from viser import transforms
+
+    scene.set_up_direction("+z")
+    scene.add_grid("/floor", width=1.0, height=1.0, cell_size=0.1, section_size=0.5, position=(0.0, 0.0, -0.5))
+    if content.vertices is not None and content.faces is not None:
+        scene.add_mesh_simple("/fit/mesh", vertices=content.vertices.astype(np.float32),
+                              faces=content.faces.astype(np.uint32), color=SKIN_RGB, opacity=0.85, side="double")
+    points, colors = _skeleton_segments(content.keypoints)
+    scene.add_line_segments("/fit/skeleton", points=points.astype(np.float32), colors=colors, thickness=0.002)
+    kp_colors = np.asarray([FINGER_RGB[finger_of(k)] for k in range(21)], dtype=np.uint8)
+    scene.add_point_cloud("/fit/keypoints", points=content.keypoints.astype(np.float32), colors=kp_colors,
+                          point_size=0.008, point_shape="circle")
+    scene.add_label("/fit/label", content.label, position=tuple(content.keypoints[0] + np.array([0.0, 0.0, 0.04])))
+    if content.prediction is not None:
+        scene.add_point_cloud("/mvnet/keypoints", points=content.prediction.astype(np.float32),
+                              colors=(255, 255, 255), point_size=0.006, point_shape="diamond")
+    for cam in content.cameras:
+        R_world_cam = cam.R.T
+        scene.add_camera_frustum(
+            f"/cameras/{cam.name}", fov=cam.fov_y_rad, aspect=cam.aspect, scale=0.12, thickness=0.003,
+            image=cam.image, format="jpeg", jpeg_quality=80, wxyz=transforms.SO3.from_matrix(R_world_cam).wxyz,
+            position=-R_world_cam @ cam.t, color=(40, 40, 40))
+
+
+def record_scene(content: SampleScene) -> bytes:
+    """The scene as a `.viser` recording."""
+    from backend.viewer import recorder
+
+    return recorder.record(lambda scene: build(scene, content))

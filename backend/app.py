@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import logging
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
 
 from fastapi import FastAPI
 
@@ -11,7 +13,7 @@ from backend.api.limits import BodySizeLimit
 from backend.api.main import api_router
 from backend.db.session import create_engine_from_url, make_session_factory
 from backend.services.auth_cache import AuthCache, watch_user_changes
-from backend.services.jobs import DatabaseJobQueue, JobQueue
+from backend.services.jobs import JobQueue
 from backend.services.storage import LocalDiskStorage, Storage
 from backend.settings import Settings, get_settings
 
@@ -21,7 +23,7 @@ logger = logging.getLogger(__name__)
 def create_app(settings: Settings | None = None, *, job_queue: JobQueue | None = None,
                storage: Storage | None = None) -> FastAPI:
     settings = settings or get_settings()
-    app = FastAPI(title="handloop", version="0.1.0", docs_url="/docs", openapi_url="/openapi.json",
+    app = FastAPI(title="handloop", version="0.1.0", docs_url="/docs", openapi_url="/openapi.json", lifespan=_lifespan,
                   description="Human-in-the-loop 3D hand labeling (FreiHAND's procedure): annotator and "
                   "reviewer queues with leases, bootstrap rounds, jobs.")
     url = settings.resolved_database_url
@@ -33,10 +35,29 @@ def create_app(settings: Settings | None = None, *, job_queue: JobQueue | None =
     app.state.session_factory = make_session_factory(engine)
     app.state.auth_cache = AuthCache(settings.auth_cache_seconds)
     watch_user_changes(app.state.session_factory, app.state.auth_cache)
-    app.state.job_queue = job_queue or DatabaseJobQueue()
+    if job_queue is None:
+        from backend.services.celery_queue import CeleryJobQueue  # celery + kombu, no torch
+
+        job_queue = CeleryJobQueue(settings)
+    app.state.job_queue = job_queue
     app.state.storage = storage or LocalDiskStorage(settings.storage_dir)
     errors.install(app)
     app.include_router(api_router)
     frontend.mount(app)  # the UI at / and viser's client at /viewer/, after the API routes
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes)
     return app
+
+
+@asynccontextmanager
+async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
+    """Start the job queue's outbox (re-sends jobs whose hand-off to the broker failed) while serving."""
+    queue = app.state.job_queue
+    start = getattr(queue, "start", None)
+    if start is not None:
+        start(app.state.session_factory)
+    try:
+        yield
+    finally:
+        stop = getattr(queue, "stop", None)
+        if stop is not None:
+            stop()

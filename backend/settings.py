@@ -70,6 +70,53 @@ class Settings(BaseSettings):
     )
     review_max_batch: int = Field(default=1000, ge=1, le=1_000_000, description="Most samples queued per build.")
 
+    # --- workers: Celery broker, job hand-off and robustness (docs/deployment.md) -----------------
+    broker_url: str | None = Field(
+        default=None, description="Celery broker, e.g. redis://host:6379/0 (distributed mode). Unset: the embedded "
+        "broker, kombu's filesystem transport under <data_dir>/broker (no server needed).")
+    result_backend_url: str | None = Field(
+        default=None, description="Celery result backend (only chords use it; job state lives in the database). "
+        "Unset: the Redis broker's server, or files under <data_dir>/broker/results in embedded mode.")
+    broker_prefix: str = Field(
+        default="", max_length=100, description="Prefix of every Redis key (several deployments on one server).")
+    broker_visibility_timeout_s: int = Field(
+        default=4 * 3600, ge=2, le=7 * 24 * 3600, description="Redis: an unacknowledged task is redelivered after "
+        "this long; must exceed the longest task (task_time_limit_s).")
+    broker_check_cache_s: float = Field(
+        default=2.0, ge=0, le=3600, description="The API trusts a successful broker check for this long before "
+        "writing jobs (an unreachable broker answers 503 and writes nothing).")
+    outbox_poll_s: float = Field(
+        default=2.0, gt=0, le=3600, description="How often the API re-sends jobs whose hand-off to the broker failed.")
+    job_redispatch_after_s: float = Field(
+        default=1800.0, ge=1, le=7 * 24 * 3600, description="A job still 'queued' this long after its hand-off is "
+        "sent again (a broker that lost it); tasks are idempotent, so a duplicate does nothing.")
+    job_heartbeat_timeout_s: float = Field(
+        default=120.0, ge=1, le=24 * 3600, description="A 'running' job whose row has not changed for this long "
+        "belongs to a dead worker: a redelivered task takes it over, and the outbox re-sends it.")
+    task_time_limit_s: int = Field(
+        default=3 * 3600, ge=10, le=7 * 24 * 3600, description="Hard time limit of the longest tasks (training, "
+        "whole rounds' steps); the soft limit is 90 % of it.")
+    fit_task_time_limit_s: int = Field(
+        default=1800, ge=5, le=24 * 3600, description="Hard time limit of one fit or prediction batch task.")
+    worker_concurrency: int = Field(default=1, ge=1, le=256, description="Worker processes per `handloop worker`.")
+    worker_torch_threads: int = Field(default=1, ge=1, le=256, description="torch threads in each worker process.")
+
+    # --- bootstrap rounds (sized for a 2-core CPU; the paper's sizes are the 'paper' nets on a GPU) ------
+    nets_config: Literal["tiny", "cpu-small", "paper"] = Field(
+        default="cpu-small", description="Network configuration trained in each round (workers/nets/configs.py).")
+    round_handsegnet_budget_s: float = Field(default=90.0, gt=0, le=7 * 24 * 3600,
+                                             description="HandSegNet training seconds per round.")
+    round_mvnet_budget_s: float = Field(default=240.0, gt=0, le=7 * 24 * 3600,
+                                        description="MVNet training seconds per round.")
+    round_max_train_steps: int | None = Field(default=None, ge=1, description="Optional step cap per network.")
+    round_min_training_samples: int = Field(default=2, ge=1, le=1_000_000,
+                                            description="A round needs at least this many accepted samples.")
+    round_seed: int = Field(default=0, ge=0, description="Seeds training (plus the round index).")
+    predict_batch_size: int = Field(default=16, ge=1, le=4096, description="Samples per prediction task.")
+    fit_batch_size: int = Field(default=6, ge=1, le=512, description="Samples per fit task in a round.")
+    fit_global_iterations: int = Field(default=40, ge=1, le=100_000, description="Fit stage 1 iterations.")
+    fit_full_iterations: int = Field(default=160, ge=0, le=100_000, description="Fit stage 2 iterations.")
+
     @model_validator(mode="after")
     def _refuse_default_secret(self) -> Settings:
         if self.environment != "development" and self.secret_key == DEFAULT_SECRET_KEY:
@@ -77,6 +124,24 @@ class Settings(BaseSettings):
                 f"HANDLOOP_SECRET_KEY must be set outside development (environment={self.environment!r})"
             )
         return self
+
+    @model_validator(mode="after")
+    def _visibility_above_longest_task(self) -> Settings:
+        longest = max(self.task_time_limit_s, self.fit_task_time_limit_s)
+        if self.broker_visibility_timeout_s <= longest:
+            raise ValueError(f"broker_visibility_timeout_s ({self.broker_visibility_timeout_s}) must exceed the "
+                             f"longest task time limit ({longest} s), or a running task would be delivered twice")
+        return self
+
+    @property
+    def broker_dir(self) -> Path:
+        """The embedded broker's folders (kombu filesystem transport) and file result backend."""
+        return self.data_dir / "broker"
+
+    @property
+    def checkpoints_dir(self) -> Path:
+        """Network checkpoints, one folder per round (workers/nets/checkpoints.py round_dir)."""
+        return self.data_dir / "checkpoints"
 
     @property
     def cache_dir(self) -> Path:

@@ -17,6 +17,7 @@ from backend.services.errors import (
     LeaseExpiredError,
     NotFoundError,
     PermissionDeniedError,
+    ServiceUnavailableError,
     TooLargeError,
 )
 
@@ -30,6 +31,7 @@ STATUS: list[tuple[type[DomainError], int]] = [
     (LeaseExpiredError, 409),
     (ConflictError, 409),
     (TooLargeError, 413),
+    (ServiceUnavailableError, 503),
 ]
 
 
@@ -49,7 +51,7 @@ def install(app: FastAPI) -> None:
     @app.exception_handler(DomainError)
     async def _domain(_request: Request, exc: DomainError) -> JSONResponse:
         status = status_of(exc)
-        headers = {"WWW-Authenticate": "Bearer"} if status == 401 else None
+        headers = {"WWW-Authenticate": "Bearer"} if status == 401 else {"Retry-After": "5"} if status == 503 else None
         return JSONResponse({"detail": exc.message}, status_code=status, headers=headers)
 
     @app.exception_handler(RequestValidationError)

@@ -5,7 +5,7 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Any
 
-from sqlalchemy import ForeignKey, String
+from sqlalchemy import ForeignKey, String, UniqueConstraint
 from sqlalchemy.orm import Mapped, mapped_column
 
 from backend.db.base import Base, utcnow
@@ -15,6 +15,8 @@ class Prediction(Base):
     """MVNet's 3D keypoints with confidences (and HandSegNet's masks, stored as Mask rows)."""
 
     __tablename__ = "predictions"
+    # A redelivered prediction task must not record a sample twice.
+    __table_args__ = (UniqueConstraint("job_id", "sample_id"),)
 
     id: Mapped[int] = mapped_column(primary_key=True)
     sample_id: Mapped[int] = mapped_column(ForeignKey("samples.id", ondelete="CASCADE"), index=True)
@@ -36,7 +38,8 @@ class Fit(Base):
     id: Mapped[int] = mapped_column(primary_key=True)
     sample_id: Mapped[int] = mapped_column(ForeignKey("samples.id", ondelete="CASCADE"), index=True)
     round_id: Mapped[int | None] = mapped_column(ForeignKey("rounds.id", ondelete="SET NULL"))
-    job_id: Mapped[int | None] = mapped_column(ForeignKey("jobs.id", ondelete="SET NULL"))
+    # Unique: one fit per fit job, however often its task is delivered (NULLs are distinct).
+    job_id: Mapped[int | None] = mapped_column(ForeignKey("jobs.id", ondelete="SET NULL"), unique=True)
     prediction_id: Mapped[int | None] = mapped_column(ForeignKey("predictions.id", ondelete="SET NULL"))
     params: Mapped[list[Any]]  # (61,) shape 10, articulation 45, global rotation 3, translation 3 (m)
     keypoints_m: Mapped[list[Any]]  # (21, 3) world frame, metres

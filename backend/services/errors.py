@@ -38,3 +38,7 @@ class LeaseExpiredError(ConflictError):
 
 class TooLargeError(DomainError):
     pass
+
+
+class ServiceUnavailableError(DomainError):
+    """A service the request needs (the job broker) is unreachable; nothing was written, retry later."""

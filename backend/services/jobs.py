@@ -1,23 +1,26 @@
 """Job rows (state, progress) and the hand-off to whatever runs them.
 
-`JobQueue` is the seam to the workers: the worker issue implements it with Celery. Jobs are handed over
-only after the transaction that created them commits (a worker must find the row).
+`JobQueue` is the seam to the workers (backend.services.celery_queue.CeleryJobQueue in production). Jobs
+are handed over only after the transaction that created them commits (a worker must find the row); the
+queue's availability is checked before anything is written, so an unreachable broker answers 503 and
+writes nothing, and a hand-off that still fails after the commit leaves `dispatched_at` NULL for the
+outbox to re-send (backend.services.dispatch).
 """
 
 from __future__ import annotations
 
 import logging
-from datetime import datetime
+from datetime import datetime, timedelta
 from typing import Any, Protocol
 
-from sqlalchemy import insert
+from sqlalchemy import insert, select
 from sqlalchemy.orm import Session
 
 from backend.db.base import utcnow
 from backend.models.enums import JobKind, JobState
 from backend.models.jobs import Job
 from backend.services import audit
-from backend.services.errors import ConflictError, InvalidInputError, NotFoundError
+from backend.services.errors import ConflictError, InvalidInputError, NotFoundError, ServiceUnavailableError
 from backend.services.transactions import after_commit
 
 logger = logging.getLogger(__name__)
@@ -26,17 +29,24 @@ FINAL_STATES = frozenset({JobState.succeeded, JobState.failed, JobState.cancelle
 
 
 class JobQueue(Protocol):
+    def ensure_available(self) -> None:
+        """Raise ServiceUnavailableError when jobs cannot be handed over now (called before writing)."""
+        ...
+
     def enqueue(self, job_id: int, kind: str) -> None:
-        """Hand a committed job to the workers."""
+        """Hand a committed job to the workers. Never raises: a failed hand-off is left to the outbox."""
         ...
 
     def revoke(self, job_id: int) -> None:
-        """Best effort: stop a queued or running job."""
+        """Best effort: stop a queued or running job (workers also see the 'cancelled' row)."""
         ...
 
 
 class DatabaseJobQueue:
-    """Leaves jobs as 'queued' rows for workers that poll the database (the default until Celery)."""
+    """Leaves jobs as 'queued' rows (for tools that poll the database); hands nothing to a broker."""
+
+    def ensure_available(self) -> None:
+        pass
 
     def enqueue(self, job_id: int, kind: str) -> None:
         logger.debug("job %s (%s) queued in the database", job_id, kind)
@@ -46,11 +56,16 @@ class DatabaseJobQueue:
 
 
 class InMemoryJobQueue:
-    """Test double: remembers what was enqueued and revoked."""
+    """Test double: remembers what was enqueued and revoked; `available = False` acts as a broker outage."""
 
     def __init__(self) -> None:
         self.enqueued: list[tuple[int, str]] = []
         self.revoked: list[int] = []
+        self.available = True
+
+    def ensure_available(self) -> None:
+        if not self.available:
+            raise ServiceUnavailableError("the job queue is unavailable; nothing was written, retry later")
 
     def enqueue(self, job_id: int, kind: str) -> None:
         self.enqueued.append((job_id, kind))
@@ -60,14 +75,20 @@ class InMemoryJobQueue:
 
 
 def create(session: Session, queue: JobQueue, kind: JobKind, *, actor_id: int | None = None,
-           sample_id: int | None = None, round_id: int | None = None, payload: dict[str, Any] | None = None) -> Job:
+           sample_id: int | None = None, round_id: int | None = None, payload: dict[str, Any] | None = None,
+           enqueue: bool = True) -> Job:
+    """A queued job, handed to `queue` after commit. `enqueue=False`: the caller runs it itself (a round's
+    steps, sent as one Celery canvas), so it is marked dispatched and the outbox leaves it alone."""
+    if enqueue:
+        queue.ensure_available()
     job = Job(kind=kind, state=JobState.queued, progress=0.0, sample_id=sample_id, round_id=round_id,
-              payload=payload or {}, created_by_id=actor_id)
+              payload=payload or {}, created_by_id=actor_id, dispatched_at=utcnow())
     session.add(job)
     session.flush()
     audit.record(session, actor_id, "job.create", "job", job.id, kind=kind.value, sample_id=sample_id)
     job_id, job_kind = job.id, kind.value
-    after_commit(session, lambda: queue.enqueue(job_id, job_kind))
+    if enqueue:
+        after_commit(session, lambda: queue.enqueue(job_id, job_kind))
     return job
 
 
@@ -76,12 +97,13 @@ def insert_row(session: Session, queue: JobQueue, kind: JobKind, audit_rows: lis
                now: datetime | None = None) -> int:
     """Core counterpart of `create` for the annotators' hot path: one INSERT ... RETURNING id; the audit
     row is appended to `audit_rows` for the caller's single audit insert. Handed to `queue` after commit."""
+    queue.ensure_available()
     now = now or utcnow()
     table = Job.__table__
     job_id: int = session.connection().execute(
         insert(table).values(kind=kind.value, state=JobState.queued.value, progress=0.0, message="",
                              sample_id=sample_id, payload=payload or {}, created_by_id=actor_id, created_at=now,
-                             updated_at=now).returning(table.c.id)
+                             updated_at=now, dispatched_at=now, attempts=0).returning(table.c.id)
     ).scalar_one()
     audit_rows.append(audit.row(actor_id, "job.create", "job", job_id, at=now, kind=kind.value, sample_id=sample_id))
     after_commit(session, lambda: queue.enqueue(job_id, kind.value))
@@ -93,6 +115,36 @@ def get(session: Session, job_id: int) -> Job:
     if job is None:
         raise NotFoundError(f"job {job_id} not found")
     return job
+
+
+def claim(session: Session, job_id: int, worker: str, stale_after_s: float, now: datetime | None = None) -> Job | None:
+    """For workers: start a job, or take over one whose worker died. Idempotent under redelivery.
+
+    Returns None when there is nothing to do: the job is gone or final, or it is 'running' under another
+    live attempt (its row changed within `stale_after_s`, so this delivery is a duplicate). A 'running'
+    job whose row is older belongs to a dead worker (killed, or its host lost) and is taken over.
+    """
+    now = now or utcnow()
+    job = session.execute(select(Job).where(Job.id == job_id).with_for_update()
+                          .execution_options(populate_existing=True)).scalar_one_or_none()
+    if job is None or JobState(job.state) in FINAL_STATES:
+        return None
+    if job.state == JobState.running and job.updated_at > now - timedelta(seconds=stale_after_s):
+        logger.info("job %s is running under a live attempt (%s); duplicate delivery ignored", job_id, job.worker)
+        return None
+    taken_over = job.state == JobState.running
+    job.state = JobState.running
+    job.attempts = (job.attempts or 0) + 1
+    job.worker = worker[:200]
+    job.updated_at = now
+    job.message = f"taken over by {worker} (attempt {job.attempts})" if taken_over else f"started by {worker}"
+    audit.record(session, None, "job.start", "job", job.id, attempt=job.attempts, worker=worker)
+    return job
+
+
+def is_final(session: Session, job_id: int) -> bool:
+    state = session.execute(select(Job.state).where(Job.id == job_id)).scalar_one_or_none()
+    return state is None or JobState(state) in FINAL_STATES
 
 
 def update_progress(session: Session, job_id: int, progress: float, message: str = "",
@@ -134,5 +186,9 @@ def cancel(session: Session, queue: JobQueue, job_id: int, actor_id: int | None)
     job.state = JobState.cancelled
     job.finished_at = utcnow()
     audit.record(session, actor_id, "job.cancel", "job", job.id)
+    if job.kind == JobKind.fit and job.sample_id is not None:
+        from backend.services.records import release_cancelled_fit  # records imports this module
+
+        release_cancelled_fit(session, job.sample_id, job.id)
     after_commit(session, lambda: queue.revoke(job_id))
     return job

@@ -15,6 +15,7 @@ from sqlalchemy.orm import Session
 
 from backend.models.enums import DecisionKind, JobKind, JobState, MaskKind, SampleState, Stream
 from backend.models.fits import Fit, Prediction
+from backend.models.jobs import Job
 from backend.models.labels import Mask
 from backend.models.review import Decision
 from backend.services import audit, jobs, queues, rounds
@@ -81,12 +82,14 @@ def record_prediction(session: Session, storage: Storage, sample_id: int, *, key
 
 
 def queue_fit(session: Session, queue: jobs.JobQueue, sample_id: int, *, source: str,
-              actor_id: int | None = None, round_id: int | None = None, payload: dict[str, Any] | None = None):
-    """Move a sample to 'fitting' and queue a fit job (e.g. from fresh predictions in round i)."""
+              actor_id: int | None = None, round_id: int | None = None, payload: dict[str, Any] | None = None,
+              enqueue: bool = True):
+    """Move a sample to 'fitting' and queue a fit job (e.g. from fresh predictions in round i).
+    `enqueue=False`: the caller runs the job (a round's fit batches), see services.jobs.create."""
     sample = queues.load_locked(session, sample_id)
     transition(session, sample, SampleState.fitting, actor_id, reason=f"fit queued ({source})")
     return jobs.create(session, queue, JobKind.fit, actor_id=actor_id, sample_id=sample_id, round_id=round_id,
-                       payload={"source": source, **(payload or {})})
+                       payload={"source": source, **(payload or {})}, enqueue=enqueue)
 
 
 def record_fit(session: Session, sample_id: int, *, params: Sequence[float], keypoints_m: Sequence[Sequence[float]],
@@ -98,6 +101,8 @@ def record_fit(session: Session, sample_id: int, *, params: Sequence[float], key
     queue policy."""
     theta = _finite_array(params, (NUM_PARAMS,), "params")
     kp = _finite_array(keypoints_m, (NUM_KEYPOINTS, 3), "keypoints_m")
+    if job_id is not None and jobs.is_final(session, job_id):
+        raise ConflictError(f"job {job_id} is already finished or cancelled; fit not recorded")
     sample = queues.load_locked(session, sample_id)
     if sample.state != SampleState.fitting:
         raise ConflictError(f"sample {sample_id} is '{sample.state}', not 'fitting'; fit not recorded")
@@ -139,8 +144,29 @@ def record_fit(session: Session, sample_id: int, *, params: Sequence[float], key
 
 
 def record_fit_failure(session: Session, sample_id: int, job_id: int | None, error: str) -> None:
-    """A fit that could not be made sends the sample back to the annotators."""
+    """A fit that could not be made sends the sample back to the annotators (a redelivered failure, or one
+    for a job already finished or cancelled, changes nothing)."""
+    if job_id is not None and jobs.is_final(session, job_id):
+        return
     sample = queues.load_locked(session, sample_id)
     if job_id is not None:
         jobs.finish(session, job_id, JobState.failed, error=error)
-    transition(session, sample, SampleState.needs_annotation, None, reason=f"fit failed: {error}")
+    if sample.state == SampleState.fitting:
+        transition(session, sample, SampleState.needs_annotation, None, reason=f"fit failed: {error}")
+
+
+def release_cancelled_fit(session: Session, sample_id: int, job_id: int) -> None:
+    """A cancelled fit job lets its sample out of 'fitting': back to 'fitted' when it has an earlier fit,
+    else to the annotators (the only other way out of 'fitting'). Unless another fit of it is pending."""
+    sample = queues.load_locked(session, sample_id)
+    if sample.state != SampleState.fitting:
+        return
+    pending = session.execute(
+        select(func.count()).select_from(Job).where(Job.sample_id == sample_id, Job.kind == JobKind.fit,
+                                                    Job.id != job_id,
+                                                    Job.state.in_([JobState.queued, JobState.running]))
+    ).scalar_one()
+    if pending:
+        return
+    target = SampleState.fitted if sample.current_fit_id is not None else SampleState.needs_annotation
+    transition(session, sample, target, None, reason=f"fit job {job_id} cancelled")

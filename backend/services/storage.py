@@ -36,6 +36,10 @@ class LocalDiskStorage:
     def _path(self, key: str) -> Path:
         return self.root.joinpath(*_check_key(key).parts)
 
+    def local_path(self, key: str) -> Path:
+        """The file behind `key` (workers read images as files; distributed mode shares this folder)."""
+        return self._path(key)
+
     def put_bytes(self, key: str, data: bytes) -> None:
         path = self._path(key)
         path.parent.mkdir(parents=True, exist_ok=True)

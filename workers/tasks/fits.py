@@ -1,0 +1,199 @@
+"""Fit jobs: load each sample's inputs, fit the hand model (batched per rig and configuration), record.
+
+Fits from annotations use the paper's first-round weights with the clicks and the corrected (else the
+chroma-key) masks; fits from predictions use MVNet's 3D keypoints (weighted by confidence) and HandSegNet's
+masks with the later-round weights (`LossWeights.later_rounds()`). One sample that cannot be fitted is
+recorded as a failure (back to the annotators) and never sinks its batch. Every job is claimed first and
+recorded in its own transaction, so a redelivered task neither fits twice nor records twice.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections import defaultdict
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from celery.exceptions import SoftTimeLimitExceeded
+from sqlalchemy.exc import IntegrityError
+
+from backend.models.capture import Sample
+from backend.models.enums import JobState, SampleState
+from backend.services import jobs, records
+from backend.services.errors import DomainError
+from backend.services.masks import encode_png
+from backend.services.verification import HeuristicThresholds
+from workers.capture.schema import CaptureError
+from workers.fitting.config import FitConfig, LossWeights
+from workers.fitting.inputs import FitInputError
+from workers.tasks.context import WorkerContext
+from workers.tasks.inputs import FitInput, InputError, fit_input
+from workers.tasks.progress import JobCancelledError, ProgressReporter
+
+log = logging.getLogger(__name__)
+
+# What makes one sample's fit impossible (as opposed to a bug or an outage, which fail the task).
+SAMPLE_ERRORS = (InputError, FitInputError, CaptureError, DomainError, ValueError)
+
+
+@dataclass
+class FitSummary:
+    """What a batch did: fits recorded, samples failed (with reasons), jobs skipped (final, or running
+    under another live attempt)."""
+
+    fitted: list[int] = field(default_factory=list)  # fit ids
+    failed: dict[int, str] = field(default_factory=dict)  # job id -> error
+    skipped: list[int] = field(default_factory=list)  # job ids
+    seconds: float = 0.0
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"fitted": len(self.fitted), "fit_ids": self.fitted, "failed": len(self.failed),
+                "errors": {str(k): v for k, v in self.failed.items()}, "skipped": len(self.skipped),
+                "seconds": round(self.seconds, 3)}
+
+
+def fit_config(ctx: WorkerContext, source: str) -> FitConfig:
+    s = ctx.settings
+    weights = LossWeights.later_rounds() if source == "prediction" else LossWeights()
+    return FitConfig(weights=weights, global_iterations=s.fit_global_iterations, full_iterations=s.fit_full_iterations)
+
+
+def engine_for(ctx: WorkerContext, fi: FitInput, config: FitConfig) -> Any:
+    """A FittingEngine for this rig and configuration, built once per process."""
+    from workers.fitting.engine import FittingEngine
+
+    return ctx.cached(("engine", fi.rig.digest, config),
+                      lambda: FittingEngine(ctx.hand_model(), list(fi.rig.cameras), config))
+
+
+def run_fit_jobs(ctx: WorkerContext, job_ids: list[int], *, parent: tuple[int, float, float] | None = None
+                 ) -> FitSummary:
+    """Claim, fit and record these fit jobs (any mix of sources and rigs)."""
+    started = time.perf_counter()
+    summary = FitSummary()
+    claimed: list[FitInput] = []
+    for job_id in job_ids:
+        fi = _claim_and_load(ctx, job_id, summary)
+        if fi is not None:
+            claimed.append(fi)
+    groups: dict[tuple[str, str], list[FitInput]] = defaultdict(list)
+    for fi in claimed:
+        groups[(fi.rig.digest, fi.source)].append(fi)
+    progress = ProgressReporter(ctx, [fi.job_id for fi in claimed], parent=parent)
+    done = 0
+    try:
+        for (_, source), group in groups.items():
+            config = fit_config(ctx, source)
+            engine = engine_for(ctx, group[0], config)
+
+            def tick(fraction: float, message: str, offset: int = done, size: int = len(group)) -> None:
+                progress((offset + fraction * size) / max(1, len(claimed)), f"fitting: {message}")
+
+            _fit_group(ctx, engine, group, tick, summary)
+            done += len(group)
+    except (SoftTimeLimitExceeded, JobCancelledError) as exc:
+        reason = "time limit exceeded" if isinstance(exc, SoftTimeLimitExceeded) else "cancelled"
+        for fi in claimed:
+            if fi.job_id not in summary.failed and not jobs_final(ctx, fi.job_id):
+                _record_failure(ctx, fi.sample_id, fi.job_id, f"fit stopped: {reason}", summary)
+        if isinstance(exc, SoftTimeLimitExceeded):
+            log.warning("fit batch %s stopped at its time limit", job_ids)
+    summary.seconds = time.perf_counter() - started
+    return summary
+
+
+def jobs_final(ctx: WorkerContext, job_id: int) -> bool:
+    with ctx.session_factory() as session:
+        return jobs.is_final(session, job_id)
+
+
+def _claim_and_load(ctx: WorkerContext, job_id: int, summary: FitSummary) -> FitInput | None:
+    sample_id = None
+    try:
+        with ctx.session_factory.begin() as session:
+            job = jobs.claim(session, job_id, ctx.worker_name, ctx.settings.job_heartbeat_timeout_s)
+            if job is None:
+                summary.skipped.append(job_id)
+                return None
+            sample_id = job.sample_id
+            if job.kind != "fit":
+                jobs.finish(session, job_id, JobState.failed, error=f"job {job_id} is a {job.kind} job, not a fit")
+                summary.failed[job_id] = "not a fit job"
+                return None
+            state = session.get(Sample, job.sample_id).state if job.sample_id is not None else None
+            if state != SampleState.fitting:
+                jobs.finish(session, job_id, JobState.failed,
+                            error=f"sample {job.sample_id} is '{state}', not 'fitting'; nothing to fit")
+                summary.failed[job_id] = f"sample is {state}"
+                return None
+            return fit_input(ctx, session, job)
+    except SAMPLE_ERRORS as exc:
+        message = getattr(exc, "message", None) or str(exc)
+        log.warning("fit job %s: cannot load inputs: %s", job_id, message)
+        if sample_id is not None:
+            # The claim rolled back with the failed load; record the failure on its own.
+            _record_failure(ctx, sample_id, job_id, f"inputs: {message}", summary)
+        return None
+
+
+def _fit_group(ctx: WorkerContext, engine: Any, group: list[FitInput], tick: Any, summary: FitSummary) -> None:
+    valid: list[FitInput] = []
+    for fi in group:
+        try:
+            fi.observations.validate(engine.cameras)
+            valid.append(fi)
+        except FitInputError as exc:
+            _record_failure(ctx, fi.sample_id, fi.job_id, f"inputs: {exc}", summary)
+    if not valid:
+        return
+    try:
+        results = engine.fit([fi.observations for fi in valid], progress=tick)
+    except (SoftTimeLimitExceeded, JobCancelledError):
+        raise
+    except Exception as exc:  # one bad frame must not sink the others: fit them one by one
+        if len(valid) == 1:
+            _record_failure(ctx, valid[0].sample_id, valid[0].job_id, f"fit failed: {exc}", summary)
+            return
+        log.warning("batch fit of %d samples failed (%s); fitting them one by one", len(valid), exc)
+        for fi in valid:
+            _fit_group(ctx, engine, [fi], tick, summary)
+        return
+    for fi, result in zip(valid, results, strict=True):
+        _record(ctx, fi, result, engine.config, summary)
+
+
+def _record(ctx: WorkerContext, fi: FitInput, result: Any, config: FitConfig, summary: FitSummary) -> None:
+    # Model masks are the HandSegNet labels of later rounds and the reviewers' overlay: stored as files.
+    mask_keys = {}
+    for view_id, mask in zip(fi.view_ids, result.model_masks, strict=True):
+        key = f"fits/sample-{fi.sample_id}/job-{fi.job_id}/view-{view_id}.png"
+        ctx.storage.put_bytes(key, encode_png(mask))
+        mask_keys[str(view_id)] = key
+    ious = {view_id: float(min(1.0, max(0.0, iou)))
+            for view_id, iou in zip(fi.view_ids, result.diagnostics.iou_per_view, strict=True) if np.isfinite(iou)}
+    diagnostics = {**result.diagnostics.to_dict(), "model_mask_keys": mask_keys, "hand_model": result.hand_model,
+                   "weights": {"kp2d": config.weights.kp2d, "kp3d": config.weights.kp3d, "seg": config.weights.seg},
+                   "iterations_schedule": [config.global_iterations, config.full_iterations]}
+    try:
+        with ctx.session_factory.begin() as session:
+            fit = records.record_fit(
+                session, fi.sample_id, params=result.theta.tolist(), keypoints_m=result.keypoints.tolist(),
+                view_ious=ious, diagnostics=diagnostics, inputs=fi.inputs, model_file=result.hand_model,
+                thresholds=HeuristicThresholds.from_settings(ctx.settings), job_id=fi.job_id,
+                prediction_id=fi.prediction_id)
+            session.flush()
+            summary.fitted.append(fit.id)
+    except (DomainError, IntegrityError) as exc:  # cancelled, or recorded by a concurrent duplicate delivery
+        log.info("fit of job %s not recorded: %s", fi.job_id, getattr(exc, "message", exc))
+        summary.skipped.append(fi.job_id)
+
+
+def _record_failure(ctx: WorkerContext, sample_id: int, job_id: int, error: str, summary: FitSummary) -> None:
+    summary.failed[job_id] = error
+    try:
+        with ctx.session_factory.begin() as session:
+            records.record_fit_failure(session, sample_id, job_id, error[:2000])
+    except DomainError as exc:
+        log.warning("failure of fit job %s not recorded: %s", job_id, exc.message)

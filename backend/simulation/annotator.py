@@ -1,0 +1,178 @@
+"""A simulated annotator: takes tasks from the annotator queue through the API and clicks wrist and
+fingertips where the ground truth projects them, with the mistakes people make.
+
+- clicks: the true 2D keypoint plus Gaussian noise of `click_sigma_px` per coordinate;
+- occluded points (not visible in the ground truth): skipped (`not_annotated`), or, with
+  `skip_occluded=False`, clicked at a best guess and marked `occluded`; points outside the image: skipped;
+- finger swaps: with `swap_probability` per view, the clicks of two fingertips are exchanged;
+- masks: a view whose shown mask overlaps the true hand mask with IoU < `mask_iou_threshold` is corrected
+  (at most `max_mask_corrections` per sample, worst first) to the true hand mask with a boundary displaced
+  by smooth noise of `boundary_noise_px`.
+Time is counted with the unit costs (clicks and mask corrections) and sent as `time_spent_s`.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from backend.simulation.client import ApiClient
+from backend.simulation.costs import HumanLedger
+from backend.simulation.truth import GroundTruthIndex
+
+log = logging.getLogger(__name__)
+
+FINGERTIPS = (4, 8, 12, 16, 20)
+
+
+@dataclass(frozen=True)
+class AnnotatorConfig:
+    """How a simulated annotator works (pixels; probabilities in [0, 1])."""
+
+    click_sigma_px: float = 2.0
+    swap_probability: float = 0.05
+    skip_occluded: bool = True
+    mask_iou_threshold: float = 0.5
+    max_mask_corrections: int = 2
+    boundary_noise_px: float = 1.5
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("click_sigma_px", "boundary_noise_px"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and 0 <= value <= 100):
+                raise ValueError(f"{name} must be in [0, 100] pixels, not {value}")
+        for name in ("swap_probability", "mask_iou_threshold"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and 0 <= value <= 1):
+                raise ValueError(f"{name} must be in [0, 1], not {value}")
+        if not 0 <= self.max_mask_corrections <= 64:
+            raise ValueError(f"max_mask_corrections must be in 0..64, not {self.max_mask_corrections}")
+
+
+@dataclass(frozen=True)
+class AnnotationOutcome:
+    """One submission: counts of what was done and the human seconds it cost."""
+
+    sample_id: int
+    clicks: int
+    skipped_points: int
+    swapped_views: int
+    mask_corrections: int
+    seconds: float
+    fit_job_id: int | None
+
+
+def iou(a: np.ndarray, b: np.ndarray) -> float:
+    union = np.logical_or(a, b).sum()
+    return float(np.logical_and(a, b).sum() / union) if union else 1.0
+
+
+def noisy_mask(mask: np.ndarray, noise_px: float, rng: np.random.Generator, smoothness_px: float = 4.0) -> np.ndarray:
+    """The mask with its boundary moved in and out by smooth noise (std `noise_px`, correlation length about
+    `smoothness_px`): the signed distance to the boundary plus a smooth random field, thresholded at 0."""
+    mask = np.asarray(mask, bool)
+    if noise_px <= 0 or not mask.any():
+        return mask.copy()
+    inside = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, 3)
+    outside = cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, 3)
+    field = cv2.GaussianBlur(rng.normal(size=mask.shape).astype(np.float32), (0, 0), smoothness_px)
+    field /= field.std() + 1e-9
+    return (inside - outside + noise_px * field) > 0
+
+
+def encode_rle(mask: np.ndarray) -> list[int]:
+    """Row-major run lengths starting with background (the API's mask encoding, docs/api.md)."""
+    from backend.services.masks import encode_rle as encode
+
+    return encode(mask)
+
+
+class SimulatedAnnotator:
+    """One annotator account working through the API."""
+
+    def __init__(self, name: str, client: ApiClient, truth: GroundTruthIndex, ledger: HumanLedger,
+                 config: AnnotatorConfig | None = None) -> None:
+        self.name = name
+        self.client = client
+        self.truth = truth
+        self.ledger = ledger
+        self.config = config or AnnotatorConfig()
+        self.rng = np.random.default_rng([self.config.seed, *name.encode()])
+        self._submissions = 0
+
+    def _shown_mask(self, view: dict) -> np.ndarray:
+        if view.get("mask_url") is None:
+            return np.zeros((view["height"], view["width"]), bool)
+        data = np.frombuffer(self.client.file(view["mask_url"]), np.uint8)
+        mask = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE)
+        if mask is None or mask.shape != (view["height"], view["width"]):
+            raise ValueError(f"view {view['id']}: the served mask is unreadable or of the wrong size")
+        return mask >= 128
+
+    def annotate_next(self, round_index: int, give_up_on: frozenset[int] = frozenset()) -> AnnotationOutcome | None:
+        """Take the next annotation task and submit clicks (and mask corrections); None when the queue is
+        empty, or when the task is a sample in `give_up_on` (its lease is released)."""
+        task = self.client.next_annotation()
+        if task is None:
+            return None
+        if task["sample_id"] in give_up_on:
+            self.client.release_annotation(task["sample_id"], task["lease_token"])
+            log.warning("%s: sample %d is back again; leaving it", self.name, task["sample_id"])
+            return None
+        cfg = self.config
+        gt = self.truth.truth(task["sample_id"])
+        cameras = list(gt.camera_names)
+        clicks, skipped, swapped = [], 0, 0
+        for view in task["views"]:
+            c = cameras.index(view["camera"])
+            points: dict[int, tuple[float, float, str]] = {}
+            for k in task["keypoints_to_click"]:
+                x, y = gt.keypoints_2d[c, k]
+                inside = -0.5 <= x <= view["width"] - 0.5 and -0.5 <= y <= view["height"] - 0.5
+                if not inside or (not gt.visibility[c, k] and cfg.skip_occluded):
+                    skipped += 1
+                    continue
+                x, y = np.array([x, y]) + self.rng.normal(0, cfg.click_sigma_px, 2)
+                x = float(np.clip(x, -0.5, view["width"] - 0.5))
+                y = float(np.clip(y, -0.5, view["height"] - 0.5))
+                points[k] = (x, y, "visible" if gt.visibility[c, k] else "occluded")
+            tips = [k for k in FINGERTIPS if k in points]
+            if len(tips) >= 2 and self.rng.random() < cfg.swap_probability:
+                a, b = self.rng.choice(tips, 2, replace=False)
+                (xa, ya, va), (xb, yb, vb) = points[a], points[b]
+                points[a], points[b] = (xb, yb, va), (xa, ya, vb)
+                swapped += 1
+            for k in task["keypoints_to_click"]:
+                if k in points:
+                    x, y, visibility = points[k]
+                    clicks.append({"view_id": view["id"], "keypoint": k, "x": x, "y": y, "visibility": visibility})
+                else:
+                    clicks.append({"view_id": view["id"], "keypoint": k, "visibility": "not_annotated"})
+        masks = []
+        if cfg.max_mask_corrections and gt.hand_masks:
+            scored = []
+            for view in task["views"]:
+                true_mask = gt.hand_masks[view["camera"]]
+                overlap = iou(self._shown_mask(view), true_mask)
+                if overlap < cfg.mask_iou_threshold and true_mask.any():
+                    scored.append((overlap, view, true_mask))
+            for _, view, true_mask in sorted(scored, key=lambda s: s[0])[:cfg.max_mask_corrections]:
+                corrected = noisy_mask(true_mask, cfg.boundary_noise_px, self.rng)
+                masks.append({"view_id": view["id"], "width": view["width"], "height": view["height"],
+                              "rle": encode_rle(corrected)})
+        n_clicks = sum(1 for c in clicks if c["visibility"] != "not_annotated")
+        seconds = n_clicks * self.ledger.costs.click_s + len(masks) * self.ledger.costs.mask_correction_s
+        self._submissions += 1
+        body = {"submission_id": f"sim-{self.name}-{task['sample_id']}-{self._submissions}",
+                "lease_token": task["lease_token"], "time_spent_s": seconds, "clicks": clicks, "masks": masks}
+        result = self.client.submit(task["sample_id"], body)
+        self.ledger.add(round_index, clicks=n_clicks, skipped_points=skipped, swapped_views=swapped,
+                        mask_corrections=len(masks), submissions=1)
+        return AnnotationOutcome(sample_id=task["sample_id"], clicks=n_clicks, skipped_points=skipped,
+                                 swapped_views=swapped, mask_corrections=len(masks), seconds=seconds,
+                                 fit_job_id=result.get("fit_job_id"))

@@ -1,0 +1,224 @@
+"""Simulated annotators and reviewers against the real API (the backend's app fixture, SQLite): what they
+click and submit, how they decide, and that their time is counted with the unit costs.
+
+The in-process app hands jobs to an in-memory queue, so the tests play the worker: they record fits made
+from each sample's ground truth, moved by a known translation (its mean vertex error is that distance).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from sqlalchemy import text
+
+from backend.models.enums import Role
+from backend.services import records
+from backend.services.samples import views_of
+from backend.services.verification import HeuristicThresholds
+from backend.simulation.annotator import AnnotatorConfig, SimulatedAnnotator, iou, noisy_mask
+from backend.simulation.client import ApiClient, ApiError
+from backend.simulation.costs import HumanLedger, UnitCosts
+from backend.simulation.reviewer import ReviewerConfig, SimulatedReviewer
+from backend.simulation.team import Team
+from backend.simulation.truth import GroundTruthIndex
+from workers.capture import read_capture
+
+
+@pytest.fixture(scope="module")
+def capture_dir(tmp_path_factory) -> Path:
+    from workers.synth.generator import generate_capture
+    from workers.synth.plan import SynthConfig
+
+    out = tmp_path_factory.mktemp("sim-capture") / "cap"
+    generate_capture(out, SynthConfig(num_sequences=1, frames_per_sequence=3, seed=11, width_px=128), workers=1)
+    return out
+
+
+@pytest.fixture
+def world(sqlite_env, capture_dir):
+    """The app with the capture imported (all samples queued for annotation) and a ground-truth index."""
+    env = sqlite_env
+    admin = ApiClient(env.client, token_of(env, Role.admin))
+    admin.import_capture(str(capture_dir), "sim", queue_for_annotation=True)
+    truth = GroundTruthIndex({"sim": read_capture(capture_dir)}, admin.sample_index()["samples"])
+    return env, admin, truth
+
+
+def token_of(env, role: Role) -> str:
+    return env.headers(role)["Authorization"].split()[1]
+
+
+def record_true_fits(env, truth: GroundTruthIndex, offset_m: float | dict[int, float], done: set[int]) -> list[int]:
+    """Play the worker: fit every queued fit job's sample with its ground truth moved by `offset_m` along x."""
+    fitted = []
+    for job_id, kind in list(env.queue.enqueued):
+        if kind != "fit" or job_id in done:
+            continue
+        done.add(job_id)
+        with env.session() as s, s.begin():
+            sample_id = s.execute(text("SELECT sample_id FROM jobs WHERE id = :j"), {"j": job_id}).scalar_one()
+            gt = truth.truth(sample_id)
+            shift = offset_m[sample_id] if isinstance(offset_m, dict) else offset_m
+            move = np.array([shift, 0.0, 0.0])
+            params = np.concatenate([gt.betas, gt.pose, gt.global_orient, gt.transl + move])
+            records.record_fit(s, sample_id, params=params, keypoints_m=gt.keypoints_3d + move,
+                               view_ious={v.id: 0.9 for v in views_of(s, sample_id, with_masks=False)},
+                               diagnostics={}, inputs={"submission_ids": [1]}, model_file="handloop-builtin v1",
+                               thresholds=HeuristicThresholds(), job_id=job_id)
+        fitted.append(sample_id)
+    return fitted
+
+
+def test_annotator_clicks_the_truth_with_noise_skips_hidden_points_and_corrects_masks(world):
+    env, _, truth = world
+    ledger = HumanLedger()
+    config = AnnotatorConfig(click_sigma_px=2.0, swap_probability=0.0, mask_iou_threshold=1.0,
+                             max_mask_corrections=2, boundary_noise_px=1.5, seed=1)
+    annotator = SimulatedAnnotator("ann", ApiClient(env.client, token_of(env, Role.annotator)), truth, ledger, config)
+    outcome = annotator.annotate_next(round_index=0)
+    gt = truth.truth(outcome.sample_id)
+    with env.session() as s:
+        clicks = s.execute(text("SELECT c.keypoint, c.x_px, c.y_px, c.visibility, cc.name, v.width, v.height "
+                                "FROM clicks c JOIN views v ON v.id = c.view_id "
+                                "JOIN camera_calibrations cc ON cc.id = v.camera_id WHERE c.sample_id = :s"),
+                           {"s": outcome.sample_id}).all()
+        spent = s.execute(text("SELECT time_spent_s FROM submissions")).scalar_one()
+        masks = s.execute(text("SELECT m.storage_key, cc.name FROM masks m JOIN views v ON v.id = m.view_id "
+                               "JOIN camera_calibrations cc ON cc.id = v.camera_id WHERE m.kind = 'corrected'")).all()
+    cams = list(gt.camera_names)
+    residuals = []
+    for keypoint, x, y, visibility, camera, width, height in clicks:
+        c = cams.index(camera)
+        u, v = gt.keypoints_2d[c, keypoint]
+        inside = -0.5 <= u <= width - 0.5 and -0.5 <= v <= height - 0.5
+        if gt.visibility[c, keypoint] and inside:
+            assert visibility == "visible"
+            residuals.append([x - u, y - v])
+        else:
+            assert visibility == "not_annotated" and x is None
+    residuals = np.asarray(residuals)
+    assert len(clicks) == 6 * len(cams) and len(residuals) == outcome.clicks > 10
+    assert outcome.skipped_points == len(clicks) - outcome.clicks
+    assert 1.0 < residuals.std() < 3.0 and np.abs(residuals.mean()) < 1.5  # sigma 2 px per coordinate
+    # Time: 2 s per click, 12 s per corrected mask, sent with the submission and in the ledger.
+    assert outcome.mask_corrections == len(masks) == 2
+    assert spent == pytest.approx(outcome.clicks * 2 + 2 * 12) == pytest.approx(outcome.seconds)
+    assert ledger.hours(0) == pytest.approx(outcome.seconds / 3600)
+    storage = env.client.app.state.storage
+    from backend.services.masks import decode_png
+
+    for key, camera in masks:
+        corrected = decode_png(storage.get_bytes(key))
+        assert 0.6 < iou(corrected, gt.hand_masks[camera]) < 1.0  # the true hand, with a noisy boundary
+
+
+def test_annotator_swaps_two_fingertips_when_told_to(world):
+    env, _, truth = world
+    config = AnnotatorConfig(click_sigma_px=0.0, swap_probability=1.0, max_mask_corrections=0)
+    annotator = SimulatedAnnotator("ann", ApiClient(env.client, token_of(env, Role.annotator)), truth,
+                                   HumanLedger(), config)
+    outcome = annotator.annotate_next(round_index=0)
+    gt = truth.truth(outcome.sample_id)
+    with env.session() as s:
+        rows = s.execute(text("SELECT cc.name, c.keypoint, c.x_px, c.y_px FROM clicks c "
+                              "JOIN views v ON v.id = c.view_id JOIN camera_calibrations cc ON cc.id = v.camera_id "
+                              "WHERE c.x_px IS NOT NULL")).all()
+    by_view: dict[str, dict[int, tuple[float, float]]] = {}
+    for camera, keypoint, x, y in rows:
+        by_view.setdefault(camera, {})[keypoint] = (x, y)
+    views_with_swaps = 0
+    for camera, points in by_view.items():
+        c = list(gt.camera_names).index(camera)
+        wrong = [k for k, xy in points.items() if not np.allclose(xy, gt.keypoints_2d[c, k], atol=1e-6)]
+        tips = [k for k in (4, 8, 12, 16, 20) if k in points]
+        if len(tips) >= 2:
+            a, b = wrong  # exactly two fingertips, each at the other's place
+            assert np.allclose(points[a], gt.keypoints_2d[c, b]) and np.allclose(points[b], gt.keypoints_2d[c, a])
+            views_with_swaps += 1
+        else:
+            assert not wrong
+    assert views_with_swaps == outcome.swapped_views > 0
+
+
+def test_reviewer_judges_by_true_vertex_error_with_mistakes_and_costs(world):
+    env, _, truth = world
+    annotator = SimulatedAnnotator("ann", ApiClient(env.client, token_of(env, Role.annotator)), truth,
+                                   HumanLedger(), AnnotatorConfig(max_mask_corrections=0))
+    for _ in range(3):
+        annotator.annotate_next(round_index=0)
+    done: set[int] = set()
+    record_true_fits(env, truth, 0.004, done)  # every fit 4 mm off
+    ledger = HumanLedger(costs=UnitCosts(verification_s=5.0))
+    reviewer_client = ApiClient(env.client, token_of(env, Role.reviewer))
+
+    strict = SimulatedReviewer("strict", reviewer_client, truth, ledger, ReviewerConfig(accept_below_mm=3.0,
+                                                                                        error_rate=0.0))
+    first = strict.review_next(0, annotation_attempts={})
+    assert first.decision == "annotate" and first.vertex_mm == pytest.approx(4.0, abs=1e-6) and not first.mistake
+    second = strict.review_next(0, annotation_attempts={s: 2 for s in truth.sample_ids})
+    assert second.decision == "reject"
+    lenient_but_wrong = SimulatedReviewer("flip", reviewer_client, truth, ledger,
+                                          ReviewerConfig(accept_below_mm=10.0, error_rate=1.0))
+    third = lenient_but_wrong.review_next(0, annotation_attempts={})
+    assert third.decision == "annotate" and third.mistake  # a good fit, wrongly sent back
+    assert strict.review_next(0, {}) is None
+    effort = ledger.effort(0)
+    assert (effort.verifications, effort.rejects, effort.sent_to_annotation, effort.reviewer_mistakes) == (3, 1, 2, 1)
+    assert ledger.hours(0) == pytest.approx(3 * 5 / 3600)
+    with env.session() as s:
+        states = dict(s.execute(text("SELECT id, state FROM samples")).all())
+    assert sorted(states.values()) == ["needs_annotation", "needs_annotation", "rejected"]
+
+
+def test_team_works_until_the_queues_are_empty_and_the_books_add_up(world):
+    env, admin, truth = world
+    ledger = HumanLedger()
+    annotators = [SimulatedAnnotator(f"ann{i}", ApiClient(env.client, token_of(env, Role.annotator)), truth, ledger,
+                                     AnnotatorConfig(max_mask_corrections=1, mask_iou_threshold=0.9, seed=i))
+                  for i in range(1)]
+    reviewers = [SimulatedReviewer("rev", ApiClient(env.client, token_of(env, Role.reviewer)), truth, ledger,
+                                   ReviewerConfig(accept_below_mm=8.0, error_rate=0.0))]
+    team = Team(annotators, reviewers)
+    bad_first = set(truth.sample_ids[:1])
+    done: set[int] = set()
+    passes: list[int] = []
+
+    def worker() -> None:  # the first fit of one sample is 20 mm off, every other fit 2 mm
+        passes.append(1)
+        offsets = {s: (0.02 if s in bad_first and len(passes) == 1 else 0.002) for s in truth.sample_ids}
+        record_true_fits(env, truth, offsets, done)
+
+    work = team.work_until_done(0, worker)
+    stats = admin.statistics()
+    assert stats["samples_by_state"] == {"accepted": 3}
+    assert stats["rounds"][0]["added"] == {"heuristic": 0, "manual": 0, "annotated": 3}
+    assert stats["rounds"][0]["dataset_size_after"] == 3
+    assert [r.decision for r in work.reviews].count("annotate") == 1 and len(work.annotations) == 4
+    effort = ledger.effort(0)
+    assert effort.submissions == 4 == stats["submissions"] and effort.verifications == 4
+    with env.session() as s:
+        clicked = s.execute(text("SELECT count(*) FROM clicks WHERE visibility != 'not_annotated'")).scalar_one()
+        corrected = s.execute(text("SELECT count(*) FROM masks WHERE kind = 'corrected'")).scalar_one()
+        spent = s.execute(text("SELECT sum(time_spent_s) FROM submissions")).scalar_one()
+    assert effort.clicks == clicked and effort.mask_corrections == corrected
+    assert ledger.hours(0) * 3600 == pytest.approx(spent + 4 * 5)
+
+
+def test_configs_and_client_refuse_bad_values(world):
+    env, _, _ = world
+    with pytest.raises(ValueError, match="click_sigma_px"):
+        AnnotatorConfig(click_sigma_px=float("nan"))
+    with pytest.raises(ValueError, match="error_rate"):
+        ReviewerConfig(error_rate=1.5)
+    with pytest.raises(ValueError, match="verification_s"):
+        UnitCosts(verification_s=-1)
+    with pytest.raises(ApiError) as refused:
+        ApiClient(env.client, token_of(env, Role.annotator)).statistics()
+    assert refused.value.status == 403
+    rng = np.random.default_rng(0)
+    square = np.zeros((40, 40), bool)
+    square[10:30, 10:30] = True
+    assert noisy_mask(square, 0.0, rng).sum() == square.sum()
+    assert 0.7 < iou(noisy_mask(square, 2.0, rng), square) < 1.0

@@ -46,6 +46,9 @@ class JobPublic(Public):
     created_at: datetime
     updated_at: datetime
     finished_at: datetime | None
+    result: dict[str, Any] | None = None  # what the worker recorded, e.g. a round's counts and model versions
+    attempts: int = 0  # how many times a worker started it (more than 1: redelivered or taken over)
+    worker: str | None = None
 
 
 class StreamCounts(Public):

@@ -11,7 +11,20 @@ from __future__ import annotations
 import logging
 from typing import Any
 
-from backend.services.celery_queue import TASK_FIT, TASK_FIT_BATCH
+from celery import chain, chord
+
+from backend.services.celery_queue import (
+    TASK_FIT,
+    TASK_FIT_BATCH,
+    TASK_HEURISTIC,
+    TASK_PREDICT,
+    TASK_REVIEW_QUEUE,
+    TASK_ROUND,
+    TASK_ROUND_FINISH,
+    TASK_ROUND_INFERENCE,
+    TASK_TRAIN_HANDSEGNET,
+    TASK_TRAIN_MVNET,
+)
 from backend.settings import get_settings
 from workers.tasks.app import celery_app
 from workers.tasks.context import get_context
@@ -32,12 +45,95 @@ def fit(job_id: int) -> dict[str, Any]:
 
 
 @celery_app.task(name=TASK_FIT_BATCH, **FIT_LIMITS)
-def fit_batch(job_ids: list[int] | dict[str, Any], round_job_id: int | None = None,
-              progress_span: tuple[float, float] | None = None) -> dict[str, Any]:
-    """Fit several samples as one batch. In a round it follows a prediction task, whose result (a dict
-    with `fit_job_ids`) arrives as the first argument."""
-    from workers.tasks.fits import run_fit_jobs
+def fit_batch(job_ids: list[int] | dict[str, Any], round_job_id: int | None = None) -> dict[str, Any]:
+    """Fit several samples, `fit_batch_size` at a time in one optimisation. In a round it follows a
+    prediction task, whose result (a dict with `fit_job_ids`) arrives as the first argument."""
+    from workers.tasks.fits import run_fit_jobs_batched
 
     ids = job_ids.get("fit_job_ids", []) if isinstance(job_ids, dict) else job_ids
-    parent = (int(round_job_id), *progress_span) if round_job_id is not None and progress_span else None
-    return run_fit_jobs(get_context(), [int(i) for i in ids], parent=parent).to_dict()  # type: ignore[arg-type]
+    return run_fit_jobs_batched(get_context(), [int(i) for i in ids], round_job_id=round_job_id)
+
+
+@celery_app.task(name=TASK_TRAIN_HANDSEGNET)
+def train_handsegnet(job_id: int) -> dict[str, Any]:
+    """Train HandSegNet on the round's accepted samples (model masks of their fits)."""
+    from workers.tasks.training import run_training_job
+
+    return run_training_job(get_context(), int(job_id))
+
+
+@celery_app.task(name=TASK_TRAIN_MVNET)
+def train_mvnet(job_id: int) -> dict[str, Any]:
+    """Train MVNet on the round's accepted samples (3D keypoints of their fits)."""
+    from workers.tasks.training import run_training_job
+
+    return run_training_job(get_context(), int(job_id))
+
+
+@celery_app.task(name=TASK_PREDICT, **FIT_LIMITS)
+def predict_batch(job_id: int) -> dict[str, Any]:
+    """Predict masks and 3D keypoints for a batch of samples; queue their fits (returned for fit_batch)."""
+    from workers.tasks.inference import run_prediction_job
+
+    return run_prediction_job(get_context(), int(job_id))
+
+
+@celery_app.task(name=TASK_HEURISTIC)
+def heuristic(round_job_id: int) -> dict[str, Any] | None:
+    """Summarise (and apply where missing) the heuristic verification of the round's fits."""
+    from workers.tasks.rounds import run_heuristic
+
+    return run_heuristic(get_context(), int(round_job_id))
+
+
+@celery_app.task(name=TASK_REVIEW_QUEUE)
+def build_review_queue(round_job_id: int) -> dict[str, Any] | None:
+    """Queue fitted samples the heuristic did not accept for reviewers, by the paper's policy."""
+    from workers.tasks.rounds import build_review_queue as build
+
+    return build(get_context(), int(round_job_id))
+
+
+@celery_app.task(name=TASK_ROUND_FINISH)
+def round_finish(round_job_id: int) -> dict[str, Any] | None:
+    """Record the round's counts per stream and model versions; finish its job."""
+    from workers.tasks.rounds import finish_round
+
+    return finish_round(get_context(), int(round_job_id))
+
+
+@celery_app.task(name=TASK_ROUND_INFERENCE, ignore_result=True)
+def round_inference(round_job_id: int) -> None:
+    """After training: predict + fit every batch (a chord), then heuristic -> review queue -> finish."""
+    from workers.tasks.rounds import plan_inference
+
+    plan = plan_inference(get_context(), int(round_job_id))
+    if plan is None:
+        return
+    header = [chain(predict_batch.si(job_id), fit_batch.s(round_job_id=round_job_id))
+              for job_id in plan.predict_job_ids]
+    header += [fit_batch.si(ids, round_job_id=round_job_id) for ids in plan.fit_batches]
+    callback = chain(heuristic.si(round_job_id), build_review_queue.si(round_job_id), round_finish.si(round_job_id))
+    if header:
+        chord(header, callback).apply_async()
+    else:
+        callback.apply_async()
+
+
+@celery_app.task(name=TASK_ROUND, ignore_result=True)
+def bootstrap_round(round_job_id: int) -> None:
+    """A bootstrap round: train both networks (a chord), then `round_inference`."""
+    from workers.tasks.rounds import start_round
+
+    train_job_ids = start_round(get_context(), int(round_job_id))
+    if train_job_ids is None:
+        return
+    if not train_job_ids:
+        round_inference.si(round_job_id).apply_async()
+        return
+    with get_context().session_factory() as session:
+        from backend.models.jobs import Job
+
+        nets = {job_id: (session.get(Job, job_id).payload or {}).get("net") for job_id in train_job_ids}
+    header = [(train_mvnet if nets[job_id] == "mvnet" else train_handsegnet).si(job_id) for job_id in train_job_ids]
+    chord(header, round_inference.si(round_job_id)).apply_async()

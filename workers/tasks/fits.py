@@ -104,6 +104,24 @@ def run_fit_jobs(ctx: WorkerContext, job_ids: list[int], *, parent: tuple[int, f
     return summary
 
 
+def run_fit_jobs_batched(ctx: WorkerContext, job_ids: list[int], *, round_job_id: int | None = None
+                         ) -> dict[str, Any]:
+    """`run_fit_jobs` over chunks of `fit_batch_size`; in a round, its progress is updated after each chunk."""
+    from workers.tasks.inference import touch_round
+
+    size = ctx.settings.fit_batch_size
+    total = FitSummary()
+    for start in range(0, len(job_ids), size):
+        part = run_fit_jobs(ctx, job_ids[start:start + size])
+        total.fitted += part.fitted
+        total.failed.update(part.failed)
+        total.skipped += part.skipped
+        total.seconds += part.seconds
+        if round_job_id is not None:
+            touch_round(ctx, int(round_job_id))
+    return total.to_dict()
+
+
 def jobs_final(ctx: WorkerContext, job_id: int) -> bool:
     with ctx.session_factory() as session:
         return jobs.is_final(session, job_id)

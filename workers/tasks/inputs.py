@@ -244,11 +244,19 @@ def _from_prediction(ctx: WorkerContext, session: Session, job: Job, frame: Samp
             continue
         masks.append(read_mask(ctx, key, (cam.height, cam.width), f"sample {frame.sample_id} view {c}"))
         mask_ids.append(stored[key])
+    include_forearm = False  # HandSegNet's masks stop at the wrist
+    mask_source = "handsegnet"
+    if not mask_ids:  # HandSegNet found no hand: the prediction was localised by the chroma-key masks
+        chroma = _newest_masks(session, list(frame.view_ids), (MaskKind.chroma_key,))
+        masks = [read_mask(ctx, chroma[v].storage_key, (cam.height, cam.width), f"sample {frame.sample_id} view {c}")
+                 if v in chroma else None for c, (v, cam) in enumerate(zip(frame.view_ids, rig.cameras, strict=True))]
+        mask_ids = [chroma[v].id for v in frame.view_ids if v in chroma]
+        include_forearm, mask_source = True, "chroma_key"
     C = len(rig.cameras)
     observations = FrameObservations(np.full((C, NUM_KEYPOINTS, 2), np.nan), np.zeros((C, NUM_KEYPOINTS)),
-                                     masks=tuple(masks) if mask_ids else None, masks_include_forearm=False,
+                                     masks=tuple(masks) if mask_ids else None, masks_include_forearm=include_forearm,
                                      keypoints_3d=keypoints, keypoint_3d_weights=np.clip(confidences, 0, 1))
-    inputs = {"source": "prediction", "prediction_id": prediction.id, "mask_ids": mask_ids,
+    inputs = {"source": "prediction", "prediction_id": prediction.id, "mask_ids": mask_ids, "mask_source": mask_source,
               "mvnet_version": prediction.mvnet_version, "handsegnet_version": prediction.handsegnet_version}
     return FitInput(job.id, frame.sample_id, "prediction", rig, frame.view_ids, observations, inputs,
                     prediction_id=prediction.id, round_id=job.round_id)

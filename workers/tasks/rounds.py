@@ -1,0 +1,257 @@
+"""The bootstrap round (paper: "Iterative Refinement"), as database steps that a Celery canvas strings together:
+
+    handloop.round            start: claim the round job, create its train jobs
+      chord(train_handsegnet, train_mvnet)                        gpu queue, checkpoints round-NNN/
+      -> handloop.round_inference: one predict job per batch of samples not yet in D
+           chord(chain(predict_batch, fit_batch) per batch)        gpu, then cpu
+           -> handloop.heuristic -> handloop.build_review_queue -> handloop.round_finish
+
+Backend round index r (r >= 1) collects the streams that networks trained on rounds 0 ... r-1 produce:
+D_{i+1} = D_i + D^h_i + D^m_i + D^l_i, where D^h joins as fits pass the heuristic, D^m and D^l as reviewers
+verify the queue built here. Every step re-reads the database and is safe to run again: if the round's
+canvas is lost (a worker died under a broker that keeps no unacknowledged messages), the outbox re-sends the
+round job once its heartbeat is stale and `start_round` continues from what is done.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Any
+
+from sqlalchemy import func, select
+from sqlalchemy.orm import Session
+
+from backend.models.capture import Sample, Sequence
+from backend.models.enums import JobKind, JobState, RoundState, SampleState, Stream
+from backend.models.fits import Fit, Prediction
+from backend.models.jobs import Job
+from backend.models.review import Round, RoundMember
+from backend.services import jobs, review
+from backend.services.verification import HeuristicThresholds, ReviewPolicy, heuristic_verdict
+from workers.tasks.context import WorkerContext
+from workers.tasks.inference import PREDICTABLE
+from workers.tasks.training import NETS, checkpoint_of, version_of
+
+log = logging.getLogger(__name__)
+
+TRAIN_SPAN = (0.02, 0.45)  # share of the round's progress bar spent training (the rest: inference, fits)
+
+
+@dataclass(frozen=True)
+class InferencePlan:
+    predict_job_ids: list[int] = field(default_factory=list)
+    fit_batches: list[list[int]] = field(default_factory=list)
+
+
+def _jobs_of(session: Session, round_id: int, kind: JobKind) -> list[Job]:
+    return list(session.execute(select(Job).where(Job.round_id == round_id, Job.kind == kind).order_by(Job.id))
+                .scalars())
+
+
+def _merge_result(job: Job, **values: Any) -> None:
+    job.result = {**(job.result or {}), **values}  # a new dict: JSON columns track assignment, not mutation
+
+
+def _fail(session: Session, round_job: Job, message: str) -> None:
+    log.warning("round job %s failed: %s", round_job.id, message)
+    jobs.finish(session, round_job.id, JobState.failed, error=message[:2000])
+
+
+def start_round(ctx: WorkerContext, round_job_id: int) -> list[int] | None:
+    """Claim the round job; the train jobs still to run (created on first call). None: nothing to do."""
+    with ctx.session_factory.begin() as session:
+        job = jobs.claim(session, round_job_id, ctx.worker_name, ctx.settings.job_heartbeat_timeout_s)
+        if job is None:
+            return None
+        round_ = session.get(Round, job.round_id) if job.round_id is not None else None
+        if round_ is None or round_.state != RoundState.running:
+            _fail(session, job, f"round job {round_job_id}: its round is {getattr(round_, 'state', 'missing')}")
+            return None
+        budgets = {"handsegnet": ctx.settings.round_handsegnet_budget_s, "mvnet": ctx.settings.round_mvnet_budget_s}
+        spans, start = {}, TRAIN_SPAN[0]
+        for net in NETS:
+            width = (TRAIN_SPAN[1] - TRAIN_SPAN[0]) * budgets[net] / sum(budgets.values())
+            spans[net], start = (start, start + width), start + width
+        existing = {(j.payload or {}).get("net"): j for j in _jobs_of(session, round_.id, JobKind.train)}
+        to_run = []
+        for net in NETS:
+            given = getattr(round_, f"{net}_version")
+            if given and given != version_of(round_.index, net):
+                try:
+                    if not checkpoint_of(ctx, given).is_file():
+                        raise ValueError(f"no checkpoint at {checkpoint_of(ctx, given)}")
+                except ValueError as exc:
+                    _fail(session, job, f"round {round_.index} was launched with {net} version {given!r}: {exc}")
+                    return None
+                continue  # launched with an existing model: no training
+            previous = existing.get(net)
+            if previous is not None and previous.state == JobState.succeeded:
+                continue
+            if previous is not None and previous.state in (JobState.failed, JobState.cancelled):
+                _fail(session, job, f"training {net} {previous.state}: {previous.error or ''}")
+                return None
+            if previous is None:
+                previous = jobs.create(session, ctx.job_queue, JobKind.train, round_id=round_.id, enqueue=False,
+                                       payload={"net": net, "round_job_id": round_job_id,
+                                                "progress_span": list(spans[net])})
+            to_run.append(previous.id)
+        _merge_result(job, round_index=round_.index,
+                      train_on_rounds_up_to=(job.payload or {}).get("train_on_rounds_up_to"))
+        job.message = f"round {round_.index}: training" if to_run else f"round {round_.index}: models ready"
+        session.flush()
+        return to_run
+
+
+def _round_project(session: Session, up_to_index: int) -> int | None:
+    """The project (rig) whose accepted samples the round trained on: the one with the most."""
+    row = session.execute(
+        select(Sequence.project_id, func.count()).select_from(RoundMember)
+        .join(Round, Round.id == RoundMember.round_id).join(Sample, Sample.id == RoundMember.sample_id)
+        .join(Sequence, Sequence.id == Sample.sequence_id).where(Round.index <= up_to_index)
+        .group_by(Sequence.project_id).order_by(func.count().desc(), Sequence.project_id).limit(1)
+    ).first()
+    return None if row is None else int(row[0])
+
+
+def plan_inference(ctx: WorkerContext, round_job_id: int) -> InferencePlan | None:
+    """After training: predict jobs for the samples not yet in the dataset (created on first call), and fit
+    batches left over from earlier attempts. None: the round job is over (failed, cancelled)."""
+    with ctx.session_factory.begin() as session:
+        job = session.get(Job, round_job_id)
+        if job is None or JobState(job.state) in jobs.FINAL_STATES:
+            return None
+        round_ = session.get(Round, job.round_id)
+        if round_ is None or round_.state != RoundState.running:
+            _fail(session, job, "the round is no longer running")
+            return None
+        for train in _jobs_of(session, round_.id, JobKind.train):
+            if train.state != JobState.succeeded:
+                net = (train.payload or {}).get("net")
+                _fail(session, job, f"training {net} is {train.state}: {train.error or ''}")
+                return None
+        versions = {net: getattr(round_, f"{net}_version") for net in NETS}
+        if not versions["mvnet"]:
+            _fail(session, job, "no MVNet version for this round")
+            return None
+        up_to = int((job.payload or {}).get("train_on_rounds_up_to", round_.index - 1))
+        project_id = _round_project(session, up_to)
+        predict_jobs = _jobs_of(session, round_.id, JobKind.predict)
+        if not predict_jobs and project_id is not None:
+            candidates = list(session.execute(
+                select(Sample.id).join(Sequence, Sequence.id == Sample.sequence_id)
+                .where(Sequence.project_id == project_id, Sample.state.in_(PREDICTABLE)).order_by(Sample.id)
+            ).scalars())
+            size = ctx.settings.predict_batch_size
+            for start in range(0, len(candidates), size):
+                predict_jobs.append(jobs.create(
+                    session, ctx.job_queue, JobKind.predict, round_id=round_.id, enqueue=False,
+                    payload={"sample_ids": candidates[start:start + size], "round_job_id": round_job_id,
+                             "mvnet_version": versions["mvnet"], "handsegnet_version": versions["handsegnet"]}))
+            _merge_result(job, candidates=len(candidates), project_id=project_id)
+        session.flush()
+        pending = [p.id for p in predict_jobs if JobState(p.state) not in jobs.FINAL_STATES]
+        done = {p.id for p in predict_jobs} - set(pending)
+        leftover = [j.id for j in _jobs_of(session, round_.id, JobKind.fit)
+                    if JobState(j.state) not in jobs.FINAL_STATES and (j.payload or {}).get("predict_job_id") in done]
+        size = ctx.settings.fit_batch_size
+        batches = [leftover[i:i + size] for i in range(0, len(leftover), size)]
+        jobs.update_progress(session, round_job_id, TRAIN_SPAN[1],
+                             f"round {round_.index}: predicting {len(pending)} batches, fitting")
+        _merge_result(job, mvnet_version=versions["mvnet"], handsegnet_version=versions["handsegnet"])
+        return InferencePlan(pending, batches)
+
+
+def run_heuristic(ctx: WorkerContext, round_job_id: int) -> dict[str, Any] | None:
+    """The paper's heuristic over the round's fits from predictions: applies it to any fit not evaluated yet
+    (record_fit evaluates each new one) and summarises: evaluated, accepted (D^h), most common failures."""
+    thresholds = HeuristicThresholds.from_settings(ctx.settings)
+    with ctx.session_factory.begin() as session:
+        job = session.get(Job, round_job_id)
+        if job is None or JobState(job.state) in jobs.FINAL_STATES:
+            return None
+        fits = session.execute(select(Fit).where(Fit.round_id == job.round_id, Fit.prediction_id.is_not(None))
+                               ).scalars().all()
+        reasons: dict[str, int] = {}
+        evaluated = accepted = 0
+        for fit in fits:
+            if fit.heuristic is None and fit.view_ious:
+                prediction = session.get(Prediction, fit.prediction_id)
+                verdict = heuristic_verdict(prediction.confidences, fit.view_ious.values(), prediction.keypoints_m,
+                                            fit.keypoints_m, thresholds)
+                # Evaluated late (no acceptance here: only record_fit routes samples, in its transaction).
+                fit.heuristic = {"accepted": False, "late": True, "would_accept": verdict.accepted,
+                                 "failed": list(verdict.failed), **verdict.metrics}
+            if fit.heuristic is None:
+                continue
+            evaluated += 1
+            accepted += bool(fit.heuristic.get("accepted"))
+            for reason in fit.heuristic.get("failed", []):
+                key = _criterion(reason)
+                reasons[key] = reasons.get(key, 0) + 1
+        summary = {"evaluated": evaluated, "accepted": accepted,
+                   "failures": dict(sorted(reasons.items(), key=lambda kv: -kv[1])[:8])}
+        _merge_result(job, heuristic=summary)
+        jobs.update_progress(session, round_job_id, 0.96, f"heuristic: {accepted} of {evaluated} accepted")
+        return summary
+
+
+def _criterion(reason: str) -> str:
+    """The heuristic criterion a failure message (services.verification.heuristic_verdict) is about."""
+    for name in ("mean confidence", "min keypoint confidence", "mean IoU", "mean 3D distance", "max 3D distance"):
+        if reason.startswith(name):
+            return name
+    return "low-IoU views" if "views have IoU" in reason else reason[:40]
+
+
+def build_review_queue(ctx: WorkerContext, round_job_id: int) -> dict[str, Any] | None:
+    """The manual verification queue by the paper's policy (services.review.build_queue)."""
+    with ctx.session_factory.begin() as session:
+        job = session.get(Job, round_job_id)
+        if job is None or JobState(job.state) in jobs.FINAL_STATES:
+            return None
+        picked = review.build_queue(session, ReviewPolicy.from_settings(ctx.settings), None)
+        summary = {"queued": len(picked)}
+        _merge_result(job, review_queue=summary)
+        jobs.update_progress(session, round_job_id, 0.98, f"review queue: {len(picked)} samples")
+        return summary
+
+
+def finish_round(ctx: WorkerContext, round_job_id: int) -> dict[str, Any] | None:
+    """Record what the round did and finish its job: sizes, counts per stream, model versions."""
+    with ctx.session_factory.begin() as session:
+        job = session.get(Job, round_job_id)
+        if job is None or JobState(job.state) in jobs.FINAL_STATES:
+            return None
+        round_ = session.get(Round, job.round_id)
+        streams = dict(session.execute(
+            select(RoundMember.stream, func.count()).where(RoundMember.round_id == round_.id)
+            .group_by(RoundMember.stream)).all())
+        before = session.execute(
+            select(func.count()).select_from(RoundMember).join(Round, Round.id == RoundMember.round_id)
+            .where(Round.index < round_.index)).scalar_one()
+        fit_states = dict(session.execute(select(Job.state, func.count()).where(Job.round_id == round_.id,
+                                                                                 Job.kind == JobKind.fit)
+                                          .group_by(Job.state)).all())
+        predictions = session.execute(select(func.count()).select_from(Prediction)
+                                      .where(Prediction.round_id == round_.id)).scalar_one()
+        counts = {s.value: int(streams.get(s.value, 0)) for s in Stream}
+        result = {
+            "round_index": round_.index,
+            "dataset_before": int(before),  # |D_i|, what the networks were trained on (all rigs)
+            "added": counts,  # so far: D^h now, D^m and D^l as reviewers verify
+            "dataset_after": int(before) + sum(counts.values()),
+            "predictions": int(predictions),
+            "fits": {str(k): int(v) for k, v in fit_states.items()},
+            "samples_by_state": {str(k): int(v) for k, v in session.execute(
+                select(Sample.state, func.count()).group_by(Sample.state)).all()},
+            "mvnet_version": round_.mvnet_version, "handsegnet_version": round_.handsegnet_version,
+        }
+        round_.counts = counts
+        _merge_result(job, **result)
+        final = dict(job.result)
+        jobs.finish(session, round_job_id, JobState.succeeded, result=final)
+        in_review = session.execute(select(func.count()).select_from(Sample)
+                                    .where(Sample.state == SampleState.in_review)).scalar_one()
+        log.info("round %s done: %s; %d samples in review", round_.index, result, in_review)
+        return final

@@ -1,0 +1,233 @@
+"""Training jobs of a round: HandSegNet and MVNet on the accepted samples D_i.
+
+Labels come from the accepted samples' fits, never from ground truth: MVNet learns the fits' 3D keypoints,
+HandSegNet the fitted model's masks (stored with each fit; rendered from its parameters when missing).
+Checkpoints go to <data_dir>/checkpoints/round-NNN/ (workers/nets/checkpoints.py), versioned
+"round-NNN/<net>"; training resumes from its partial checkpoint when the job is taken over.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from celery.exceptions import SoftTimeLimitExceeded
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from backend.models.enums import JobState
+from backend.models.fits import Fit
+from backend.models.jobs import Job
+from backend.models.review import Round, RoundMember
+from backend.services import jobs
+from backend.services.errors import DomainError
+from workers.tasks.context import WorkerContext
+from workers.tasks.inputs import InputError, Rig, SampleFrame, capture_for, load_frames, read_mask, rig_of
+from workers.tasks.progress import JobCancelledError, ProgressReporter
+
+log = logging.getLogger(__name__)
+
+NETS = ("handsegnet", "mvnet")
+
+
+def version_of(round_index: int, net: str) -> str:
+    """The version name of a round's network: its checkpoint's path below the checkpoints folder."""
+    return f"round-{round_index:03d}/{net}"
+
+
+def checkpoint_of(ctx: WorkerContext, version: str) -> Path:
+    """The checkpoint file of a version name (ValueError for a malformed name)."""
+    parts = version.split("/")
+    if len(parts) != 2 or not parts[0].startswith("round-") or parts[1] not in NETS:
+        raise ValueError(f"model version {version!r} is not of the form 'round-NNN/<{'|'.join(NETS)}>'")
+    return ctx.settings.checkpoints_dir.resolve() / parts[0] / f"{parts[1]}.pt"
+
+
+@dataclass(frozen=True, eq=False)
+class TrainingSet:
+    """Accepted samples of one rig with their fits' labels.
+
+    Attributes:
+        rig: the cameras the samples were seen from.
+        frames: the samples' frames (stored images; chroma-key masks for cut-and-paste).
+        fit_ids: the accepted fit of each sample.
+        keypoints_3d: (M, 21, 3) the fits' keypoints, metres, world frame.
+        sample_ids: database ids.
+        left_out: samples of other rigs (a round trains on one rig), by count.
+    """
+
+    rig: Rig
+    frames: list[SampleFrame]
+    fit_ids: list[int]
+    keypoints_3d: np.ndarray
+    sample_ids: list[int]
+    left_out: int
+
+    def __len__(self) -> int:
+        return len(self.sample_ids)
+
+
+def training_set(ctx: WorkerContext, session: Session, up_to_round_index: int) -> TrainingSet:
+    """D_{i}: members of rounds 0 ... up_to_round_index with their fits; the largest rig's samples."""
+    rows = session.execute(
+        select(RoundMember.sample_id, RoundMember.fit_id).join(Round, Round.id == RoundMember.round_id)
+        .where(Round.index <= up_to_round_index, RoundMember.fit_id.is_not(None)).order_by(RoundMember.sample_id)
+    ).all()
+    if not rows:
+        raise InputError(f"no accepted samples in rounds up to {up_to_round_index}: nothing to train on")
+    frames = load_frames(ctx, session, [r.sample_id for r in rows])
+    by_project: dict[int, list[int]] = {}
+    for sample_id, frame in frames.items():
+        by_project.setdefault(frame.project_id, []).append(sample_id)
+    project_id = max(by_project, key=lambda p: len(by_project[p]))
+    chosen = set(by_project[project_id])
+    fit_of = {r.sample_id: r.fit_id for r in rows if r.sample_id in chosen}
+    ids = sorted(fit_of)
+    fits = {f.id: f for f in session.execute(select(Fit).where(Fit.id.in_(list(fit_of.values())))).scalars()}
+    keypoints = np.stack([np.asarray(fits[fit_of[s]].keypoints_m, np.float32) for s in ids])
+    return TrainingSet(rig_of(ctx, session, project_id), [frames[s] for s in ids], [fit_of[s] for s in ids],
+                       keypoints, ids, len(rows) - len(ids))
+
+
+def model_masks(ctx: WorkerContext, session: Session, tset: TrainingSet) -> list[dict[str, np.ndarray]]:
+    """Per sample, camera name -> the accepted fit's model mask (stored, or rendered from its parameters)."""
+    fits = {f.id: f for f in session.execute(select(Fit).where(Fit.id.in_(tset.fit_ids))).scalars()}
+    out = []
+    for frame, fit_id in zip(tset.frames, tset.fit_ids, strict=True):
+        fit = fits[fit_id]
+        keys = (fit.diagnostics or {}).get("model_mask_keys") or {}
+        masks: dict[str, np.ndarray] = {}
+        try:
+            for cam, view_id in zip(tset.rig.cameras, frame.view_ids, strict=True):
+                key = keys.get(str(view_id))
+                if key is None:
+                    raise InputError(f"fit {fit_id} has no stored mask of view {view_id}")
+                masks[cam.name] = read_mask(ctx, key, (cam.height, cam.width), f"fit {fit_id}")
+        except InputError:
+            masks = render_masks(ctx, tset.rig, np.asarray(fit.params, np.float64))
+        out.append(masks)
+    return out
+
+
+def render_masks(ctx: WorkerContext, rig: Rig, theta: np.ndarray) -> dict[str, np.ndarray]:
+    """Silhouettes of the hand model with parameters theta (61,) in every camera of the rig."""
+    import torch
+
+    from workers.handmodel.layer import HandLayer
+    from workers.rendering import model_mask
+
+    arrays = ctx.hand_model()
+    layer = ctx.cached(("layer", arrays.name), lambda: HandLayer(arrays, dtype=torch.float64))
+    t = torch.as_tensor(theta[None], dtype=torch.float64)
+    with torch.no_grad():
+        out = layer(betas=t[:, :10], pose=t[:, 10:55], global_orient=t[:, 55:58], transl=t[:, 58:61])
+    vertices = out.vertices[0].numpy()
+    return {cam.name: model_mask(vertices, arrays.faces, cam) for cam in rig.cameras}
+
+
+def _round_of(session: Session, job: Job) -> tuple[Round, Job]:
+    round_job = session.get(Job, (job.payload or {}).get("round_job_id"))
+    round_ = session.get(Round, job.round_id) if job.round_id is not None else None
+    if round_job is None or round_ is None:
+        raise InputError(f"train job {job.id} belongs to no round job")
+    return round_, round_job
+
+
+def run_training_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
+    """Claim a train job, train its network on the round's D_i, record the version. Never raises for a
+    training that cannot run: the job (and its round job) is marked failed with the reason."""
+    from workers.nets.configs import get_config
+
+    with ctx.session_factory.begin() as session:
+        job = jobs.claim(session, job_id, ctx.worker_name, ctx.settings.job_heartbeat_timeout_s)
+        if job is None:
+            return {"job_id": job_id, "skipped": True}
+        net = (job.payload or {}).get("net")
+        round_job_id = (job.payload or {}).get("round_job_id")
+        span = tuple((job.payload or {}).get("progress_span") or (0.0, 0.45))
+    try:
+        with ctx.session_factory() as session:
+            if net not in NETS:
+                raise InputError(f"train job {job_id} names no network ({net!r})")
+            round_, round_job = _round_of(session, session.get(Job, job_id))
+            up_to = int((round_job.payload or {}).get("train_on_rounds_up_to", round_.index - 1))
+            tset = training_set(ctx, session, up_to)
+            if len(tset) < ctx.settings.round_min_training_samples:
+                raise InputError(f"{len(tset)} accepted samples in rounds up to {up_to}; a round needs at least "
+                                 f"{ctx.settings.round_min_training_samples} (HANDLOOP_ROUND_MIN_TRAINING_SAMPLES)")
+            labels_masks = model_masks(ctx, session, tset) if net == "handsegnet" else None
+            round_index = round_.index
+        config = get_config(ctx.settings.nets_config)
+        folder = ctx.settings.checkpoints_dir.resolve() / f"round-{round_index:03d}"
+        budget = ctx.settings.round_handsegnet_budget_s if net == "handsegnet" else ctx.settings.round_mvnet_budget_s
+        reporter = ProgressReporter(ctx, [job_id], parent=(int(round_job_id), float(span[0]), float(span[1])))
+        reporter(0.0, f"{net}: preparing {len(tset)} samples", force=True)
+        result = _train(ctx, net, tset, labels_masks, config, budget, folder, reporter,
+                        seed=ctx.settings.round_seed + round_index,
+                        extra={"round_index": round_index, "round_job_id": round_job_id,
+                               "train_on_rounds_up_to": up_to, "hand_model": ctx.hand_model().name})
+        version = version_of(round_index, net)
+        outcome = {"job_id": job_id, "net": net, "version": version, "samples": len(tset),
+                   "left_out_other_rigs": tset.left_out, "steps": result.metadata.get("steps"),
+                   "train_seconds": result.metadata.get("train_seconds"),
+                   "train_loss": result.metadata.get("metrics", {}).get("train_loss")}
+        with ctx.session_factory.begin() as session:
+            round_row = session.get(Round, session.get(Job, job_id).round_id)
+            setattr(round_row, f"{net}_version", version)
+            jobs.finish(session, job_id, JobState.succeeded, result=_jsonable(outcome))
+        log.info("trained %s: %s", net, outcome)
+        return outcome
+    except JobCancelledError:
+        return {"job_id": job_id, "cancelled": True}
+    except (InputError, DomainError, ValueError, SoftTimeLimitExceeded) as exc:
+        message = getattr(exc, "message", None) or str(exc) or exc.__class__.__name__
+        if isinstance(exc, SoftTimeLimitExceeded):
+            message = f"time limit of {ctx.settings.task_time_limit_s} s exceeded"
+        log.warning("training job %s failed: %s", job_id, message)
+        fail_with_round(ctx, job_id, round_job_id, f"training {net}: {message}")
+        return {"job_id": job_id, "failed": message}
+
+
+def _train(ctx: WorkerContext, net: str, tset: TrainingSet, masks: list[dict[str, np.ndarray]] | None, config: Any,
+           budget: float, folder: Path, reporter: ProgressReporter, seed: int, extra: dict[str, Any]) -> Any:
+    from workers.nets.data import build_handseg_dataset, build_mvnet_dataset
+    from workers.nets.train import train_handsegnet, train_mvnet
+
+    capture = capture_for(tset.rig, ctx.settings.storage_dir)
+    frames = [f.frame for f in tset.frames]
+
+    def progress(p: Any) -> None:
+        reporter(min(1.0, p.seconds / budget), f"training {net}: step {p.step}, {p.seconds:.0f}/{budget:.0f} s, "
+                 f"loss {p.loss:.4f}")
+
+    common = {"resume": True, "progress": progress, "seed": seed, "max_steps": ctx.settings.round_max_train_steps,
+              "extra_metadata": extra, "checkpoint_every_s": 30.0}
+    if net == "handsegnet":
+        dataset = build_handseg_dataset(capture, frames, hand_masks=masks)
+        return train_handsegnet(dataset, config, budget, folder, **common)
+    dataset = build_mvnet_dataset(capture, frames, config.mvnet, keypoints_3d=tset.keypoints_3d)
+    return train_mvnet(dataset, config, budget, folder, **common)
+
+
+def reuse_checkpoint(ctx: WorkerContext, version: str) -> dict[str, Any]:
+    """Metadata of an existing version (for a round launched with given model versions)."""
+    path = checkpoint_of(ctx, version)
+    sidecar = path.with_suffix(".json")
+    if not path.is_file() or not sidecar.is_file():
+        raise InputError(f"model version {version!r}: no checkpoint at {path}")
+    return json.loads(sidecar.read_text())
+
+
+def fail_with_round(ctx: WorkerContext, job_id: int, round_job_id: int | None, message: str) -> None:
+    with ctx.session_factory.begin() as session:
+        jobs.finish(session, job_id, JobState.failed, error=message[:2000])
+        if round_job_id is not None:
+            jobs.finish(session, int(round_job_id), JobState.failed, error=message[:2000])
+
+
+def _jsonable(value: Any) -> Any:
+    return json.loads(json.dumps(value, default=lambda v: v.item() if hasattr(v, "item") else str(v)))

@@ -5,6 +5,9 @@ fingertips where the ground truth projects them, with the mistakes people make.
 - occluded points (not visible in the ground truth): skipped (`not_annotated`), or, with
   `skip_occluded=False`, clicked at a best guess and marked `occluded`; points outside the image: skipped;
 - finger swaps: with `swap_probability` per view, the clicks of two fingertips are exchanged;
+- a sample sent back by a reviewer (it had an annotation pass already) gets all 21 keypoints clicked when
+  `reannotate_all_keypoints` (the paper's "annotating" of samples that failed verification), else the
+  sparse set again;
 - masks: a view whose shown mask overlaps the true hand mask with IoU < `mask_iou_threshold` is corrected
   (at most `max_mask_corrections` per sample, worst first) to the true hand mask with a boundary displaced
   by smooth noise of `boundary_noise_px`.
@@ -39,6 +42,7 @@ class AnnotatorConfig:
     mask_iou_threshold: float = 0.5
     max_mask_corrections: int = 2
     boundary_noise_px: float = 1.5
+    reannotate_all_keypoints: bool = True
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -114,9 +118,11 @@ class SimulatedAnnotator:
             raise ValueError(f"view {view['id']}: the served mask is unreadable or of the wrong size")
         return mask >= 128
 
-    def annotate_next(self, round_index: int, give_up_on: frozenset[int] = frozenset()) -> AnnotationOutcome | None:
+    def annotate_next(self, round_index: int, give_up_on: frozenset[int] = frozenset(),
+                      annotated_before: frozenset[int] = frozenset()) -> AnnotationOutcome | None:
         """Take the next annotation task and submit clicks (and mask corrections); None when the queue is
-        empty, or when the task is a sample in `give_up_on` (its lease is released)."""
+        empty, or when the task is a sample in `give_up_on` (its lease is released). Samples in
+        `annotated_before` were sent back after an earlier pass."""
         task = self.client.next_annotation()
         if task is None:
             return None
@@ -128,10 +134,13 @@ class SimulatedAnnotator:
         gt = self.truth.truth(task["sample_id"])
         cameras = list(gt.camera_names)
         clicks, skipped, swapped = [], 0, 0
+        keypoints = list(task["keypoints_to_click"])
+        if cfg.reannotate_all_keypoints and task["sample_id"] in annotated_before:
+            keypoints = list(range(gt.keypoints_2d.shape[1]))
         for view in task["views"]:
             c = cameras.index(view["camera"])
             points: dict[int, tuple[float, float, str]] = {}
-            for k in task["keypoints_to_click"]:
+            for k in keypoints:
                 x, y = gt.keypoints_2d[c, k]
                 inside = -0.5 <= x <= view["width"] - 0.5 and -0.5 <= y <= view["height"] - 0.5
                 if not inside or (not gt.visibility[c, k] and cfg.skip_occluded):
@@ -147,7 +156,7 @@ class SimulatedAnnotator:
                 (xa, ya, va), (xb, yb, vb) = points[a], points[b]
                 points[a], points[b] = (xb, yb, va), (xa, ya, vb)
                 swapped += 1
-            for k in task["keypoints_to_click"]:
+            for k in keypoints:
                 if k in points:
                     x, y, visibility = points[k]
                     clicks.append({"view_id": view["id"], "keypoint": k, "x": x, "y": y, "visibility": visibility})

@@ -81,7 +81,8 @@ class Team:
         done, turn = 0, 0
         while limit is None or done < limit:
             give_up = frozenset(s for s, n in self.annotation_attempts.items() if n >= self.max_annotation_passes)
-            outcome = self.annotators[turn % len(self.annotators)].annotate_next(round_index, give_up)
+            outcome = self.annotators[turn % len(self.annotators)].annotate_next(
+                round_index, give_up, frozenset(self.annotation_attempts))
             turn += 1
             if outcome is None:
                 break

@@ -204,6 +204,11 @@ def test_team_works_until_the_queues_are_empty_and_the_books_add_up(world):
         spent = s.execute(text("SELECT sum(time_spent_s) FROM submissions")).scalar_one()
     assert effort.clicks == clicked and effort.mask_corrections == corrected
     assert ledger.hours(0) * 3600 == pytest.approx(spent + 4 * 5)
+    with env.session() as s:  # the sample sent back was clicked again, all 21 keypoints this time
+        rows = s.execute(text("SELECT sub.sample_id, count(*) FROM clicks c JOIN submissions sub "
+                              "ON sub.id = c.submission_id GROUP BY sub.id ORDER BY sub.id")).all()
+    views = len(truth.truth(truth.sample_ids[0]).camera_names)
+    assert [n for sample, n in rows if sample in bad_first] == [6 * views, 21 * views]
 
 
 def test_configs_and_client_refuse_bad_values(world):

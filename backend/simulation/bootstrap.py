@@ -1,0 +1,283 @@
+"""The bootstrap simulation: D_0 ... D_n through the real server and workers, with simulated people.
+
+Round 0: simulated annotators click the initial set (every k-th training frame, its own project queued
+for annotation), the workers fit, simulated reviewers verify (bad fits go back for clicks): D_0. Round
+i >= 1: the admin launches a round through the API (the workers train MVNet and HandSegNet on D_{i-1},
+predict and fit the rest, accept by the heuristic and queue the review); the reviewers verify the queue,
+the annotators click what was sent back, and so on until both queues are empty: D_i. After each round the
+report reads the server's statistics and records (admin exports) and compares every accepted fit and
+every MVNet prediction with the ground truth.
+"""
+
+from __future__ import annotations
+
+import logging
+import secrets
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import httpx
+import numpy as np
+
+from backend.simulation.annotator import AnnotatorConfig, SimulatedAnnotator
+from backend.simulation.captures import SplitCaptures
+from backend.simulation.client import ApiClient
+from backend.simulation.costs import PAPER_FULL_ANNOTATION_S, HumanLedger, UnitCosts
+from backend.simulation.reviewer import ReviewerConfig, SimulatedReviewer
+from backend.simulation.team import Team, TeamWork, wait_for_job, wait_until_idle
+from backend.simulation.truth import GroundTruthIndex
+from workers.capture import read_capture
+
+log = logging.getLogger(__name__)
+
+STREAMS = ("heuristic", "manual", "annotated")
+
+
+@dataclass(frozen=True)
+class BootstrapConfig:
+    """A simulation run.
+
+    Attributes:
+        rounds: bootstrap rounds after D_0 (D_0 ... D_rounds).
+        annotators, reviewers: simulated accounts of each role.
+        annotator, reviewer: how they work (each account gets its own random stream).
+        costs: seconds per click, mask correction and verification.
+        auto_accept_max_mm: a heuristic accept counts as correct when its true mean vertex error is at most this.
+        round_timeout_s: longest wait for one round's job (and for the fits queued by people).
+        poll_s: job polling interval.
+        project: name of the project holding the rest; D_0's is "<project>-d0".
+    """
+
+    rounds: int = 4
+    annotators: int = 2
+    reviewers: int = 1
+    annotator: AnnotatorConfig = field(default_factory=AnnotatorConfig)
+    reviewer: ReviewerConfig = field(default_factory=ReviewerConfig)
+    costs: UnitCosts = field(default_factory=UnitCosts)
+    auto_accept_max_mm: float = 10.0
+    round_timeout_s: float = 3600.0
+    poll_s: float = 1.0
+    project: str = "sim"
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.rounds <= 50:
+            raise ValueError(f"rounds must be in 0..50, not {self.rounds}")
+        if not (1 <= self.annotators <= 100 and 1 <= self.reviewers <= 100):
+            raise ValueError("annotators and reviewers must each be in 1..100")
+        if not self.round_timeout_s > 0 or not self.poll_s > 0:
+            raise ValueError("round_timeout_s and poll_s must be positive")
+
+
+@dataclass
+class RoundReport:
+    """One round as measured (JSON-ready). Errors in millimetres; None where nothing was measured."""
+
+    index: int
+    added: dict[str, int]
+    added_total: int
+    dataset_size: int
+    human_hours: float
+    human_hours_cumulative: float
+    effort: dict[str, int]
+    auto_accepted: int
+    auto_accept_precision: float | None
+    accepted_vertex_mm: float | None
+    accepted_keypoint_mm: float | None
+    accepted_vertex_mm_by_stream: dict[str, float | None]
+    added_vertex_mm: float | None
+    reviewed: int
+    reviewed_vertex_mm: float | None
+    reviewed_vertex_mm_median: float | None
+    mvnet_predictions: int
+    mvnet_keypoint_mm: float | None
+    mvnet_auc: float | None
+    round_job: dict[str, Any] | None
+    minutes: float
+    bookkeeping_ok: bool
+
+
+def _mean(values: list[float]) -> float | None:
+    return float(np.mean(values)) if values else None
+
+
+class BootstrapSimulation:
+    """Drives one server through the bootstrap with simulated people.
+
+    Args:
+        http: a client bound to the server (httpx.Client(base_url=...), or a TestClient in tests).
+        admin: an admin's API client.
+        config: the run.
+        wait_for_workers: blocks until the workers have done what people queued (default: poll the jobs).
+        run_round: launches-and-waits for a round job (default: poll its job); returns the final job.
+        on_round: called with each finished RoundReport (progress).
+    """
+
+    def __init__(self, http: httpx.Client, admin: ApiClient, config: BootstrapConfig, *,
+                 wait_for_workers: Callable[[], None] | None = None,
+                 run_round: Callable[[int], dict[str, Any]] | None = None,
+                 on_round: Callable[[RoundReport], None] | None = None) -> None:
+        self.http = http
+        self.admin = admin
+        self.config = config
+        self.ledger = HumanLedger(costs=config.costs)
+        self.wait_for_workers = wait_for_workers or (
+            lambda: wait_until_idle(admin, timeout_s=config.round_timeout_s, poll_s=config.poll_s))
+        self.run_round = run_round or (
+            lambda job_id: wait_for_job(admin, job_id, timeout_s=config.round_timeout_s, poll_s=config.poll_s,
+                                        on_progress=lambda j: log.info("round job %d: %.0f%% %s", j["id"],
+                                                                       100 * j["progress"], j["message"])))
+        self.on_round = on_round
+        self.truth: GroundTruthIndex | None = None
+        self._errors: dict[int, tuple[float, float]] = {}  # fit id -> (vertex mm, keypoint mm)
+        self._previous_size = 0
+
+    # --- set-up ----------------------------------------------------------------------------------------
+    def _people(self, truth: GroundTruthIndex) -> Team:
+        cfg = self.config
+        run = secrets.token_hex(3)
+
+        def account(role: str, i: int) -> ApiClient:
+            email, password = f"sim-{role}-{i}-{run}@simulation.local", secrets.token_urlsafe(12)
+            self.admin.create_user(email, password, role, f"simulated {role} {i}")
+            return ApiClient.sign_in(self.http, email, password)
+
+        annotators = [SimulatedAnnotator(f"annotator{i}", account("annotator", i), truth, self.ledger,
+                                         AnnotatorConfig(**{**asdict(cfg.annotator), "seed": cfg.annotator.seed + i}))
+                      for i in range(cfg.annotators)]
+        reviewers = [SimulatedReviewer(f"reviewer{i}", account("reviewer", i), truth, self.ledger,
+                                       ReviewerConfig(**{**asdict(cfg.reviewer), "seed": cfg.reviewer.seed + i}))
+                     for i in range(cfg.reviewers)]
+        return Team(annotators, reviewers, max_annotation_passes=cfg.reviewer.max_annotation_attempts + 1)
+
+    def prepare(self, captures: SplitCaptures) -> Team:
+        """Import D_0's capture (queued for annotation) and the rest (unlabeled); create the accounts."""
+        d0, rest = f"{self.config.project}-d0", self.config.project
+        self.admin.import_capture(str(captures.initial), d0, queue_for_annotation=True)
+        self.admin.import_capture(str(captures.rest), rest, queue_for_annotation=False)
+        self.truth = GroundTruthIndex({d0: read_capture(captures.initial, check_images=False),
+                                       rest: read_capture(captures.rest, check_images=False)},
+                                      self.admin.sample_index()["samples"])
+        return self._people(self.truth)
+
+    # --- the run ---------------------------------------------------------------------------------------
+    def run(self, captures: SplitCaptures) -> dict[str, Any]:
+        """Run D_0 ... D_rounds; returns the summary (see `summary`)."""
+        started = time.perf_counter()
+        team = self.prepare(captures)
+        reports: list[RoundReport] = []
+        round_started = time.perf_counter()
+        work = team.work_until_done(0, self.wait_for_workers)
+        reports.append(self._report(0, None, round_started, work))
+        self._announce(reports[-1])
+        failure = None
+        for index in range(1, self.config.rounds + 1):
+            round_started = time.perf_counter()
+            launched = self.admin.launch_round(note=f"bootstrap simulation round {index}")
+            job = self.run_round(launched["job_id"])
+            job_info = {k: job.get(k) for k in ("id", "state", "message", "error")}
+            if job["state"] != "succeeded":
+                failure = f"round {index}: the round job ended '{job['state']}': {job.get('error') or job['message']}"
+                log.error("%s", failure)
+                reports.append(self._report(index, job_info, round_started, None))
+                break
+            self.wait_for_workers()
+            self.admin.build_review_queue()  # the round job built it; this picks up fits that finished later
+            work = team.work_until_done(index, self.wait_for_workers)
+            reports.append(self._report(index, job_info, round_started, work))
+            self._announce(reports[-1])
+        return self.summary(reports, time.perf_counter() - started, failure)
+
+    def _announce(self, report: RoundReport) -> None:
+        log.info("D_%d: %d samples (+%d: %s), %.2f human hours, accepted %.2f mm", report.index, report.dataset_size,
+                 report.added_total, report.added, report.human_hours,
+                 report.accepted_vertex_mm if report.accepted_vertex_mm is not None else float("nan"))
+        if self.on_round is not None:
+            self.on_round(report)
+
+    # --- measuring -------------------------------------------------------------------------------------
+    def _fit_errors(self, members: list[dict]) -> None:
+        todo = [m for m in members if m["fit"] and m["fit"]["id"] not in self._errors and m["sample_id"] in self.truth]
+        errors = self.truth.fit_errors([m["sample_id"] for m in todo], [m["fit"]["params"] for m in todo])
+        for member, error in zip(todo, errors, strict=True):
+            self._errors[member["fit"]["id"]] = (error.vertex_mm, error.keypoint_mm)
+
+    def _report(self, index: int, job: dict[str, Any] | None, started: float, work: TeamWork | None) -> RoundReport:
+        from workers.evaluation import summarise_errors
+
+        stats = {r["index"]: r for r in self.admin.statistics()["rounds"]}
+        row = stats.get(index, {"added": dict.fromkeys(STREAMS, 0), "added_total": 0,
+                                "dataset_size_after": self._previous_size})
+        members = self.admin.dataset(up_to_round=index)["samples"]
+        self._fit_errors(members)
+
+        def errors_of(selected: list[dict], which: int = 0) -> list[float]:
+            known = [m["fit"]["id"] for m in selected if m["fit"] and m["fit"]["id"] in self._errors]
+            return [self._errors[fit_id][which] for fit_id in known]
+
+        this_round = [m for m in members if m["round"] == index]
+        heuristic = [m for m in this_round if m["stream"] == "heuristic"]
+        heuristic_mm = errors_of(heuristic)
+        predictions = [p for p in self.admin.predictions(round_index=index)["predictions"]
+                       if p["sample_id"] in self.truth]
+        mvnet_errors = np.array([np.linalg.norm(np.asarray(p["keypoints_m"])
+                                                - self.truth.truth(p["sample_id"]).keypoints_3d, axis=1)
+                                 for p in predictions]) if predictions else None
+        size = int(row["dataset_size_after"])
+        # D_{i+1} = D_i + D^h + D^m + D^l: the server's cumulative count, its per-stream additions and the
+        # dataset export must agree.
+        bookkeeping_ok = (size == self._previous_size + int(row["added_total"]) == len(members)
+                          and int(row["added_total"]) == sum(int(row["added"][s]) for s in STREAMS)
+                          == len(this_round))
+        self._previous_size = size
+        reviewed_mm = [r.vertex_mm for r in work.reviews] if work is not None else []
+        return RoundReport(
+            index=index, added={s: int(row["added"][s]) for s in STREAMS}, added_total=int(row["added_total"]),
+            dataset_size=size, human_hours=self.ledger.hours(index),
+            human_hours_cumulative=sum(self.ledger.hours(i) for i in range(index + 1)),
+            effort=vars(self.ledger.effort(index)), auto_accepted=len(heuristic),
+            auto_accept_precision=(float(np.mean(np.asarray(heuristic_mm) <= self.config.auto_accept_max_mm))
+                                   if heuristic_mm else None),
+            accepted_vertex_mm=_mean(errors_of(members)), accepted_keypoint_mm=_mean(errors_of(members, 1)),
+            accepted_vertex_mm_by_stream={s: _mean(errors_of([m for m in members if m["stream"] == s]))
+                                          for s in STREAMS},
+            added_vertex_mm=_mean(errors_of(this_round)), reviewed=len(reviewed_mm),
+            reviewed_vertex_mm=_mean(reviewed_mm),
+            reviewed_vertex_mm_median=float(np.median(reviewed_mm)) if reviewed_mm else None,
+            mvnet_predictions=len(predictions),
+            mvnet_keypoint_mm=float(mvnet_errors.mean() * 1000) if mvnet_errors is not None else None,
+            mvnet_auc=summarise_errors(mvnet_errors).auc if mvnet_errors is not None else None,
+            round_job=job, minutes=(time.perf_counter() - started) / 60, bookkeeping_ok=bookkeeping_ok)
+
+    def summary(self, reports: list[RoundReport], seconds: float, failure: str | None) -> dict[str, Any]:
+        """The run's figures: per round, and over the run (the keys `handloop bench sim` reports)."""
+        members = self.admin.dataset()["samples"]
+        self._fit_errors(members)
+        heuristic = [self._errors[m["fit"]["id"]][0] for m in members
+                     if m["stream"] == "heuristic" and m["fit"] and m["fit"]["id"] in self._errors]
+        vertex = [self._errors[m["fit"]["id"]][0] for m in members if m["fit"] and m["fit"]["id"] in self._errors]
+        size = reports[-1].dataset_size if reports else 0
+        hours = self.ledger.hours()
+        paper_per_hour = 3600.0 / PAPER_FULL_ANNOTATION_S
+        return {
+            "rounds": [asdict(r) for r in reports],
+            "rounds_completed": sum(1 for r in reports if r.round_job and r.round_job["state"] == "succeeded"),
+            "dataset_size": size,
+            "auto_accepted": len(heuristic),
+            "auto_accept_precision": float(np.mean(np.asarray(heuristic) <= self.config.auto_accept_max_mm))
+            if heuristic else None,
+            "accepted_vertex_mm": _mean(vertex),
+            "human_hours": hours,
+            "labels_per_human_hour": size / hours if hours > 0 else None,
+            "paper_procedure": {
+                "seconds_per_sample": PAPER_FULL_ANNOTATION_S, "labels_per_human_hour": paper_per_hour,
+                "human_hours_for_the_same_labels": size * PAPER_FULL_ANNOTATION_S / 3600.0},
+            "minutes": seconds / 60,
+            "bookkeeping_ok": all(r.bookkeeping_ok for r in reports),
+            "failure": failure,
+            "config": {"rounds": self.config.rounds, "annotators": self.config.annotators,
+                       "reviewers": self.config.reviewers, "annotator": asdict(self.config.annotator),
+                       "reviewer": asdict(self.config.reviewer), "costs": asdict(self.config.costs),
+                       "auto_accept_max_mm": self.config.auto_accept_max_mm},
+        }

@@ -1,0 +1,195 @@
+"""The bootstrap simulation's bookkeeping on the real API (in-process app, SQLite).
+
+The in-process app has no workers, so the test plays them: fit jobs from submissions are fitted with the
+sample's ground truth moved 2 mm; a round job predicts every unlabeled or fitted sample of the rest (the
+truth plus 1 mm), fits it (3 mm off; every fourth sample 15 mm off together with its prediction, which the
+heuristic cannot see) and builds the review queue, as the worker issue's round job does. What is checked
+is the simulation's side: D_0 from the initial captures, D_{i+1} = D_i + the three streams in every
+report, precision and errors computed from the truth, human time from the unit costs, the plots.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from sqlalchemy import text
+
+from backend.models.enums import JobState, Role
+from backend.services import jobs, records, review
+from backend.services.samples import views_of
+from backend.services.verification import HeuristicThresholds, ReviewPolicy
+from backend.simulation.annotator import AnnotatorConfig
+from backend.simulation.bootstrap import BootstrapConfig, BootstrapSimulation
+from backend.simulation.captures import split_capture
+from backend.simulation.client import ApiClient
+from backend.simulation.report import write_plots
+from backend.simulation.reviewer import ReviewerConfig
+from workers.capture import load_ground_truth, read_capture
+
+
+@pytest.fixture(scope="module")
+def capture_dir(tmp_path_factory) -> Path:
+    from workers.synth.generator import generate_capture
+    from workers.synth.plan import SynthConfig
+
+    out = tmp_path_factory.mktemp("boot-capture") / "cap"
+    # seq000 and seq001 train (green screen), seq002 evaluation.
+    generate_capture(out, SynthConfig(num_sequences=3, frames_per_sequence=6, seed=12, width_px=96), workers=1)
+    return out
+
+
+def test_split_capture_makes_d0_from_every_kth_training_frame(capture_dir, tmp_path):
+    split = split_capture(capture_dir, tmp_path / "split", every=3)
+    original = read_capture(capture_dir)
+    initial, rest = read_capture(split.initial), read_capture(split.rest)
+    assert (split.initial_frames, split.rest_frames) == (4, 14)
+    assert [s.id for s in initial.sequences] == ["seq000", "seq001"]
+    assert [s.id for s in rest.sequences] == ["seq000", "seq001", "seq002"]
+    for seq in initial.sequences:
+        source = original.sequence(seq.id)
+        for j, frame in enumerate(seq.frames):
+            assert frame.time_s == pytest.approx(source.frames[3 * j].time_s)
+            np.testing.assert_array_equal(load_ground_truth(frame).vertices,
+                                          load_ground_truth(source.frames[3 * j]).vertices)
+    kept = [f.index for f in original.sequence("seq000").frames if f.index % 3]
+    for j, frame in enumerate(rest.sequence("seq000").frames):
+        np.testing.assert_array_equal(load_ground_truth(frame).keypoints_3d,
+                                      load_ground_truth(original.sequence("seq000").frames[kept[j]]).keypoints_3d)
+        assert abs(frame.time_s - original.sequence("seq000").frames[kept[j]].time_s) <= 1 / original.sequences[0].fps
+    assert len(rest.sequence("seq002").frames) == 6
+    with pytest.raises(ValueError, match="at least 2"):
+        split_capture(capture_dir, tmp_path / "bad", every=1)
+
+
+def token_of(env, role: Role) -> str:
+    return env.headers(role)["Authorization"].split()[1]
+
+
+class FakeWorkers:
+    """Plays the workers for the in-process app (see the module docstring)."""
+
+    def __init__(self, env, sim: BootstrapSimulation) -> None:
+        self.env, self.sim, self.done = env, sim, set()
+        self.shifted: dict[int, float] = {}  # sample id -> how far its round fit is from the truth, m
+
+    def _fit(self, session, sample_id: int, shift_m: float, job_id: int, prediction_id: int | None = None) -> None:
+        gt = self.sim.truth.truth(sample_id)
+        move = np.array([shift_m, 0.0, 0.0])
+        records.record_fit(
+            session, sample_id, params=np.concatenate([gt.betas, gt.pose, gt.global_orient, gt.transl + move]),
+            keypoints_m=gt.keypoints_3d + move,
+            view_ious={v.id: 0.9 for v in views_of(session, sample_id, with_masks=False)}, diagnostics={},
+            inputs={"prediction_id": prediction_id} if prediction_id else {"submission_ids": [1]},
+            model_file="handloop-builtin v1", thresholds=HeuristicThresholds(), job_id=job_id,
+            prediction_id=prediction_id)
+
+    def fit_submissions(self) -> None:
+        for job_id, kind in list(self.env.queue.enqueued):
+            if kind == "fit" and job_id not in self.done:
+                self.done.add(job_id)
+                with self.env.session() as s, s.begin():
+                    sample_id = s.execute(text("SELECT sample_id FROM jobs WHERE id = :j"), {"j": job_id}).scalar_one()
+                    self._fit(s, sample_id, 0.002, job_id)
+
+    def round(self, job_id: int) -> dict:
+        env = self.env
+        storage, queue = env.client.app.state.storage, env.queue
+        with env.session() as s:
+            round_id = s.execute(text("SELECT round_id FROM jobs WHERE id = :j"), {"j": job_id}).scalar_one()
+            todo = s.execute(text("SELECT s.id FROM samples s JOIN sequences q ON q.id = s.sequence_id "
+                                  "JOIN projects p ON p.id = q.project_id WHERE p.name = 'sim' "
+                                  "AND s.state IN ('unlabeled', 'fitted') ORDER BY s.id")).scalars().all()
+        for n, sample_id in enumerate(todo):
+            gt = self.sim.truth.truth(sample_id)
+            wrong = 0.015 if n % 4 == 0 else 0.0
+            self.shifted[sample_id] = 0.003 + wrong
+            confidences = [0.95 if n % 3 else 0.7] * 21
+            with env.session() as s, s.begin():
+                prediction = records.record_prediction(
+                    s, storage, sample_id, keypoints_m=gt.keypoints_3d + np.array([0.001 + wrong, 0, 0]),
+                    confidences=confidences, mvnet_version=f"mvnet-r{round_id}", round_id=round_id, job_id=job_id)
+                fit_job = records.queue_fit(s, queue, sample_id, source="prediction", round_id=round_id,
+                                            payload={"prediction_id": prediction.id})
+                s.flush()
+                self.done.add(fit_job.id)
+                self._fit(s, sample_id, 0.003 + wrong, fit_job.id, prediction.id)
+        with env.session() as s, s.begin():
+            review.build_queue(s, ReviewPolicy.from_settings(env.settings), None)
+            jobs.finish(s, job_id, JobState.succeeded, result={"predicted": len(todo)})
+        with env.session() as s:
+            return dict(s.execute(text("SELECT id, state, message, error FROM jobs WHERE id = :j"),
+                                  {"j": job_id}).mappings().one())
+
+
+def test_bootstrap_books_add_up_round_by_round(env_with, sqlite_url, capture_dir, tmp_path):
+    env = env_with(sqlite_url, tmp_path / "data", review_min_time_gap_s=0.0, review_min_pose_distance=0.0)
+    split = split_capture(capture_dir, tmp_path / "split", every=3)
+    admin = ApiClient(env.client, token_of(env, Role.admin))
+    config = BootstrapConfig(rounds=2, annotators=2, reviewers=1,
+                             annotator=AnnotatorConfig(click_sigma_px=1.0, max_mask_corrections=1, seed=3),
+                             reviewer=ReviewerConfig(accept_below_mm=8.0, error_rate=0.0))
+    sim = BootstrapSimulation(env.client, admin, config)
+    workers = FakeWorkers(env, sim)
+    sim.wait_for_workers = workers.fit_submissions
+    sim.run_round = workers.round
+    summary = sim.run(split)
+
+    rounds = summary["rounds"]
+    assert [r["index"] for r in rounds] == [0, 1, 2] and summary["rounds_completed"] == 2
+    assert summary["bookkeeping_ok"] and summary["failure"] is None
+    # D_0: the four initial frames, clicked, fitted 2 mm off, verified.
+    assert rounds[0]["added"] == {"heuristic": 0, "manual": 0, "annotated": 4} and rounds[0]["dataset_size"] == 4
+    assert rounds[0]["accepted_vertex_mm"] == pytest.approx(2.0, abs=1e-6)
+    for before, after in itertools.pairwise(rounds):
+        assert after["dataset_size"] == before["dataset_size"] + sum(after["added"].values())
+    stats = admin.statistics()
+    assert [r["dataset_size_after"] for r in stats["rounds"]] == [r["dataset_size"] for r in rounds]
+    # Round 1: the heuristic accepts what the predictions agree with, the wrong ones included (15 mm off).
+    heuristic = [m for m in admin.dataset()["samples"] if m["stream"] == "heuristic"]
+    true_mm = [workers.shifted[m["sample_id"]] * 1000 for m in heuristic]
+    assert rounds[1]["auto_accepted"] == len(heuristic) > 0
+    assert summary["auto_accept_precision"] == pytest.approx(np.mean(np.asarray(true_mm) <= 10.0))
+    assert 0 < summary["auto_accept_precision"] < 1
+    members = admin.dataset()["samples"]
+    assert len(members) == summary["dataset_size"] == rounds[-1]["dataset_size"]
+    assert rounds[1]["mvnet_predictions"] == 14 and rounds[1]["mvnet_keypoint_mm"] > 1.0
+    # Human time: the unit costs of what the ledger counted, which the server's records confirm.
+    with env.session() as s:
+        clicked = s.execute(text("SELECT count(*) FROM clicks WHERE visibility != 'not_annotated'")).scalar_one()
+        decided = s.execute(text("SELECT count(*) FROM decisions WHERE user_id IS NOT NULL")).scalar_one()
+        corrected = s.execute(text("SELECT count(*) FROM masks WHERE kind = 'corrected'")).scalar_one()
+    efforts = [r["effort"] for r in rounds]
+    assert sum(e["clicks"] for e in efforts) == clicked and sum(e["verifications"] for e in efforts) == decided
+    assert sum(e["mask_corrections"] for e in efforts) == corrected
+    assert summary["human_hours"] * 3600 == pytest.approx(clicked * 2 + corrected * 12 + decided * 5)
+    assert summary["labels_per_human_hour"] == pytest.approx(summary["dataset_size"] / summary["human_hours"])
+    assert summary["paper_procedure"]["labels_per_human_hour"] == 4.0
+    json.dumps(summary)  # JSON-ready
+    plots = write_plots(summary, tmp_path / "plots")
+    for path in plots.values():
+        assert Path(path).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_failed_round_job_ends_the_run_and_says_why(env_with, sqlite_url, capture_dir, tmp_path):
+    env = env_with(sqlite_url, tmp_path / "data")
+    split = split_capture(capture_dir, tmp_path / "split", every=3)
+    admin = ApiClient(env.client, token_of(env, Role.admin))
+    sim = BootstrapSimulation(env.client, admin, BootstrapConfig(rounds=3, annotator=AnnotatorConfig(
+        max_mask_corrections=0)))
+    workers = FakeWorkers(env, sim)
+    sim.wait_for_workers = workers.fit_submissions
+
+    def failing_round(job_id: int) -> dict:
+        with env.session() as s, s.begin():
+            jobs.finish(s, job_id, JobState.failed, error="MVNet training needs 8 samples, D_0 has 4")
+        return admin.job(job_id) | {"error": "MVNet training needs 8 samples, D_0 has 4"}
+
+    sim.run_round = failing_round
+    summary = sim.run(split)
+    assert summary["rounds_completed"] == 0 and [r["index"] for r in summary["rounds"]] == [0, 1]
+    assert "round 1" in summary["failure"] and "needs 8 samples" in summary["failure"]
+    assert summary["rounds"][1]["round_job"]["state"] == "failed" and summary["bookkeeping_ok"]

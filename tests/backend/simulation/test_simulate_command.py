@@ -1,0 +1,74 @@
+"""`handloop simulate` end to end on the real stack (API and Celery worker processes, real HTTP), and its
+refusals of bad arguments."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from backend.cli.main import app
+
+runner = CliRunner()
+FAST = ["--nets", "tiny", "--set", "fit_global_iterations=15", "--set", "fit_full_iterations=30"]
+
+
+@pytest.fixture(scope="module")
+def capture_dir(tmp_path_factory) -> Path:
+    from workers.synth.generator import generate_capture
+    from workers.synth.plan import SynthConfig
+
+    out = tmp_path_factory.mktemp("simulate-capture") / "cap"
+    generate_capture(out, SynthConfig(num_sequences=3, frames_per_sequence=4, seed=21, width_px=128), workers=1)
+    return out
+
+
+def test_simulate_d0_through_the_real_server_and_worker(capture_dir, tmp_path):
+    out = tmp_path / "run"
+    result = runner.invoke(app, ["simulate", "--capture", str(capture_dir), "--rounds", "0", "--initial-every", "2",
+                                 "--out", str(out), "--accept-below-mm", "40", "--review-error-rate", "0",
+                                 "--json", *FAST])
+    assert result.exit_code == 0, result.output[-3000:]
+    summary = json.loads(result.stdout.strip().splitlines()[-1])
+    d0 = summary["rounds"][0]
+    assert summary["capture"]["initial_frames"] == 4  # frames 0 and 2 of the two training sequences
+    # Every D_0 frame was clicked, fitted by the worker, verified: the lenient reviewers accept them all.
+    assert d0["effort"]["submissions"] == 4 and d0["effort"]["verifications"] == 4
+    assert d0["added"] == {"heuristic": 0, "manual": 0, "annotated": 4} and summary["dataset_size"] == 4
+    assert summary["bookkeeping_ok"] and summary["failure"] is None
+    assert 0 < d0["accepted_vertex_mm"] < 40 and d0["reviewed_vertex_mm"] == pytest.approx(d0["accepted_vertex_mm"])
+    hours = (d0["effort"]["clicks"] * 2 + d0["effort"]["mask_corrections"] * 12 + 4 * 5) / 3600
+    assert summary["human_hours"] == pytest.approx(hours)
+    assert summary["labels_per_human_hour"] == pytest.approx(4 / hours)
+    for name in ("growth", "accuracy"):
+        assert Path(summary["plots"][name]).read_bytes()[:4] == b"\x89PNG"
+    assert json.loads((out / "simulation.json").read_text())["dataset_size"] == 4
+    assert (out / "server" / "logs" / "worker.log").exists()
+
+
+def test_simulate_refuses_bad_arguments(capture_dir, tmp_path):
+    no_truth = tmp_path / "no-truth"
+    shutil.copytree(capture_dir, no_truth)
+    for gt in no_truth.glob("sequences/*/ground_truth"):
+        shutil.rmtree(gt)
+    cases = [
+        (["--capture", str(no_truth)], "has no ground truth"),
+        (["--capture", str(tmp_path / "absent")], "capture rejected"),
+        (["--capture", str(capture_dir), "--set", "nonsense"], "--set takes KEY=VALUE"),
+        (["--capture", str(capture_dir), "--set", "no_such_setting=1", "--out", str(tmp_path / "a")],
+         "unknown settings ['no_such_setting']"),
+        (["--capture", str(capture_dir), "--review-error-rate", "2"], "error_rate must be in [0, 1]"),
+        (["--capture", str(capture_dir), "--url", "http://127.0.0.1:9", "--out", str(tmp_path / "b")],
+         "needs an admin's email and password"),
+    ]
+    for args, message in cases:
+        result = runner.invoke(app, ["simulate", *args])
+        assert result.exit_code == 2 and message in result.output, (args, result.output[-2000:])
+    busy = tmp_path / "busy"
+    busy.mkdir()
+    (busy / "x").write_text("mine")
+    result = runner.invoke(app, ["simulate", "--capture", str(capture_dir), "--out", str(busy)])
+    assert result.exit_code == 2 and "not empty" in result.output

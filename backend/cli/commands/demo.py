@@ -2,7 +2,8 @@
 
 Synthesises a small capture (once), draws a preview, migrates the embedded SQLite database, imports the
 capture as a project, makes an admin account (once; the password is kept in the data folder so a
-second run can print it again) and serves the API.
+second run can print it again), then serves the app: the API with the UI and a real Celery worker
+process on the embedded broker (kombu's filesystem transport; backend.runtime.start_stack), until Ctrl-C.
 """
 
 from __future__ import annotations
@@ -11,8 +12,12 @@ import logging
 import secrets
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
+
+if TYPE_CHECKING:
+    from backend.settings import Settings
 
 log = logging.getLogger("handloop.demo")
 
@@ -49,11 +54,36 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         typer.echo(f"  login   : {DEMO_ADMIN} / {password}")
         typer.echo(f"  model   : {notice}")
         if serve:
-            typer.echo(f"  API     : http://{host}:{port}/docs  (Ctrl-C stops the server)")
-            typer.echo("")
-            import uvicorn
+            _serve(settings, host, port)
 
-            uvicorn.run("backend.app:create_app", factory=True, host=host, port=port, log_level="info")
+
+def _serve(settings: Settings, host: str, port: int) -> None:
+    """The API and an embedded worker until Ctrl-C (or SIGTERM)."""
+    import signal
+    import threading
+
+    from backend.runtime import start_stack
+
+    mode = "embedded broker" if not settings.broker_url else f"broker {settings.broker_url.split('@')[-1]}"
+    typer.echo(f"  starting: API and worker ({mode}; logs in {settings.data_dir.resolve() / 'logs'}) ...")
+    stack = start_stack(settings, host=host, port=port)
+    stopping = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stopping.set())
+    try:
+        typer.echo(f"  URL     : {stack.base_url}/  (API docs: {stack.base_url}/docs)")
+        typer.echo("  running : API + worker; Ctrl-C stops both")
+        typer.echo("", nl=True)
+        sys.stdout.flush()
+        while not stopping.wait(1.0):
+            for name, process in (("API", stack.api), ("worker", stack.worker)):
+                if process is not None and process.poll() is not None:
+                    log.error("the %s exited (code %s); see %s", name, process.returncode, stack.log_dir)
+                    stopping.set()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        typer.echo("  stopping ...")
+        stack.stop()
 
 
 def _ensure_capture(capture_dir: Path, sequences: int, frames: int, width: int, mano_path: Path | None) -> None:

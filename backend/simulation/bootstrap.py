@@ -1,7 +1,8 @@
 """The bootstrap simulation: D_0 ... D_n through the real server and workers, with simulated people.
 
-Round 0: simulated annotators click the initial set (every k-th training frame, its own project queued
-for annotation), the workers fit, simulated reviewers verify (bad fits go back for clicks): D_0. Round
+The capture is imported as one project with every sample unlabeled; the admin queues the initial set
+(every k-th frame of each training sequence, spread over subjects and motions) for annotation. Round 0:
+simulated annotators click it, the workers fit, simulated reviewers verify (bad fits go back for clicks): D_0. Round
 i >= 1: the admin launches a round through the API (the workers train MVNet and HandSegNet on D_{i-1},
 predict and fit the rest, accept by the heuristic and queue the review); the reviewers verify the queue,
 the annotators click what was sent back, and so on until both queues are empty: D_i. After each round the
@@ -16,13 +17,13 @@ import secrets
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import Any
 
 import httpx
 import numpy as np
 
 from backend.simulation.annotator import AnnotatorConfig, SimulatedAnnotator
-from backend.simulation.captures import SplitCaptures
 from backend.simulation.client import ApiClient
 from backend.simulation.costs import PAPER_FULL_ANNOTATION_S, HumanLedger, UnitCosts
 from backend.simulation.reviewer import ReviewerConfig, SimulatedReviewer
@@ -47,7 +48,7 @@ class BootstrapConfig:
         auto_accept_max_mm: a heuristic accept counts as correct when its true mean vertex error is at most this.
         round_timeout_s: longest wait for one round's job (and for the fits queued by people).
         poll_s: job polling interval.
-        project: name of the project holding the rest; D_0's is "<project>-d0".
+        project: name of the project the capture is imported as.
     """
 
     rounds: int = 4
@@ -130,6 +131,7 @@ class BootstrapSimulation:
                                                                        100 * j["progress"], j["message"])))
         self.on_round = on_round
         self.truth: GroundTruthIndex | None = None
+        self.initial_set: list[int] = []
         self._errors: dict[int, tuple[float, float]] = {}  # fit id -> (vertex mm, keypoint mm)
         self._previous_size = 0
 
@@ -151,21 +153,31 @@ class BootstrapSimulation:
                      for i in range(cfg.reviewers)]
         return Team(annotators, reviewers, max_annotation_passes=cfg.reviewer.max_annotation_attempts + 1)
 
-    def prepare(self, captures: SplitCaptures) -> Team:
-        """Import D_0's capture (queued for annotation) and the rest (unlabeled); create the accounts."""
-        d0, rest = f"{self.config.project}-d0", self.config.project
-        self.admin.import_capture(str(captures.initial), d0, queue_for_annotation=True)
-        self.admin.import_capture(str(captures.rest), rest, queue_for_annotation=False)
-        self.truth = GroundTruthIndex({d0: read_capture(captures.initial, check_images=False),
-                                       rest: read_capture(captures.rest, check_images=False)},
-                                      self.admin.sample_index()["samples"])
+    def prepare(self, capture_dir: Path, initial_every: int) -> Team:
+        """Import the capture (unlabeled), queue the initial set for annotation, create the accounts."""
+        if initial_every < 2:
+            raise ValueError(f"initial_every must be at least 2 (all frames in D_0 leave nothing to bootstrap), "
+                             f"not {initial_every}")
+        project = self.config.project
+        self.admin.import_capture(str(capture_dir), project, queue_for_annotation=False)
+        samples = self.admin.sample_index(project=project)["samples"]
+        initial = [s["sample_id"] for s in samples if s["split"] == "train" and s["frame_index"] % initial_every == 0]
+        if not initial:
+            raise ValueError(f"{capture_dir}: no training frames for the initial set")
+        self.initial_set = self.admin.queue_for_annotation(initial)
+        self.truth = GroundTruthIndex({project: read_capture(capture_dir, check_images=False)}, samples)
         return self._people(self.truth)
 
     # --- the run ---------------------------------------------------------------------------------------
-    def run(self, captures: SplitCaptures) -> dict[str, Any]:
-        """Run D_0 ... D_rounds; returns the summary (see `summary`)."""
+    def run(self, capture_dir: Path, initial_every: int) -> dict[str, Any]:
+        """Run D_0 ... D_rounds on the capture; returns the summary (see `summary`).
+
+        Args:
+            capture_dir: a synthetic capture the server can read (it is imported by path).
+            initial_every: the initial set is every k-th frame of each training sequence (k >= 2).
+        """
         started = time.perf_counter()
-        team = self.prepare(captures)
+        team = self.prepare(capture_dir, initial_every)
         reports: list[RoundReport] = []
         round_started = time.perf_counter()
         work = team.work_until_done(0, self.wait_for_workers)
@@ -263,6 +275,7 @@ class BootstrapSimulation:
         return {
             "rounds": [asdict(r) for r in reports],
             "rounds_completed": sum(1 for r in reports if r.round_job and r.round_job["state"] == "succeeded"),
+            "initial_set": len(self.initial_set),
             "dataset_size": size,
             "auto_accepted": len(heuristic),
             "auto_accept_precision": float(np.mean(np.asarray(heuristic) <= self.config.auto_accept_max_mm))

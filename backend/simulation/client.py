@@ -119,8 +119,12 @@ class ApiClient:
     def dataset(self, up_to_round: int | None = None) -> dict[str, Any]:
         return self.get_json("/api/admin/exports/dataset", up_to_round=up_to_round)
 
-    def sample_index(self) -> dict[str, Any]:
-        return self.get_json("/api/admin/exports/samples")
+    def sample_index(self, project: str | None = None) -> dict[str, Any]:
+        return self.get_json("/api/admin/exports/samples", project=project)
+
+    def queue_for_annotation(self, sample_ids: list[int]) -> list[int]:
+        return self.request("POST", "/api/admin/samples/queue-for-annotation",
+                            json={"sample_ids": sample_ids}).json()["queued"]
 
     def predictions(self, round_index: int | None = None) -> dict[str, Any]:
         return self.get_json("/api/admin/exports/predictions", round_index=round_index)

@@ -1,4 +1,4 @@
-"""Running a bootstrap simulation end to end: split the capture, start the real stack (API + Celery worker
+"""Running a bootstrap simulation end to end: start the real stack (API + Celery worker
 processes, `backend.runtime.start_stack`) on a fresh embedded database, or use a running server, then
 drive it with simulated people and write the report (JSON and plots)."""
 
@@ -16,7 +16,6 @@ from typing import Any
 import httpx
 
 from backend.simulation.bootstrap import BootstrapConfig, BootstrapSimulation, RoundReport
-from backend.simulation.captures import split_capture
 from backend.simulation.client import ApiClient
 from backend.simulation.report import write_plots
 
@@ -94,9 +93,8 @@ def run_simulation(capture_dir: Path, work_dir: Path, config: BootstrapConfig, *
     server = server or ServerOptions()
     work_dir = Path(work_dir)
     work_dir.mkdir(parents=True, exist_ok=True)
-    split = split_capture(Path(capture_dir), work_dir / "split", initial_every)
-    log.info("D_0 candidates: %d frames (every %d-th training frame); the rest: %d frames", split.initial_frames,
-             initial_every, split.rest_frames)
+    if initial_every < 2:
+        raise ValueError(f"initial_every must be at least 2, not {initial_every}")
     stack = None
     try:
         if server.url is None:
@@ -115,13 +113,13 @@ def run_simulation(capture_dir: Path, work_dir: Path, config: BootstrapConfig, *
             base_url, email, password = server.url, server.admin_email, server.admin_password
         with httpx.Client(base_url=base_url, timeout=server.request_timeout_s) as http:
             admin = ApiClient.sign_in(http, email, password)
-            summary = BootstrapSimulation(http, admin, config, on_round=on_round).run(split)
+            summary = BootstrapSimulation(http, admin, config, on_round=on_round).run(Path(capture_dir).resolve(),
+                                                                                     initial_every)
     finally:
         if stack is not None:
             stack.stop()
     summary["plots"] = write_plots(summary, work_dir)
-    summary["capture"] = {"path": str(capture_dir), "initial_every": initial_every,
-                          "initial_frames": split.initial_frames, "rest_frames": split.rest_frames}
+    summary["capture"] = {"path": str(capture_dir), "initial_every": initial_every}
     summary["server"] = {"url": server.url or "started: API + embedded Celery worker (backend.runtime)",
                          "settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in server.settings.items()},
                          "worker_concurrency": server.worker_concurrency}

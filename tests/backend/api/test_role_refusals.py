@@ -35,6 +35,7 @@ ROUTES = [
     ("GET", "/api/admin/exports/samples", Role.admin),
     ("GET", "/api/admin/exports/predictions", Role.admin),
     ("POST", "/api/admin/imports", Role.admin),
+    ("POST", "/api/admin/samples/queue-for-annotation", Role.admin),
     # The browser UI's routes (tests/backend/api/ui/).
     ("POST", "/api/annotate/prefetch", Role.annotator),
     ("GET", "/api/annotate/samples/1/proposals", Role.annotator),

@@ -4,7 +4,7 @@ The in-process app has no workers, so the test plays them: fit jobs from submiss
 sample's ground truth moved 2 mm; a round job predicts every unlabeled or fitted sample of the rest (the
 truth plus 1 mm), fits it (3 mm off; every fourth sample 15 mm off together with its prediction, which the
 heuristic cannot see) and builds the review queue, as the worker issue's round job does. What is checked
-is the simulation's side: D_0 from the initial captures, D_{i+1} = D_i + the three streams in every
+is the simulation's side: D_0 from the initial set, D_{i+1} = D_i + the three streams in every
 report, precision and errors computed from the truth, human time from the unit costs, the plots.
 """
 
@@ -24,11 +24,9 @@ from backend.services.samples import views_of
 from backend.services.verification import HeuristicThresholds, ReviewPolicy
 from backend.simulation.annotator import AnnotatorConfig
 from backend.simulation.bootstrap import BootstrapConfig, BootstrapSimulation
-from backend.simulation.captures import split_capture
 from backend.simulation.client import ApiClient
 from backend.simulation.report import write_plots
 from backend.simulation.reviewer import ReviewerConfig
-from workers.capture import load_ground_truth, read_capture
 
 
 @pytest.fixture(scope="module")
@@ -40,29 +38,6 @@ def capture_dir(tmp_path_factory) -> Path:
     # seq000 and seq001 train (green screen), seq002 evaluation.
     generate_capture(out, SynthConfig(num_sequences=3, frames_per_sequence=6, seed=12, width_px=96), workers=1)
     return out
-
-
-def test_split_capture_makes_d0_from_every_kth_training_frame(capture_dir, tmp_path):
-    split = split_capture(capture_dir, tmp_path / "split", every=3)
-    original = read_capture(capture_dir)
-    initial, rest = read_capture(split.initial), read_capture(split.rest)
-    assert (split.initial_frames, split.rest_frames) == (4, 14)
-    assert [s.id for s in initial.sequences] == ["seq000", "seq001"]
-    assert [s.id for s in rest.sequences] == ["seq000", "seq001", "seq002"]
-    for seq in initial.sequences:
-        source = original.sequence(seq.id)
-        for j, frame in enumerate(seq.frames):
-            assert frame.time_s == pytest.approx(source.frames[3 * j].time_s)
-            np.testing.assert_array_equal(load_ground_truth(frame).vertices,
-                                          load_ground_truth(source.frames[3 * j]).vertices)
-    kept = [f.index for f in original.sequence("seq000").frames if f.index % 3]
-    for j, frame in enumerate(rest.sequence("seq000").frames):
-        np.testing.assert_array_equal(load_ground_truth(frame).keypoints_3d,
-                                      load_ground_truth(original.sequence("seq000").frames[kept[j]]).keypoints_3d)
-        assert abs(frame.time_s - original.sequence("seq000").frames[kept[j]].time_s) <= 1 / original.sequences[0].fps
-    assert len(rest.sequence("seq002").frames) == 6
-    with pytest.raises(ValueError, match="at least 2"):
-        split_capture(capture_dir, tmp_path / "bad", every=1)
 
 
 def token_of(env, role: Role) -> str:
@@ -127,7 +102,6 @@ class FakeWorkers:
 
 def test_bootstrap_books_add_up_round_by_round(env_with, sqlite_url, capture_dir, tmp_path):
     env = env_with(sqlite_url, tmp_path / "data", review_min_time_gap_s=0.0, review_min_pose_distance=0.0)
-    split = split_capture(capture_dir, tmp_path / "split", every=3)
     admin = ApiClient(env.client, token_of(env, Role.admin))
     config = BootstrapConfig(rounds=2, annotators=2, reviewers=1,
                              annotator=AnnotatorConfig(click_sigma_px=1.0, max_mask_corrections=1, seed=3),
@@ -136,12 +110,13 @@ def test_bootstrap_books_add_up_round_by_round(env_with, sqlite_url, capture_dir
     workers = FakeWorkers(env, sim)
     sim.wait_for_workers = workers.fit_submissions
     sim.run_round = workers.round
-    summary = sim.run(split)
+    summary = sim.run(capture_dir, initial_every=3)
 
     rounds = summary["rounds"]
     assert [r["index"] for r in rounds] == [0, 1, 2] and summary["rounds_completed"] == 2
     assert summary["bookkeeping_ok"] and summary["failure"] is None
-    # D_0: the four initial frames, clicked, fitted 2 mm off, verified.
+    # D_0: the four initial frames (0 and 3 of both training sequences), clicked, fitted 2 mm off, verified.
+    assert summary["initial_set"] == 4
     assert rounds[0]["added"] == {"heuristic": 0, "manual": 0, "annotated": 4} and rounds[0]["dataset_size"] == 4
     assert rounds[0]["accepted_vertex_mm"] == pytest.approx(2.0, abs=1e-6)
     for before, after in itertools.pairwise(rounds):
@@ -176,7 +151,6 @@ def test_bootstrap_books_add_up_round_by_round(env_with, sqlite_url, capture_dir
 
 def test_a_failed_round_job_ends_the_run_and_says_why(env_with, sqlite_url, capture_dir, tmp_path):
     env = env_with(sqlite_url, tmp_path / "data")
-    split = split_capture(capture_dir, tmp_path / "split", every=3)
     admin = ApiClient(env.client, token_of(env, Role.admin))
     sim = BootstrapSimulation(env.client, admin, BootstrapConfig(rounds=3, annotator=AnnotatorConfig(
         max_mask_corrections=0)))
@@ -189,7 +163,9 @@ def test_a_failed_round_job_ends_the_run_and_says_why(env_with, sqlite_url, capt
         return admin.job(job_id) | {"error": "MVNet training needs 8 samples, D_0 has 4"}
 
     sim.run_round = failing_round
-    summary = sim.run(split)
+    with pytest.raises(ValueError, match="at least 2"):
+        sim.run(capture_dir, initial_every=1)
+    summary = sim.run(capture_dir, initial_every=3)
     assert summary["rounds_completed"] == 0 and [r["index"] for r in summary["rounds"]] == [0, 1]
     assert "round 1" in summary["failure"] and "needs 8 samples" in summary["failure"]
     assert summary["rounds"][1]["round_job"]["state"] == "failed" and summary["bookkeeping_ok"]

@@ -34,7 +34,7 @@ def test_simulate_d0_through_the_real_server_and_worker(capture_dir, tmp_path):
     assert result.exit_code == 0, result.output[-3000:]
     summary = json.loads(result.stdout.strip().splitlines()[-1])
     d0 = summary["rounds"][0]
-    assert summary["capture"]["initial_frames"] == 4  # frames 0 and 2 of the two training sequences
+    assert summary["initial_set"] == 4  # frames 0 and 2 of the two training sequences
     # Every D_0 frame was clicked, fitted by the worker, verified: the lenient reviewers accept them all.
     assert d0["effort"]["submissions"] == 4 and d0["effort"]["verifications"] == 4
     assert d0["added"] == {"heuristic": 0, "manual": 0, "annotated": 4} and summary["dataset_size"] == 4

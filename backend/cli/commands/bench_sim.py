@@ -13,8 +13,11 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
     ) -> None:
         """200-frame synthetic capture, cpu-small networks, 4 rounds through the real server and workers:
         minutes, accepted labels' vertex error, auto-accept precision, labels per human hour."""
+        import logging
+
         from backend.simulation.bench import run
 
+        logging.getLogger("httpx").setLevel(logging.WARNING)  # one line per request drowns the progress
         record = run(quick=quick, emit_json=json_out)
         if not json_out:
             for r in record["rounds"]:

@@ -80,3 +80,38 @@ def test_round_runs_end_to_end_through_redis(live_stack):
     stack = live_stack(frames=6, queue_for_annotation=False, broker="redis")
     assert stack.settings.broker_url.startswith("redis://")
     check_round(stack, run_round(stack))
+
+
+def test_a_round_cancelled_while_training_stops_its_jobs(live_stack):
+    from backend.models.enums import JobKind
+    from backend.models.jobs import Job
+    from tests.support.annotate import wait_until
+
+    stack = live_stack(frames=4, queue_for_annotation=False, round_handsegnet_budget_s=300.0,
+                       round_mvnet_budget_s=300.0)
+    queue_for_annotation(stack, 2)
+    annotate_and_accept(stack, 2)
+    with stack.client("admin") as http:
+        launched = http.post("/api/admin/rounds", json={"note": "to cancel"}).json()
+
+    def training():
+        with stack.session_factory()() as session:
+            rows = session.execute(select(Job).where(Job.kind == JobKind.train, Job.state == "running")).scalars()
+            return [j for j in rows if j.progress > 0]
+
+    wait_until(training, 120, "training under way", stack)
+    with stack.client("admin") as http:
+        cancelled = http.post(f"/api/admin/rounds/{launched['round']['id']}/cancel")
+        assert cancelled.status_code == 200 and cancelled.json()["state"] == "cancelled", cancelled.text
+    job = stack.wait_for_job(launched["job_id"], timeout_s=30)
+    assert job["state"] == "cancelled"
+
+    def stopped():
+        log = stack.stack.worker_log.read_text()
+        return "'cancelled': True" in log
+
+    wait_until(stopped, 30, "the training task returned", stack)  # well before its 300 s budget
+    with stack.session_factory()() as session:
+        rows = session.execute(select(Job).where(Job.round_id == launched["round"]["id"])).scalars()
+        kinds = {row.kind: row.state for row in rows}
+    assert kinds.get(JobKind.train) == "cancelled" and JobKind.predict not in kinds

@@ -1,0 +1,127 @@
+"""The job hand-off: claims that make redelivery harmless, the broker check that refuses writes (503), and
+the outbox that re-sends jobs whose hand-off failed after their commit."""
+
+from __future__ import annotations
+
+from datetime import timedelta
+
+import pytest
+from sqlalchemy import text
+
+from backend.db.base import utcnow
+from backend.models.enums import JobKind, JobState, Role
+from backend.models.jobs import Job
+from backend.services import dispatch, jobs
+from backend.services.celery_queue import CeleryJobQueue, task_for_job
+from backend.services.errors import ServiceUnavailableError
+from backend.services.jobs import InMemoryJobQueue
+from backend.settings import Settings
+
+
+def _new_job(env, **values) -> int:
+    with env.session() as session, session.begin():
+        job = jobs.create(session, InMemoryJobQueue(), JobKind.fit, payload={"source": "annotation"})
+        for key, value in values.items():
+            setattr(job, key, value)
+        session.flush()
+        return job.id
+
+
+def test_claim_starts_skips_duplicates_and_takes_over_dead_jobs(env):
+    job_id = _new_job(env)
+    with env.session() as session, session.begin():
+        job = jobs.claim(session, job_id, "w1:1", stale_after_s=60)
+        assert job.state == JobState.running and job.attempts == 1 and job.worker == "w1:1"
+    with env.session() as session, session.begin():
+        assert jobs.claim(session, job_id, "w2:2", stale_after_s=60) is None  # live attempt: a duplicate
+    with env.session() as session, session.begin():
+        session.execute(text("UPDATE jobs SET updated_at = :t WHERE id = :i"),
+                        {"t": utcnow() - timedelta(seconds=120), "i": job_id})
+    with env.session() as session, session.begin():
+        job = jobs.claim(session, job_id, "w2:2", stale_after_s=60)  # its worker died: taken over
+        assert job.attempts == 2 and job.worker == "w2:2" and "taken over" in job.message
+        jobs.finish(session, job_id, JobState.succeeded)
+    with env.session() as session, session.begin():
+        assert jobs.claim(session, job_id, "w3:3", stale_after_s=0) is None  # final: nothing to do
+
+
+def test_unavailable_queue_refuses_a_submission_with_503_and_writes_nothing(env, h):
+    h.seed(env, frames=2)
+    task = h.next_task(env)
+    before = {t: h.count(env, t) for t in ("jobs", "submissions", "clicks", "audit_events")}
+    env.queue.available = False
+    response = env.client.post(f"/api/annotate/samples/{task['sample_id']}/submissions", json=h.body(task),
+                               headers=env.headers(Role.annotator))
+    assert response.status_code == 503, response.text
+    assert "nothing was written" in response.json()["detail"] and response.headers["retry-after"]
+    assert {t: h.count(env, t) for t in before} == before
+    env.queue.available = True
+    response = env.client.post(f"/api/annotate/samples/{task['sample_id']}/submissions", json=h.body(task),
+                               headers=env.headers(Role.annotator))
+    assert response.status_code == 201, response.text
+
+
+def test_unavailable_queue_refuses_a_round_launch(env):
+    env.queue.available = False
+    response = env.client.post("/api/admin/rounds", json={"note": "x"}, headers=env.headers(Role.admin))
+    assert response.status_code == 503, response.text
+    assert env.client.get("/api/admin/rounds", headers=env.headers(Role.admin)).json() == []
+
+
+def test_outbox_resends_undispatched_stale_and_dead_jobs_only(env):
+    settings = env.settings.model_copy(update={"job_redispatch_after_s": 600, "job_heartbeat_timeout_s": 60})
+    now = utcnow()
+    fresh = _new_job(env)  # just handed over: left alone
+    failed_handoff = _new_job(env, dispatched_at=None)
+    lost = _new_job(env, dispatched_at=now - timedelta(seconds=700))
+    dead = _new_job(env, state=JobState.running)
+    alive = _new_job(env, state=JobState.running)
+    done = _new_job(env, dispatched_at=None, state=JobState.succeeded)
+    old = now - timedelta(seconds=200)
+    with env.session() as session, session.begin():
+        session.execute(text("UPDATE jobs SET updated_at = :t, dispatched_at = :t WHERE id = :i"),
+                        {"t": old, "i": dead})
+    sent: list[int] = []
+    assert dispatch.redispatch(env.session_factory, lambda i, k, p: sent.append(i) or True, settings) == 3
+    assert sorted(sent) == sorted([failed_handoff, lost, dead])
+    assert fresh not in sent and alive not in sent and done not in sent
+    with env.session() as session:
+        dead_row = session.get(Job, dead)
+        assert abs((dead_row.updated_at - old).total_seconds()) < 1e-3  # the heartbeat is not faked
+        assert session.get(Job, failed_handoff).dispatched_at is not None
+    sent.clear()
+    assert dispatch.redispatch(env.session_factory, lambda i, k, p: sent.append(i) or True, settings) == 0
+    # A failing send stops the pass and leaves the job due.
+    again = _new_job(env, dispatched_at=None)
+    assert dispatch.redispatch(env.session_factory, lambda i, k, p: False, settings) == 0
+    with env.session() as session:
+        assert session.get(Job, again).dispatched_at is None
+
+
+def test_celery_queue_reports_an_unreachable_broker_and_marks_failed_handoffs(env, tmp_path):
+    settings = Settings(data_dir=tmp_path, broker_url="redis://127.0.0.1:1/0", environment="test",
+                        secret_key="x" * 20, database_url=env.settings.database_url)
+    queue = CeleryJobQueue(settings)
+    with pytest.raises(ServiceUnavailableError, match="unreachable"):
+        queue.ensure_available()
+    queue._session_factory = env.session_factory
+    job_id = _new_job(env)
+    queue.enqueue(job_id, "fit")  # must not raise
+    with env.session() as session:
+        assert session.get(Job, job_id).dispatched_at is None
+    embedded = CeleryJobQueue(Settings(data_dir=tmp_path / "e", environment="test", secret_key="x" * 20))
+    embedded.ensure_available()
+    assert embedded.send(job_id, "fit") is True
+    assert list((tmp_path / "e" / "broker" / "messages").iterdir())  # the message is a file
+
+
+def test_each_job_kind_maps_to_its_task():
+    assert task_for_job("fit") == "handloop.fit" and task_for_job("round") == "handloop.round"
+    assert task_for_job("train", {"net": "mvnet"}) == "handloop.train_mvnet"
+    assert task_for_job("train", {"net": "handsegnet"}) == "handloop.train_handsegnet"
+    assert task_for_job("predict") == "handloop.predict_batch" and task_for_job("export") is None
+
+
+def test_visibility_timeout_must_exceed_the_longest_task(tmp_path):
+    with pytest.raises(ValueError, match="visibility"):
+        Settings(data_dir=tmp_path, broker_visibility_timeout_s=100, task_time_limit_s=200)

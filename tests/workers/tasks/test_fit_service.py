@@ -1,0 +1,103 @@
+"""The fit job service without a broker: a batch with one unfittable sample fits the others and records
+that one as a failure; a redelivered job records nothing twice; a cancelled fit releases its sample."""
+
+from __future__ import annotations
+
+import pytest
+from fastapi.testclient import TestClient
+from sqlalchemy import func, select
+
+from backend.app import create_app
+from backend.models.capture import Sample
+from backend.models.enums import JobState, SampleState
+from backend.models.fits import Fit
+from backend.models.jobs import Job
+from backend.services import jobs
+from backend.services.jobs import InMemoryJobQueue
+from backend.settings import Settings
+from tests.support.live_stack import TEST_SETTINGS, USERS, prepare_database, tiny_capture
+from workers.tasks.context import build_context
+from workers.tasks.fits import run_fit_jobs
+
+CAPTURE: list = []  # the tiny capture of this session (set by `world`)
+
+
+@pytest.fixture
+def world(tmp_path, capture_cache):
+    capture = tiny_capture(capture_cache, frames=3)
+    CAPTURE[:] = [capture]
+    settings = Settings(data_dir=tmp_path / "data", **TEST_SETTINGS)
+    prepare_database(settings, capture)
+    queue = InMemoryJobQueue()
+    app = create_app(settings, job_queue=queue)
+    with TestClient(app) as client:
+        token = client.post("/api/auth/token", data={"username": USERS["annotator"].email,
+                                                     "password": USERS["annotator"].password}).json()["access_token"]
+        client.headers["Authorization"] = f"Bearer {token}"
+        yield settings, client, queue, build_context(settings, job_queue=queue)
+    app.state.engine.dispose()
+
+
+def _submit(settings, client, *, views: int | None = None) -> int:
+    task = client.post("/api/annotate/next").json()
+    body = _clicks(task)
+    if views is not None:  # clicks in fewer views: the hand cannot be placed in 3D
+        keep = {v["id"] for v in task["views"][:views]}
+        body["clicks"] = [c for c in body["clicks"] if c["view_id"] in keep]
+    response = client.post(f"/api/annotate/samples/{task['sample_id']}/submissions", json=body)
+    assert response.status_code == 201, response.text
+    return response.json()["fit_job_id"]
+
+
+def _clicks(task: dict) -> dict:
+    """Exact clicks on the visible sparse keypoints, from the capture's ground truth."""
+    import uuid
+
+    import numpy as np
+
+    from workers.capture import load_ground_truth, read_capture
+
+    capture = read_capture(CAPTURE[0], check_images=False)
+    truth = load_ground_truth(capture.sequences[0].frames[task["frame_index"]])
+    clicks = []
+    for view in task["views"]:
+        c = list(truth.camera_names).index(view["camera"])
+        for k in task["keypoints_to_click"]:
+            x, y = (float(v) for v in np.asarray(truth.keypoints_2d[c, k]))
+            ok = truth.visibility[c, k] and -0.5 <= x <= view["width"] - 0.5 and -0.5 <= y <= view["height"] - 0.5
+            clicks.append({"view_id": view["id"], "keypoint": k, "x": x, "y": y, "visibility": "visible"} if ok
+                          else {"view_id": view["id"], "keypoint": k, "visibility": "not_annotated"})
+    return {"submission_id": uuid.uuid4().hex, "lease_token": task["lease_token"], "time_spent_s": 3.0,
+            "clicks": clicks}
+
+
+
+
+def test_one_unfittable_sample_does_not_sink_its_batch_and_redelivery_records_once(world):
+    settings, client, _, ctx = world
+    good = _submit(settings, client)
+    bad = _submit(settings, client, views=1)
+    summary = run_fit_jobs(ctx, [good, bad])
+    assert len(summary.fitted) == 1 and list(summary.failed) == [bad], summary
+    with ctx.session_factory() as session:
+        assert session.get(Job, good).state == JobState.succeeded
+        failed = session.get(Job, bad)
+        assert failed.state == JobState.failed and "two views" in failed.error
+        assert session.get(Sample, failed.sample_id).state == SampleState.needs_annotation
+        assert session.get(Sample, session.get(Job, good).sample_id).state == SampleState.in_review
+    again = run_fit_jobs(ctx, [good, bad])  # a redelivered task
+    assert not again.fitted and sorted(again.skipped) == sorted([good, bad])
+    with ctx.session_factory() as session:
+        assert session.execute(select(func.count()).select_from(Fit)).scalar_one() == 1
+
+
+def test_a_cancelled_fit_job_is_not_fitted_and_releases_its_sample(world):
+    settings, client, queue, ctx = world
+    job_id = _submit(settings, client)
+    with ctx.session_factory.begin() as session:
+        jobs.cancel(session, queue, job_id, None)
+    with ctx.session_factory() as session:
+        sample = session.get(Sample, session.get(Job, job_id).sample_id)
+        assert sample.state == SampleState.needs_annotation  # no earlier fit to fall back to
+    summary = run_fit_jobs(ctx, [job_id])
+    assert summary.skipped == [job_id] and not summary.fitted

@@ -91,7 +91,7 @@ def build(scene, content: SampleScene) -> None:
     for cam in content.cameras:
         R_world_cam = cam.R.T
         scene.add_camera_frustum(
-            f"/cameras/{cam.name}", fov=cam.fov_y_rad, aspect=cam.aspect, scale=0.12, thickness=0.003,
+            f"/cameras/{cam.name}", fov=cam.fov_y_rad, aspect=cam.aspect, scale=0.07, thickness=0.002,
             image=cam.image, format="jpeg", jpeg_quality=80, wxyz=transforms.SO3.from_matrix(R_world_cam).wxyz,
             position=-R_world_cam @ cam.t, color=(40, 40, 40))
 

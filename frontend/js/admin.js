@@ -1,0 +1,308 @@
+// The admin dashboard: samples per state, the dataset per round and stream (the paper's D_0 ... D_n
+// table), charts (growth per round, MVNet confidence, sparsification, human time per action), rounds
+// launched and cancelled with a live progress bar (server-sent events), jobs, users and roles, exports.
+import { histogram, lines, pairedBars, stackedBars } from "./charts.js";
+import { fmt, h, toast, fill } from "./dom.js";
+
+const STATES = ["unlabeled", "needs_annotation", "annotated", "fitting", "fitted", "in_review", "accepted", "rejected"];
+const STREAMS = [
+  { name: "heuristic", label: "Dʰ heuristic", color: "#2a9d8f" },
+  { name: "manual", label: "Dᵐ verified", color: "#457b9d" },
+  { name: "annotated", label: "Dˡ annotated", color: "#e76f51" },
+];
+const ROLES = ["annotator", "reviewer", "admin"];
+const REFRESH_MS = 4000;
+
+export async function mountAdmin(root, ctx) {
+  const page = new AdminPage(root, ctx);
+  await page.start();
+  return page;
+}
+
+class AdminPage {
+  constructor(root, { api, user }) {
+    this.api = api;
+    this.user = user;
+    this.root = root;
+    this.watching = new Map(); // job id -> AbortController of its event stream
+    this.sections = {
+      overview: h("section", { class: "card", id: "overview" }),
+      rounds: h("section", { class: "card", id: "rounds" }),
+      charts: h("section", { class: "card wide", id: "charts" }),
+      jobs: h("section", { class: "card", id: "jobs" }),
+      users: h("section", { class: "card", id: "users" }),
+      data: h("section", { class: "card", id: "data" }),
+    };
+    this.progress = h("div", { class: "round-progress" });
+    root.append(h("div", { class: "admin-page" }, ...Object.values(this.sections)));
+  }
+
+  async start() {
+    await this.refresh();
+    this.timer = setInterval(() => this.refresh().catch(() => null), REFRESH_MS);
+    const running = (this.jobs || []).find((j) => j.kind === "round" && (j.state === "queued" || j.state === "running"));
+    if (running) this.watch(running.id);
+    this.renderUsers();
+    this.renderData();
+    document.body.dataset.ready = "admin";
+  }
+
+  unmount() {
+    clearInterval(this.timer);
+    for (const controller of this.watching.values()) controller.abort();
+  }
+
+  async refresh() {
+    const [stats, rounds, dashboard, jobs] = await Promise.all([
+      this.api.get("/api/admin/rounds/statistics"),
+      this.api.get("/api/admin/rounds"),
+      this.api.get("/api/admin/dashboard"),
+      this.api.get("/api/admin/jobs?limit=25"),
+    ]);
+    Object.assign(this, { stats, rounds, dashboard, jobs });
+    this.renderOverview();
+    this.renderRounds();
+    this.renderCharts();
+    this.renderJobs();
+  }
+
+  renderOverview() {
+    const s = this.stats, d = this.dashboard;
+    const counts = s.samples_by_state;
+    const total = Object.values(counts).reduce((a, b) => a + b, 0);
+    fill(this.sections.overview, 
+      h("h2", {}, "Samples"),
+      h("div", { class: "state-cards" }, STATES.map((state) => h("div", { class: `state-card state-${state}`,
+        dataset: { state } }, h("div", { class: "n" }, String(counts[state] || 0)), h("div", { class: "label" },
+        state.replace("_", " "))))),
+      h("div", { class: "muted" }, `${total} samples · ${s.submissions} submissions · ${s.clicks} clicks · ` +
+        `${d.fits} fits · queues: ${d.queues.annotate} to annotate, ${d.queues.review} to review`),
+    );
+  }
+
+  renderRounds() {
+    const s = this.stats;
+    const running = this.rounds.find((r) => r.state === "running");
+    const rows = s.rounds.map((r) => {
+      const meta = this.rounds.find((x) => x.id === r.round_id) || {};
+      return h("tr", { dataset: { round: String(r.index) } },
+        h("td", {}, `D${sub(r.index)}`), h("td", {}, r.state),
+        ...STREAMS.map((st) => h("td", { class: "num" }, String(r.added[st.name]))),
+        h("td", { class: "num" }, String(r.added_total)), h("td", { class: "num strong" }, String(r.dataset_size_after)),
+        h("td", { class: "muted" }, [meta.mvnet_version, meta.handsegnet_version].filter(Boolean).join(" / ") || "–"),
+        h("td", {}, r.state === "running" ? h("button", { class: "danger small", onclick: () => this.cancelRound(r.round_id) },
+          "Cancel") : ""));
+    });
+    const note = h("input", { type: "text", name: "note", placeholder: "note for the next round (optional)" });
+    fill(this.sections.rounds, 
+      h("h2", {}, "Rounds: D", h("sub", {}, "i+1"), " = D", h("sub", {}, "i"), " + D", h("sup", {}, "h"), " + D",
+        h("sup", {}, "m"), " + D", h("sup", {}, "l")),
+      h("table", { class: "table rounds-table" },
+        h("thead", {}, h("tr", {}, h("th", {}, "round"), h("th", {}, "state"),
+          ...STREAMS.map((st) => h("th", { class: "num" }, st.label)), h("th", { class: "num" }, "added"),
+          h("th", { class: "num" }, "|D| after"), h("th", {}, "models"), h("th", {}, ""))),
+        h("tbody", {}, rows.length ? rows : h("tr", {}, h("td", { colspan: 9, class: "muted" },
+          "no round yet: the first accepted sample opens round 0")))),
+      h("form", { class: "inline-form", onsubmit: (e) => { e.preventDefault(); this.launchRound(note.value); } },
+        note, h("button", { class: "primary", type: "submit" }, running ? `Complete D${sub(running.index)} and launch the next round` :
+          "Launch a round"),
+        h("button", { type: "button", onclick: () => this.buildReviewQueue() }, "Build review queue")),
+      this.progress,
+    );
+  }
+
+  renderCharts() {
+    const s = this.stats, d = this.dashboard;
+    const growth = stackedBars(s.rounds.map((r) => ({ label: `D${sub(r.index)}`, values: r.added })),
+      STREAMS.map((st) => ({ name: st.name, color: st.color })),
+      { line: s.rounds.map((r) => r.dataset_size_after), lineLabel: "|D| after the round" });
+    const hist = d.confidence_histogram;
+    const conf = hist.n
+      ? histogram(hist.edges, [{ values: hist.counts, color: "#6c757d", label: "all" },
+        { values: hist.accepted, color: "#2a9d8f", label: "accepted" }], { xLabel: "mean MVNet confidence" })
+      : h("p", { class: "muted" }, "no MVNet predictions yet");
+    const sp = d.sparsification;
+    const spars = sp
+      ? lines(sp.fractions, [{ ys: sp.curve_mm, color: "#4cc9f0", label: "by confidence" },
+        { ys: sp.oracle_mm, color: "#adb5bd", label: "oracle", dashed: true }],
+      { xLabel: "fraction removed (least confident first)", yLabel: "mm" })
+      : h("p", { class: "muted" }, "needs accepted fits made from MVNet predictions");
+    const ht = d.human_time;
+    const time = pairedBars([
+      { label: "per keypoint", ours: ht.seconds_per_keypoint, reference: ht.paper_seconds.keypoint },
+      { label: "per mask", ours: ht.seconds_per_mask, reference: ht.paper_seconds.mask },
+      { label: "per verification", ours: ht.seconds_per_verification, reference: ht.paper_seconds.verification },
+    ], { labels: ["handloop", "paper"] });
+    fill(this.sections.charts, h("h2", {}, "Charts"), h("div", { class: "charts" },
+      h("figure", {}, growth, h("figcaption", {}, "Dataset growth per round and stream")),
+      h("figure", {}, conf, h("figcaption", {}, `MVNet confidence (${hist.n} samples)`)),
+      h("figure", {}, spars, h("figcaption", {}, sp ? `Sparsification vs accepted fits (n=${sp.n}, AUSE ` +
+        `${fmt(sp.ause_mm, 2)} mm)` : "Sparsification curve")),
+      h("figure", {}, time, h("figcaption", {}, `Human time per action (${ht.annotations} annotations, ` +
+        `${ht.verifications} verifications)`))));
+  }
+
+  renderJobs() {
+    const rows = this.jobs.map((j) => h("tr", { dataset: { job: String(j.id), state: j.state } },
+      h("td", {}, String(j.id)), h("td", {}, j.kind), h("td", {}, j.state),
+      h("td", {}, progressBar(j.progress)),
+      h("td", { class: "muted msg" }, j.error || j.message || ""),
+      h("td", {}, j.state === "queued" || j.state === "running"
+        ? h("button", { class: "small", onclick: () => this.cancelJob(j.id) }, "Cancel") : "")));
+    fill(this.sections.jobs, h("h2", {}, "Jobs"), h("table", { class: "table" },
+      h("thead", {}, h("tr", {}, ...["id", "kind", "state", "progress", "message", ""].map((t) => h("th", {}, t)))),
+      h("tbody", {}, rows)));
+  }
+
+  // --- rounds -------------------------------------------------------------------------------------
+
+  async launchRound(note) {
+    try {
+      const launched = await this.api.post("/api/admin/rounds", { note });
+      toast(`round ${launched.round.index} launched (job ${launched.job_id})`, "ok");
+      this.watch(launched.job_id);
+      await this.refresh();
+    } catch (error) {
+      toast(`launch failed: ${error.message}`, "error", 8000);
+    }
+  }
+
+  async cancelRound(roundId) {
+    if (!confirm("Cancel this round and its jobs?")) return;
+    try {
+      await this.api.post(`/api/admin/rounds/${roundId}/cancel`);
+      toast("round cancelled", "ok");
+      await this.refresh();
+    } catch (error) {
+      toast(`cancel failed: ${error.message}`, "error", 8000);
+    }
+  }
+
+  async cancelJob(jobId) {
+    try {
+      await this.api.post(`/api/admin/jobs/${jobId}/cancel`);
+      await this.refresh();
+    } catch (error) {
+      toast(`cancel failed: ${error.message}`, "error");
+    }
+  }
+
+  async buildReviewQueue() {
+    try {
+      const built = await this.api.post("/api/admin/rounds/review-queue");
+      toast(`${built.queued.length} sample(s) queued for review`, "ok");
+      await this.refresh();
+    } catch (error) {
+      toast(`review queue: ${error.message}`, "error");
+    }
+  }
+
+  // Live progress of one job from its server-sent events.
+  watch(jobId) {
+    if (this.watching.has(jobId)) return;
+    const controller = new AbortController();
+    this.watching.set(jobId, controller);
+    const bar = h("div", { class: "live", dataset: { job: String(jobId) } });
+    fill(this.progress, bar);
+    const draw = (job) => fill(bar, 
+      h("div", { class: "live-head" }, `round job ${job.id}: ${job.state}`, h("span", { class: "muted" },
+        ` ${job.message || ""}`)), progressBar(job.progress, true), job.error ? h("div", { class: "error" }, job.error) : null);
+    this.api.events(`/api/admin/jobs/${jobId}/events`, (name, job) => {
+      if (!job) return;
+      draw(job);
+      bar.dataset.state = job.state;
+      bar.dataset.progress = String(job.progress);
+      if (name === "done") this.refresh().catch(() => null);
+    }, controller.signal).catch((error) => {
+      if (error.name !== "AbortError") bar.append(h("div", { class: "error" }, `progress stream: ${error.message}`));
+    }).finally(() => this.watching.delete(jobId));
+  }
+
+  // --- users --------------------------------------------------------------------------------------
+
+  async renderUsers() {
+    const users = await this.api.get("/api/admin/users");
+    const email = h("input", { type: "email", name: "email", placeholder: "email", required: true });
+    const name = h("input", { type: "text", name: "full_name", placeholder: "name" });
+    const password = h("input", { type: "password", name: "password", placeholder: "password (8+)", minlength: 8, required: true });
+    const role = h("select", { name: "role" }, ROLES.map((r) => h("option", { value: r }, r)));
+    const create = async (e) => {
+      e.preventDefault();
+      try {
+        await this.api.post("/api/admin/users", { email: email.value, full_name: name.value, password: password.value,
+          role: role.value });
+        toast(`created ${email.value}`, "ok");
+        this.renderUsers();
+      } catch (error) {
+        toast(`create failed: ${error.message}`, "error", 8000);
+      }
+    };
+    const update = async (user, change) => {
+      try {
+        await this.api.patch(`/api/admin/users/${user.id}`, change);
+        toast(`updated ${user.email}`, "ok", 1500);
+      } catch (error) {
+        toast(`update failed: ${error.message}`, "error", 8000);
+      }
+      this.renderUsers();
+    };
+    fill(this.sections.users, h("h2", {}, "Users and roles"), h("table", { class: "table" },
+      h("thead", {}, h("tr", {}, h("th", {}, "email"), h("th", {}, "name"), h("th", {}, "role"), h("th", {}, "active"))),
+      h("tbody", {}, users.map((u) => h("tr", { dataset: { user: u.email } }, h("td", {}, u.email), h("td", {}, u.full_name),
+        h("td", {}, h("select", { onchange: (e) => update(u, { role: e.target.value }) },
+          ROLES.map((r) => h("option", { value: r, selected: r === u.role }, r)))),
+        h("td", {}, h("input", { type: "checkbox", checked: u.is_active, onchange: (e) => update(u, { is_active: e.target.checked }) })))))),
+    h("form", { class: "inline-form", onsubmit: create }, email, name, password, role,
+      h("button", { type: "submit" }, "Add user")));
+  }
+
+  // --- exports and imports ------------------------------------------------------------------------
+
+  renderData() {
+    const upTo = h("input", { type: "number", min: 0, placeholder: "up to round (all)", class: "narrow" });
+    const download = async (path, filename) => {
+      try {
+        const blob = await this.api.blob(path);
+        const a = h("a", { href: URL.createObjectURL(blob), download: filename });
+        document.body.append(a);
+        a.click();
+        a.remove();
+      } catch (error) {
+        toast(`export failed: ${error.message}`, "error");
+      }
+    };
+    const path = h("input", { type: "text", placeholder: "capture directory on the server", class: "wide-input" });
+    const project = h("input", { type: "text", placeholder: "project name (optional)" });
+    const importCapture = async (e) => {
+      e.preventDefault();
+      try {
+        const r = await this.api.post("/api/admin/imports", { path: path.value, project: project.value || null });
+        toast(`imported ${r.project}: ${r.samples} samples, ${r.views} views`, "ok");
+        this.refresh();
+      } catch (error) {
+        toast(`import failed: ${error.message}`, "error", 10000);
+      }
+    };
+    fill(this.sections.data, 
+      h("h2", {}, "Exports"),
+      h("div", { class: "inline-form" }, upTo,
+        h("button", { onclick: () => download(`/api/admin/exports/dataset${upTo.value ? `?up_to_round=${upTo.value}` : ""}`,
+          "handloop-dataset.json") }, "Dataset (accepted fits)"),
+        h("button", { onclick: () => download("/api/admin/exports/samples", "handloop-samples.json") }, "Sample index"),
+        h("button", { onclick: () => download("/api/admin/exports/predictions", "handloop-predictions.json") }, "Predictions")),
+      h("p", { class: "muted" }, "The FreiHAND layout (images, masks, meshes) is written by `handloop export --format freihand`."),
+      h("h2", {}, "Import a capture"),
+      h("form", { class: "inline-form", onsubmit: importCapture }, path, project, h("button", { type: "submit" }, "Import")));
+  }
+}
+
+function progressBar(progress, large = false) {
+  const pct = Math.round((progress || 0) * 100);
+  return h("div", { class: `progress${large ? " large" : ""}`, role: "progressbar", "aria-valuenow": pct,
+    "aria-valuemin": 0, "aria-valuemax": 100 }, h("div", { class: "bar", style: { width: `${pct}%` } }),
+  h("span", {}, `${pct}%`));
+}
+
+function sub(i) {
+  return String(i).split("").map((d) => "₀₁₂₃₄₅₆₇₈₉"[Number(d)]).join("");
+}

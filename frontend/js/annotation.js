@@ -1,0 +1,96 @@
+// One sample's annotation in progress: per view and sparse keypoint a click {x, y, visibility} or
+// nothing, and the proposals offered where nothing is set yet.
+import { projectPoint, triangulate } from "./geometry.js";
+
+export class Annotation {
+  constructor(viewIds, keypoints) {
+    this.viewIds = viewIds;
+    this.keypoints = keypoints;
+    this.clicks = new Map(viewIds.map((v) => [v, new Map()]));
+  }
+
+  get(viewId, keypoint) {
+    return this.clicks.get(viewId).get(keypoint) || null;
+  }
+
+  // Set (or with null, clear) a click; returns the previous value for undo.
+  set(viewId, keypoint, value) {
+    const view = this.clicks.get(viewId);
+    const previous = view.get(keypoint) || null;
+    if (value === null) view.delete(keypoint);
+    else view.set(keypoint, { ...value });
+    return previous;
+  }
+
+  status(viewId, keypoint) {
+    const click = this.get(viewId, keypoint);
+    return click ? click.visibility : "unset";
+  }
+
+  doneIn(viewId) {
+    return this.keypoints.filter((k) => this.get(viewId, k) !== null).length;
+  }
+
+  firstUnset(viewId, after = -1) {
+    const order = this.keypoints;
+    const start = order.indexOf(after) + 1;
+    for (let i = 0; i < order.length; i++) {
+      const k = order[(start + i) % order.length];
+      if (this.get(viewId, k) === null) return k;
+    }
+    return null;
+  }
+
+  // The submission's clicks: every view and sparse keypoint, unset ones as not annotated.
+  toClicks() {
+    const out = [];
+    for (const viewId of this.viewIds) {
+      for (const keypoint of this.keypoints) {
+        const c = this.get(viewId, keypoint);
+        if (c && c.visibility !== "not_annotated") {
+          out.push({ view_id: viewId, keypoint, x: round2(c.x), y: round2(c.y), visibility: c.visibility });
+        } else {
+          out.push({ view_id: viewId, keypoint, visibility: "not_annotated" });
+        }
+      }
+    }
+    return out;
+  }
+}
+
+function round2(v) {
+  return Math.round(v * 100) / 100;
+}
+
+// Proposals for the keypoints not set in a view, best source first: a point triangulated from the
+// annotator's own clicks in the other views, then the current fit, then MVNet (confidence >= minConf).
+// cameras: view id -> camera; sources: the API's proposal sources. Returns view id -> keypoint -> {x, y, source}.
+export function proposals(annotation, cameras, sources, { minConf = 0.3 } = {}) {
+  const out = new Map(annotation.viewIds.map((v) => [v, new Map()]));
+  const inside = (p, cam) => p && p[0] >= -0.5 && p[1] >= -0.5 && p[0] <= cam.width - 0.5 && p[1] <= cam.height - 0.5;
+  for (const keypoint of annotation.keypoints) {
+    const observed = annotation.viewIds
+      .map((v) => ({ v, c: annotation.get(v, keypoint) }))
+      .filter(({ c }) => c && c.visibility !== "not_annotated");
+    const tri = observed.length >= 2
+      ? triangulate(observed.map(({ v, c }) => ({ cam: cameras.get(v), pixel: [c.x, c.y] })))
+      : null;
+    for (const viewId of annotation.viewIds) {
+      if (annotation.get(viewId, keypoint) !== null) continue;
+      const cam = cameras.get(viewId);
+      let proposal = null;
+      if (tri) {
+        const p = projectPoint(tri.point, cam);
+        if (inside(p, cam)) proposal = { x: p[0], y: p[1], source: "triangulated" };
+      }
+      for (const source of sources) {
+        if (proposal) break;
+        if (source.kind === "mvnet" && source.confidences && source.confidences[keypoint] < minConf) continue;
+        const p = (source.views[String(viewId)] || [])[keypoint];
+        if (inside(p, cam)) proposal = { x: p[0], y: p[1], source: source.kind };
+      }
+      if (proposal) out.get(viewId).set(keypoint, proposal);
+    }
+  }
+  return out;
+}

@@ -1,0 +1,69 @@
+// Drawing helpers shared by the pages; all coordinates are screen (CSS) pixels.
+import { colorOf } from "./keypoints.js";
+
+export function marker(ctx, x, y, keypoint, { style = "solid", r = 6, label = null, selected = false } = {}) {
+  const color = colorOf(keypoint);
+  ctx.save();
+  ctx.lineWidth = selected ? 3 : 2;
+  if (style === "proposal") {
+    ctx.setLineDash([3, 3]);
+    ctx.strokeStyle = color;
+    ctx.beginPath();
+    ctx.arc(x, y, r + 2, 0, 2 * Math.PI);
+    ctx.stroke();
+    ctx.setLineDash([]);
+    ctx.fillStyle = color;
+    ctx.fillRect(x - 1, y - 1, 2, 2);
+  } else if (style === "occluded") {
+    ctx.strokeStyle = "#fff";
+    ctx.fillStyle = color;
+    ctx.beginPath();
+    ctx.rect(x - r, y - r, 2 * r, 2 * r);
+    ctx.fill();
+    ctx.stroke();
+  } else if (style === "fit") {
+    ctx.strokeStyle = color;
+    ctx.lineWidth = 2;
+    ctx.beginPath();
+    ctx.moveTo(x - r, y);
+    ctx.lineTo(x + r, y);
+    ctx.moveTo(x, y - r);
+    ctx.lineTo(x, y + r);
+    ctx.stroke();
+  } else {
+    ctx.fillStyle = color;
+    ctx.strokeStyle = "#fff";
+    ctx.beginPath();
+    ctx.arc(x, y, r, 0, 2 * Math.PI);
+    ctx.fill();
+    ctx.stroke();
+  }
+  if (selected) {
+    ctx.strokeStyle = "#ffd60a";
+    ctx.lineWidth = 2;
+    ctx.beginPath();
+    ctx.arc(x, y, r + 5, 0, 2 * Math.PI);
+    ctx.stroke();
+  }
+  if (label) {
+    ctx.font = "11px system-ui, sans-serif";
+    ctx.fillStyle = "#fff";
+    ctx.strokeStyle = "rgba(0,0,0,0.8)";
+    ctx.lineWidth = 3;
+    ctx.strokeText(label, x + r + 3, y - r - 1);
+    ctx.fillText(label, x + r + 3, y - r - 1);
+  }
+  ctx.restore();
+}
+
+export function segment(ctx, a, b, color, width = 2, dash = null) {
+  ctx.save();
+  ctx.strokeStyle = color;
+  ctx.lineWidth = width;
+  if (dash) ctx.setLineDash(dash);
+  ctx.beginPath();
+  ctx.moveTo(a[0], a[1]);
+  ctx.lineTo(b[0], b[1]);
+  ctx.stroke();
+  ctx.restore();
+}

@@ -1,0 +1,129 @@
+// The single page: login, then a home per role (annotators annotate, reviewers review, admins see the
+// dashboard), a hash route per page (#/annotate, #/review, #/admin).
+import { Api, ApiError } from "./api.js";
+import { h, toast, fill } from "./dom.js";
+
+const RANK = { annotator: 0, reviewer: 1, admin: 2 };
+const PAGES = {
+  annotate: { label: "Annotate", role: "annotator", load: () => import("./annotate.js").then((m) => m.mountAnnotate) },
+  review: { label: "Review", role: "reviewer", load: () => import("./review.js").then((m) => m.mountReview) },
+  admin: { label: "Admin", role: "admin", load: () => import("./admin.js").then((m) => m.mountAdmin) },
+};
+const HOME = { annotator: "annotate", reviewer: "review", admin: "admin" };
+
+const api = new Api();
+const app = document.getElementById("app");
+const nav = document.getElementById("nav");
+let user = null;
+let page = null;
+
+window.__handloop = { api, get page() { return page; }, marks: {} };
+
+api.onunauthorized = (detail) => {
+  if (!user) return;
+  toast(`signed out: ${detail}`, "warn", 6000);
+  signOut(false);
+};
+
+function allowed(name) {
+  return user && RANK[user.role] >= RANK[PAGES[name].role];
+}
+
+function renderNav(current) {
+  fill(nav, ...(user ? [
+    ...Object.entries(PAGES).filter(([name]) => allowed(name)).map(([name, p]) =>
+      h("a", { href: `#/${name}`, class: name === current ? "active" : "" }, p.label)),
+    h("span", { class: "who" }, `${user.email} · ${user.role}`),
+    h("button", { class: "link", onclick: () => signOut(true) }, "Sign out"),
+  ] : []));
+}
+
+// Show a page: through the hash when it changes (hashchange routes), directly when it does not.
+function go(name) {
+  if (location.hash === `#/${name}`) route();
+  else location.hash = `#/${name}`;
+}
+
+async function signOut(release) {
+  if (page && release && page.releaseAll) await page.releaseAll().catch(() => null);
+  unmountPage();
+  api.logout();
+  user = null;
+  go("login");
+}
+
+function unmountPage() {
+  if (page && page.unmount) page.unmount();
+  page = null;
+  fill(app, );
+  delete document.body.dataset.ready;
+}
+
+function loginPage(message = "") {
+  const email = h("input", { type: "email", name: "email", autocomplete: "username", required: true, autofocus: true });
+  const password = h("input", { type: "password", name: "password", autocomplete: "current-password", required: true });
+  const error = h("div", { class: "error", role: "alert" }, message);
+  const submit = h("button", { class: "primary", type: "submit" }, "Sign in");
+  const form = h("form", { class: "login", onsubmit: async (e) => {
+    e.preventDefault();
+    submit.disabled = true;
+    error.textContent = "";
+    try {
+      await api.login(email.value, password.value);
+      user = await api.get("/api/auth/me");
+      go(HOME[user.role]);
+    } catch (err) {
+      error.textContent = err instanceof ApiError ? err.detail : String(err);
+      submit.disabled = false;
+    }
+  } },
+  h("h1", {}, "handloop"),
+  h("p", { class: "muted" }, "3D hand labeling: annotate, verify, bootstrap."),
+  h("label", {}, "Email", email), h("label", {}, "Password", password), error, submit);
+  fill(app, form);
+  document.body.dataset.ready = "login";
+  email.focus();
+}
+
+let routing = 0;
+
+async function route() {
+  const ticket = ++routing; // a newer route() call wins; an older one stops at its next await
+  const name = location.hash.replace(/^#\/?/, "") || "";
+  if (!user && api.signedIn) {
+    try {
+      user = await api.get("/api/auth/me");
+    } catch {
+      api.logout();
+    }
+    if (ticket !== routing) return;
+  }
+  unmountPage();
+  if (!user) {
+    renderNav(null);
+    return loginPage();
+  }
+  const target = PAGES[name] && allowed(name) ? name : HOME[user.role];
+  if (target !== name) {
+    history.replaceState(null, "", `#/${target}`);
+  }
+  renderNav(target);
+  document.body.dataset.page = target;
+  const mount = await PAGES[target].load();
+  if (ticket !== routing) return;
+  const root = h("div", { class: "page" });
+  fill(app, root);
+  try {
+    const mounted = await mount(root, { api, user });
+    if (ticket !== routing) return mounted.unmount();
+    page = mounted;
+    window.__handloop.marks[target] = performance.now();
+  } catch (error) {
+    root.append(h("div", { class: "error" }, `could not open ${target}: ${error.message}`));
+    toast(`could not open ${target}: ${error.message}`, "error", 10000);
+  }
+}
+
+window.addEventListener("hashchange", route);
+window.addEventListener("unhandledrejection", (e) => toast(`error: ${e.reason && e.reason.message ? e.reason.message : e.reason}`, "error", 8000));
+route();

@@ -1,0 +1,474 @@
+// The review page: the fit's outline, wireframe, keypoints and skeleton over every view (toggleable), with
+// per-view IoU and residuals; the sample's 3D scene in viser's client; accept / reject / needs annotation
+// with one key (a reason for the last two); the next sample is prefetched and drawn ahead.
+import { fitCanvas, fmt, h, isTyping, toast, fill } from "./dom.js";
+import { marker, segment } from "./draw.js";
+import { loadViews } from "./images.js";
+import { colorOf, fingerOf, FINGER_COLORS } from "./keypoints.js";
+import { LeaseKeeper } from "./lease.js";
+import { contourEdges, decodeMesh, projectVertices } from "./mesh.js";
+import { ActionTimer } from "./timing.js";
+import { Viewport } from "./viewport.js";
+
+const QUICK_REASONS = {
+  reject: ["hand model badly misaligned", "wrong global pose (flipped or mirrored)", "fingers tangled or implausible",
+    "capture unusable (blur, hand not visible)", "object occludes too much"],
+  annotate: ["a fingertip is on the wrong finger", "the wrist is off", "the silhouette misses fingers",
+    "the mask includes background or the forearm", "occluded tips guessed badly"],
+};
+const LAYERS = [
+  ["outline", "O", "outline"], ["silhouette", "S", "silhouette"], ["wireframe", "W", "wireframe"],
+  ["keypoints", "K", "keypoints and skeleton"], ["clicks", "C", "annotators' clicks and residuals"],
+  ["mvnet", "P", "MVNet prediction"],
+];
+const IOU_LOW = 0.5;
+const RESIDUAL_HIGH_PX = 8;
+
+export async function mountReview(root, ctx) {
+  const page = new ReviewPage(root, ctx);
+  await page.start();
+  return page;
+}
+
+class ReviewPage {
+  constructor(root, { api }) {
+    this.api = api;
+    this.root = root;
+    this.leases = new LeaseKeeper(api, "review");
+    this.layers = { outline: true, silhouette: false, wireframe: false, keypoints: true, clicks: true, mvnet: false };
+    this.show3d = true;
+    this.cropToHand = true;
+    this.focus = null;
+    this.reason = null;
+    this.prepared = null;
+    this.preparing = null;
+    this.metrics = { decisions: [] };
+    this.build();
+    this.onKey = (e) => this.keydown(e);
+    this.onResize = () => this.renderViews();
+    window.addEventListener("keydown", this.onKey);
+    window.addEventListener("resize", this.onResize);
+    this.clock = setInterval(() => this.renderClock(), 1000);
+  }
+
+  build() {
+    this.banner = h("div", { class: "fit-banner" });
+    this.grid = h("div", { class: "review-grid" });
+    this.side = h("aside", { class: "side review-side" });
+    this.viewer = h("div", { class: "viewer3d" });
+    this.root.append(h("div", { class: "review-page" },
+      h("section", { class: "review-main" }, this.banner, this.grid), this.side));
+  }
+
+  async start() {
+    await this.loadNext();
+  }
+
+  unmount() {
+    window.removeEventListener("keydown", this.onKey);
+    window.removeEventListener("resize", this.onResize);
+    clearInterval(this.clock);
+    clearTimeout(this.emptyTimer);
+    if (this.prepared) this.leases.drop(this.prepared.task.sample_id, true);
+    this.leases.dropAll(false);
+  }
+
+  async releaseAll() {
+    await this.leases.dropAll(true);
+  }
+
+  // --- tasks --------------------------------------------------------------------------------------
+
+  async prepare(task) {
+    this.leases.hold(task);
+    const [overlay, views] = await Promise.all([
+      this.api.get(`/api/review/samples/${task.sample_id}/overlay`),
+      loadViews(this.api, task, { masks: false }),
+    ]);
+    const mesh = overlay.mesh ? decodeMesh(overlay.mesh) : null;
+    const byId = new Map(overlay.views.map((v) => [v.view_id, v]));
+    const prepared = views.map((v) => {
+      const info = byId.get(v.id);
+      const projected = mesh ? projectVertices(mesh.vertices, info) : null;
+      return { ...v, info, projected, contour: projected ? contourEdges(projected, mesh) : null,
+        crop: handCrop(projected, info) };
+    });
+    return { task, overlay, mesh, views: prepared };
+  }
+
+  async loadNext() {
+    let prepared = this.prepared;
+    this.prepared = null;
+    if (!prepared && this.preparing) prepared = await this.preparing.catch(() => null);
+    this.prepared = null;
+    if (!prepared) {
+      const task = await this.api.post("/api/review/next");
+      if (!task) return this.showEmpty();
+      prepared = await this.prepare(task);
+    }
+    this.show(prepared);
+    this.prefetch();
+  }
+
+  prefetch() {
+    const current = this.current.task.sample_id;
+    this.preparing = (async () => {
+      const task = await this.api.post("/api/review/prefetch", { current_sample_id: current });
+      if (!task) return null;
+      const prepared = await this.prepare(task);
+      if (this.current && this.current.task.sample_id === current) this.prepared = prepared;
+      return prepared;
+    })().catch((error) => { toast(`prefetch failed: ${error.message}`, "warn"); return null; });
+  }
+
+  showEmpty() {
+    this.current = null;
+    fill(this.grid, h("div", { class: "empty-note" }, h("h2", {}, "Nothing to review"),
+      h("p", {}, "No fitted sample is waiting for verification. This page looks again every 10 s."),
+      h("button", { onclick: () => this.loadNext() }, "Look again")));
+    this.banner.textContent = "";
+    fill(this.side, );
+    document.body.dataset.ready = "review-empty";
+    this.emptyTimer = setTimeout(() => this.loadNext().catch(() => null), 10000);
+  }
+
+  show(prepared) {
+    this.current = prepared;
+    this.timer = new ActionTimer();
+    this.reason = null;
+    this.focus = null;
+    this.buildGrid();
+    this.renderViews();
+    this.renderSide();
+    document.body.dataset.ready = "review";
+    document.body.dataset.sample = String(prepared.task.sample_id);
+  }
+
+  // --- decisions ----------------------------------------------------------------------------------
+
+  async decide(decision, reason = "") {
+    if (!this.current || this.deciding) return;
+    const keyAt = this.keyAt ?? performance.now();
+    this.keyAt = null;
+    const { task } = this.current;
+    this.deciding = true;
+    try {
+      const result = await this.api.post(`/api/review/samples/${task.sample_id}/decision`,
+        { decision, reason, lease_token: task.lease_token });
+      const decidedAt = performance.now();
+      this.timer.mark("decide");
+      this.leases.drop(task.sample_id, false);
+      this.api.post("/api/activity", { context: "review", sample_id: task.sample_id, decision_id: result.id,
+        time_spent_s: Math.round(this.timer.spentSeconds() * 1000) / 1000, actions: this.timer.actions })
+        .catch((error) => toast(`time log not saved: ${error.message}`, "warn"));
+      toast(`sample ${task.sample_id}: ${decision}${result.stream ? ` (joins D as ${result.stream})` : ""}`, "ok", 2000);
+      this.deciding = false;
+      await this.loadNext();
+      this.metrics.decisions.push({ sample_id: task.sample_id, decision, decided_ms: decidedAt - keyAt,
+        next_shown_ms: performance.now() - keyAt, next_sample_id: this.current ? this.current.task.sample_id : null });
+    } catch (error) {
+      this.deciding = false;
+      toast(`decision failed: ${error.message}`, "error", 8000);
+    }
+  }
+
+  openReason(kind) {
+    this.reason = { kind, text: "" };
+    this.renderSide();
+    const input = this.side.querySelector(".reason-input");
+    if (input) input.focus();
+  }
+
+  // --- keys ---------------------------------------------------------------------------------------
+
+  keydown(e) {
+    if (!this.current) return;
+    const key = e.key;
+    if (this.reason) {
+      if (key === "Escape") {
+        this.reason = null;
+        this.renderSide();
+        e.preventDefault();
+      } else if (key === "Enter") {
+        e.preventDefault();
+        const text = this.reason.text.trim();
+        if (!text) return toast("give a reason (type it, or press 1-5 for a common one)", "warn", 2500);
+        this.keyAt = performance.now();
+        this.decide(this.reason.kind, text);
+      } else if (!isTyping(e) && key >= "1" && key <= "5") {
+        e.preventDefault();
+        this.reason.text = QUICK_REASONS[this.reason.kind][Number(key) - 1];
+        this.renderSide();
+      }
+      return;
+    }
+    if (isTyping(e) || e.ctrlKey || e.metaKey || e.altKey) return;
+    const lower = key.toLowerCase();
+    let handled = true;
+    if (lower === "a") {
+      this.keyAt = performance.now();
+      this.decide("accept");
+    } else if (lower === "r") {
+      this.openReason("reject");
+    } else if (lower === "n") {
+      this.openReason("annotate");
+    } else if (key >= "1" && key <= "8") {
+      this.setFocus(Number(key) - 1);
+    } else if (key === "Escape") {
+      this.setFocus(null);
+    } else if (lower === "z") {
+      this.cropToHand = !this.cropToHand;
+      this.timer.mark("zoom");
+      this.renderViews();
+      this.renderSide();
+    } else if (lower === "v") {
+      this.show3d = !this.show3d;
+      this.timer.mark("toggle");
+      this.renderSide();
+    } else {
+      const layer = LAYERS.find(([, k]) => k.toLowerCase() === lower);
+      if (layer) {
+        this.layers[layer[0]] = !this.layers[layer[0]];
+        this.timer.mark("toggle");
+        this.renderViews();
+        this.renderSide();
+      } else {
+        handled = false;
+      }
+    }
+    if (handled) e.preventDefault();
+  }
+
+  setFocus(index) {
+    this.focus = index !== null && index < this.current.views.length && index !== this.focus ? index : null;
+    this.grid.classList.toggle("focused", this.focus !== null);
+    for (const [i, card] of [...this.grid.children].entries()) card.classList.toggle("focus", i === this.focus);
+    this.timer.mark("view");
+    this.renderViews();
+  }
+
+  // --- rendering ----------------------------------------------------------------------------------
+
+  buildGrid() {
+    const { overlay } = this.current;
+    const model = overlay.hand_model;
+    fill(this.banner, 
+      h("span", { class: model.stand_in ? "badge warn" : "badge" }, `Fit ${overlay.fit_id}: ${model.label}`),
+      h("span", { class: "muted" }, ` · mean IoU ${fmt(overlay.fit.mean_iou, 2)} · mean residual ` +
+        `${fmt(overlay.fit.mean_residual_px, 1, " px")} (vs ${overlay.fit.residual_reference ?? "–"})`),
+      overlay.mesh ? null : h("span", { class: "badge warn" }, overlay.mesh_note || "no mesh"));
+    this.grid.classList.remove("focused");
+    fill(this.grid, ...this.current.views.map((view, i) => {
+      const canvas = h("canvas", { class: "review-canvas" });
+      const iou = view.info.iou, res = view.info.mean_residual_px;
+      const badge = h("div", { class: "view-badge" },
+        h("span", {}, `${i + 1} ${view.camera}`),
+        h("span", { class: iou !== null && iou < IOU_LOW ? "bad" : "" }, `IoU ${fmt(iou, 2)}`),
+        h("span", { class: res !== null && res > RESIDUAL_HIGH_PX ? "bad" : "" }, `res ${fmt(res, 1, " px")}`));
+      const card = h("div", { class: "view-card", onclick: () => this.setFocus(i) }, canvas, badge);
+      view.card = { card, canvas };
+      return card;
+    }));
+  }
+
+  renderViews() {
+    if (!this.current) return;
+    for (const view of this.current.views) this.renderView(view);
+  }
+
+  renderView(view) {
+    const { canvas } = view.card;
+    const { width, height, dpr } = fitCanvas(canvas);
+    if (width < 2 || height < 2) return;
+    const ctx = canvas.getContext("2d");
+    const vp = this.cropToHand && view.crop
+      ? new Viewport().fitRect(...view.crop, width, height)
+      : new Viewport().fit(view.width, view.height, width, height, 0);
+    ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
+    ctx.fillStyle = "#111";
+    ctx.fillRect(0, 0, width, height);
+    vp.apply(ctx, dpr);
+    ctx.drawImage(view.image, 0, 0);
+    ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
+    const { mesh } = this.current;
+    const info = view.info;
+    const L = this.layers;
+    const s = (p) => vp.toScreen(p[0], p[1]);
+    if (mesh && view.projected) {
+      const px = view.projected;
+      const pt = (i) => vp.toScreen(px[2 * i], px[2 * i + 1]);
+      if (L.silhouette) {
+        // Every triangle wound the same way, so one nonzero fill is the union (the silhouette).
+        ctx.beginPath();
+        const f = mesh.faces;
+        for (let t = 0; t < f.length; t += 3) {
+          let [a, b, c] = [pt(f[t]), pt(f[t + 1]), pt(f[t + 2])];
+          if ((b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1]) < 0) [b, c] = [c, b];
+          ctx.moveTo(a[0], a[1]);
+          ctx.lineTo(b[0], b[1]);
+          ctx.lineTo(c[0], c[1]);
+          ctx.closePath();
+        }
+        ctx.fillStyle = "rgba(255, 190, 60, 0.35)";
+        ctx.fill("nonzero");
+      }
+      if (L.wireframe) {
+        ctx.beginPath();
+        const e = mesh.edges;
+        for (let i = 0; i < e.length; i += 2) {
+          const a = pt(e[i]), b = pt(e[i + 1]);
+          ctx.moveTo(a[0], a[1]);
+          ctx.lineTo(b[0], b[1]);
+        }
+        ctx.strokeStyle = "rgba(120, 220, 255, 0.35)";
+        ctx.lineWidth = 0.6;
+        ctx.stroke();
+      }
+      if (L.outline) {
+        ctx.beginPath();
+        for (const edge of view.contour) {
+          const a = pt(mesh.edges[2 * edge]), b = pt(mesh.edges[2 * edge + 1]);
+          ctx.moveTo(a[0], a[1]);
+          ctx.lineTo(b[0], b[1]);
+        }
+        ctx.strokeStyle = "rgba(255, 214, 10, 0.95)";
+        ctx.lineWidth = 1.4;
+        ctx.stroke();
+      }
+    }
+    const fitPx = info.fit_keypoints_px;
+    if (L.clicks) {
+      for (const c of info.clicks) {
+        if (c.x === null) continue;
+        const p = s([c.x, c.y]);
+        const f = fitPx[c.keypoint];
+        if (f) segment(ctx, p, s(f), "#ff4d6d", 1.5, [3, 2]);
+        marker(ctx, p[0], p[1], c.keypoint, { style: c.visibility === "occluded" ? "occluded" : "solid", r: 4 });
+      }
+    }
+    if (L.mvnet && info.prediction_keypoints_px) {
+      for (const [k, p] of info.prediction_keypoints_px.entries()) {
+        if (!p) continue;
+        const q = s(p);
+        ctx.save();
+        ctx.fillStyle = "#fff";
+        ctx.strokeStyle = colorOf(k);
+        ctx.translate(q[0], q[1]);
+        ctx.rotate(Math.PI / 4);
+        ctx.fillRect(-3, -3, 6, 6);
+        ctx.strokeRect(-3, -3, 6, 6);
+        ctx.restore();
+      }
+    }
+    if (L.keypoints) {
+      for (const [a, b] of this.current.overlay.skeleton_edges) {
+        if (fitPx[a] && fitPx[b]) segment(ctx, s(fitPx[a]), s(fitPx[b]), FINGER_COLORS[fingerOf(b)], 2);
+      }
+      for (const [k, p] of fitPx.entries()) if (p) marker(ctx, ...s(p), k, { style: "fit", r: 3 });
+    }
+  }
+
+  viewerUrl() {
+    const { overlay } = this.current;
+    const at = overlay.scene_look_at;
+    const eye = [at[0] + 0.22, at[1] - 0.3, at[2] + 0.26];
+    const q = (v) => v.map((x) => x.toFixed(3)).join(",");
+    return `/viewer/?playbackPath=${encodeURIComponent(overlay.scene_path)}` +
+      `&initialCameraPosition=${q(eye)}&initialCameraLookAt=${q(at)}&initialCameraUp=0,0,1`;
+  }
+
+  render3d() {
+    if (!this.show3d || !this.current) {
+      fill(this.viewer, h("div", { class: "muted" }, "3D view hidden (V)"));
+      this.viewerSample = null;
+      return this.viewer;
+    }
+    const sample = this.current.task.sample_id;
+    if (this.viewerSample !== sample) {
+      this.viewerSample = sample;
+      fill(this.viewer, h("iframe", { class: "viewer-frame", title: "3D view of this sample (viser)",
+        src: this.viewerUrl(), loading: "eager" }));
+    }
+    return this.viewer;
+  }
+
+  renderClock() {
+    const el = this.side.querySelector(".clock");
+    if (!el || !this.current) return;
+    el.textContent = `time ${fmt(this.timer.spentSeconds(), 0, " s")}`;
+  }
+
+  renderSide() {
+    if (!this.current) return;
+    const { task, overlay } = this.current;
+    const fit = overlay.fit;
+    const heur = fit.heuristic;
+    const pred = overlay.prediction;
+    fill(this.side, 
+      h("div", { class: "sample-head" },
+        h("h2", {}, `Sample ${task.sample_id}`),
+        h("div", { class: "muted" }, `sequence ${task.sequence_id} · frame ${task.frame_index} · fit ${overlay.fit_id}`),
+        h("div", { class: "clock muted" }, "")),
+      h("div", { class: overlay.hand_model.stand_in ? "callout warn" : "callout" }, overlay.hand_model.label),
+      h("dl", { class: "facts" },
+        h("dt", {}, "fitted from"), h("dd", {}, fit.source),
+        h("dt", {}, "mean IoU"), h("dd", {}, fmt(fit.mean_iou, 3)),
+        h("dt", {}, "residual"), h("dd", {}, `${fmt(fit.mean_residual_px, 1)} px mean, ${fmt(fit.max_residual_px, 1)} max`),
+        pred ? [h("dt", {}, "MVNet"), h("dd", {}, `${pred.mvnet_version}, confidence ${fmt(pred.mean_confidence, 2)}`)] : null,
+        heur ? [h("dt", {}, "heuristic"), h("dd", {}, heur.accepted ? "passed" : `failed: ${(heur.failed || []).join(", ")}`)] : null),
+      this.reason ? this.reasonBox() : h("div", { class: "decide" },
+        h("button", { class: "accept", onclick: () => { this.keyAt = performance.now(); this.decide("accept"); } }, "Accept (A)"),
+        h("button", { class: "reject", onclick: () => this.openReason("reject") }, "Reject (R)"),
+        h("button", { class: "annotate", onclick: () => this.openReason("annotate") }, "Needs annotation (N)")),
+      h("div", { class: "layers" }, LAYERS.map(([name, key, label]) => h("label", {},
+        h("input", { type: "checkbox", checked: this.layers[name], onchange: (e) => {
+          this.layers[name] = e.target.checked;
+          this.renderViews();
+        } }), ` ${label} (${key})`))),
+      h("div", { class: "muted" }, `1-8 enlarge a view, Esc back · Z ${this.cropToHand ? "whole images" : "zoom to the hand"} · V 3D view`),
+      this.render3d(),
+    );
+    this.renderClock();
+  }
+
+  reasonBox() {
+    const kind = this.reason.kind;
+    const input = h("input", { class: "reason-input", type: "text", placeholder: "reason (Enter to send, Esc to cancel)",
+      value: this.reason.text, oninput: (e) => { this.reason.text = e.target.value; } });
+    return h("div", { class: `reason-box ${kind}` },
+      h("h3", {}, kind === "reject" ? "Reject: why?" : "Needs annotation: what is wrong?"),
+      h("ol", {}, QUICK_REASONS[kind].map((r, i) => h("li", { onclick: () => {
+        this.reason.text = r;
+        this.renderSide();
+      } }, h("kbd", {}, String(i + 1)), ` ${r}`))),
+      input,
+      h("div", { class: "button-row" },
+        h("button", { class: "primary", onclick: () => {
+          if (!this.reason.text.trim()) return toast("give a reason", "warn", 2000);
+          this.keyAt = performance.now();
+          this.decide(kind, this.reason.text.trim());
+        } }, "Send (Enter)"),
+        h("button", { onclick: () => { this.reason = null; this.renderSide(); } }, "Cancel (Esc)")));
+  }
+}
+
+// The image region around the fitted hand (its projected mesh, else its keypoints), with a margin, so the
+// grid shows the hand large; null when nothing projects into the view.
+function handCrop(projected, info, margin = 0.35, minFraction = 0.2) {
+  const xs = [], ys = [];
+  if (projected) {
+    for (let i = 0; i < projected.length; i += 2) {
+      if (Number.isFinite(projected[i])) { xs.push(projected[i]); ys.push(projected[i + 1]); }
+    }
+  } else {
+    for (const p of info.fit_keypoints_px) if (p) { xs.push(p[0]); ys.push(p[1]); }
+  }
+  if (xs.length === 0) return null;
+  let x0 = Math.max(-0.5, Math.min(...xs)), x1 = Math.min(info.width - 0.5, Math.max(...xs));
+  let y0 = Math.max(-0.5, Math.min(...ys)), y1 = Math.min(info.height - 0.5, Math.max(...ys));
+  if (x1 <= x0 || y1 <= y0) return null;
+  const w = Math.max((x1 - x0) * (1 + 2 * margin), info.width * minFraction);
+  const hh = Math.max((y1 - y0) * (1 + 2 * margin), info.height * minFraction);
+  const cx = (x0 + x1) / 2, cy = (y0 + y1) / 2;
+  return [cx - w / 2, cy - hh / 2, cx + w / 2, cy + hh / 2];
+}

@@ -3,5 +3,11 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/bootstrap.sh
+# The browser tests drive Debian's Chromium with Playwright's Python package (never `playwright install`).
+if [ ! -x /usr/bin/chromium ]; then
+  echo "[handloop] installing Debian's chromium for the browser tests" >&2
+  SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+  $SUDO apt-get update -qq && $SUDO apt-get install -y -qq chromium
+fi
 .venv/bin/ruff check .
 .venv/bin/python -m pytest "$@"

@@ -104,7 +104,7 @@ class AdminPage {
         h("tbody", {}, rows.length ? rows : h("tr", {}, h("td", { colspan: 9, class: "muted" },
           "no round yet: the first accepted sample opens round 0")))),
       h("form", { class: "inline-form", onsubmit: (e) => { e.preventDefault(); this.launchRound(note.value); } },
-        note, h("button", { class: "primary", type: "submit" }, running ? `Complete D${sub(running.index)} and launch the next round` :
+        note, h("button", { class: "primary launch-round", type: "submit" }, running ? `Complete D${sub(running.index)} and launch the next round` :
           "Launch a round"),
         h("button", { type: "button", onclick: () => this.buildReviewQueue() }, "Build review queue")),
       this.progress,

@@ -303,7 +303,11 @@ class AnnotatePage {
   pointerdown(e) {
     if (!this.task) return;
     this.canvas.focus();
-    this.canvas.setPointerCapture(e.pointerId);
+    try {
+      this.canvas.setPointerCapture(e.pointerId);
+    } catch {
+      // synthetic events (tests, benchmarks) have no active pointer to capture
+    }
     const [sx, sy] = this.screenPoint(e);
     const pan = e.button === 1 || e.button === 2 || (e.button === 0 && this.keys.has("Space"));
     if (pan) {

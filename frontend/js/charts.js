@@ -39,18 +39,20 @@ function yAxis(svg, plot, max, ticks = 4, fmt = (v) => String(Math.round(v * 100
   }
 }
 
+// One row of legend entries above the plot area.
 function legend(svg, items, x, y) {
-  items.forEach(([label, color, dashed], i) => {
-    const yy = y + i * 13;
-    svg.append(el("line", { x1: x, x2: x + 14, y1: yy, y2: yy, stroke: color, "stroke-width": 3,
+  let cx = x;
+  for (const [label, color, dashed] of items) {
+    svg.append(el("line", { x1: cx, x2: cx + 12, y1: y, y2: y, stroke: color, "stroke-width": 3,
       "stroke-dasharray": dashed ? "4 3" : "none" }));
-    svg.append(el("text", { x: x + 18, y: yy + 3, class: "tick" }, label));
-  });
+    svg.append(el("text", { x: cx + 15, y: y + 3, class: "tick" }, label));
+    cx += 24 + 5.2 * label.length;
+  }
 }
 
 // Stacked bars per category (parts: [{name, color}]), optionally a line on the same axis (e.g. |D|).
 export function stackedBars(categories, parts, { line = null, lineLabel = "", width = 420, height = 220 } = {}) {
-  const { svg, plot } = frame(width, height, { left: 40, right: 10, top: 12, bottom: 26 });
+  const { svg, plot } = frame(width, height, { left: 40, right: 10, top: 26, bottom: 26 });
   const totals = categories.map((c) => parts.reduce((s, p) => s + (c.values[p.name] || 0), 0));
   const max = niceMax(Math.max(1, ...totals, ...(line || [0])));
   yAxis(svg, plot, max);
@@ -74,13 +76,13 @@ export function stackedBars(categories, parts, { line = null, lineLabel = "", wi
     svg.append(el("polyline", { points: pts, fill: "none", stroke: "#ffd60a", "stroke-width": 2 }));
     line.forEach((v, i) => svg.append(el("circle", { cx: plot.x0 + slot * (i + 0.5), cy: y(v), r: 3, fill: "#ffd60a" })));
   }
-  legend(svg, [...parts.map((p) => [p.name, p.color]), ...(line ? [[lineLabel, "#ffd60a"]] : [])], plot.x0 + 6, plot.y1 + 4);
+  legend(svg, [...parts.map((p) => [p.name, p.color]), ...(line ? [[lineLabel, "#ffd60a"]] : [])], plot.x0, 9);
   return svg;
 }
 
 // Histogram over bin edges with overlaid series [{values, color, label}].
 export function histogram(edges, series, { width = 420, height = 200, xLabel = "" } = {}) {
-  const { svg, plot } = frame(width, height, { left: 40, right: 10, top: 12, bottom: 30 });
+  const { svg, plot } = frame(width, height, { left: 40, right: 10, top: 26, bottom: 30 });
   const max = niceMax(Math.max(1, ...series.flatMap((s) => s.values)));
   yAxis(svg, plot, max);
   const n = edges.length - 1;
@@ -98,13 +100,13 @@ export function histogram(edges, series, { width = 420, height = 200, xLabel = "
     svg.append(el("text", { x: plot.x0 + i * bw, y: plot.y0 + 13, class: "tick", "text-anchor": "middle" }, edges[i]));
   }
   svg.append(el("text", { x: (plot.x0 + plot.x1) / 2, y: height - 2, class: "tick", "text-anchor": "middle" }, xLabel));
-  legend(svg, series.map((s) => [s.label, s.color]), plot.x0 + 6, plot.y1 + 4);
+  legend(svg, series.map((s) => [s.label, s.color]), plot.x0, 9);
   return svg;
 }
 
 // Lines over shared xs: series [{ys, color, label, dashed}].
 export function lines(xs, series, { width = 420, height = 200, xLabel = "", yLabel = "" } = {}) {
-  const { svg, plot } = frame(width, height, { left: 44, right: 10, top: 12, bottom: 30 });
+  const { svg, plot } = frame(width, height, { left: 44, right: 10, top: 26, bottom: 30 });
   const max = niceMax(Math.max(1e-9, ...series.flatMap((s) => s.ys.filter(Number.isFinite))));
   yAxis(svg, plot, max);
   const x0 = Math.min(...xs), x1 = Math.max(...xs);
@@ -120,13 +122,13 @@ export function lines(xs, series, { width = 420, height = 200, xLabel = "", yLab
   }
   svg.append(el("text", { x: (plot.x0 + plot.x1) / 2, y: height - 2, class: "tick", "text-anchor": "middle" }, xLabel));
   svg.append(el("text", { x: 10, y: plot.y1 - 2, class: "tick" }, yLabel));
-  legend(svg, series.map((s) => [s.label, s.color, s.dashed]), plot.x1 - 150, plot.y1 + 4);
+  legend(svg, series.map((s) => [s.label, s.color, s.dashed]), plot.x0, 9);
   return svg;
 }
 
 // Pairs of bars (ours vs a reference) per category.
 export function pairedBars(categories, { width = 420, height = 200, labels = ["ours", "paper"], unit = "s" } = {}) {
-  const { svg, plot } = frame(width, height, { left: 40, right: 10, top: 12, bottom: 26 });
+  const { svg, plot } = frame(width, height, { left: 40, right: 10, top: 26, bottom: 26 });
   const max = niceMax(Math.max(1, ...categories.flatMap((c) => [c.ours ?? 0, c.reference ?? 0])));
   yAxis(svg, plot, max);
   const slot = (plot.x1 - plot.x0) / Math.max(1, categories.length);
@@ -143,6 +145,6 @@ export function pairedBars(categories, { width = 420, height = 200, labels = ["o
     });
     svg.append(el("text", { x: cx, y: plot.y0 + 14, class: "tick", "text-anchor": "middle" }, c.label));
   });
-  legend(svg, labels.map((l, j) => [l, colors[j]]), plot.x1 - 90, plot.y1 + 4);
+  legend(svg, labels.map((l, j) => [l, colors[j]]), plot.x0, 9);
   return svg;
 }

@@ -163,9 +163,13 @@ class ReviewPage {
         .catch((error) => toast(`time log not saved: ${error.message}`, "warn"));
       toast(`sample ${task.sample_id}: ${decision}${result.stream ? ` (joins D as ${result.stream})` : ""}`, "ok", 2000);
       this.deciding = false;
+      const prefetched = Boolean(this.prepared);
       await this.loadNext();
+      const drawnAt = performance.now();
+      await new Promise((resolve) => requestAnimationFrame(() => resolve())); // the frame that paints it
       this.metrics.decisions.push({ sample_id: task.sample_id, decision, decided_ms: decidedAt - keyAt,
-        next_shown_ms: performance.now() - keyAt, next_sample_id: this.current ? this.current.task.sample_id : null });
+        drawn_ms: drawnAt - keyAt, next_shown_ms: performance.now() - keyAt, prefetched,
+        next_sample_id: this.current ? this.current.task.sample_id : null });
     } catch (error) {
       this.deciding = false;
       toast(`decision failed: ${error.message}`, "error", 8000);

@@ -1,0 +1,298 @@
+"""`handloop bench ui`: the browser UI's speed in a real browser (Debian's headless Chromium, Playwright).
+
+On a fresh data folder with a synthetic capture at 1280 px (views of 1280x1024 and 1280x960) served by
+the real API process (`backend.runtime.start_stack`, no worker: the fits under review are recorded from
+the capture's ground truth, as a worker would record them, since UI speed does not depend on who fitted):
+
+- interactive_ms: navigation start -> page interactive (task drawn, keys bound), for the annotate, review
+  and admin pages, first visit (cold cache) of a new browser context; the slowest page, median of runs.
+- next_sample_ms: review page, one key press ("a", accept) -> the next sample painted (the frame after it
+  was drawn), with the next sample prefetched as in normal use; median over the decisions (max reported).
+- brush_event_ms: annotate page, brush on a 1280x1024 view: one pointer event handled (mask bits, overlay
+  upload of the changed rectangle) and the view redrawn; mean over the events (p95 and max reported).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import statistics
+import sys
+import tempfile
+import time
+import uuid
+from pathlib import Path
+from typing import Any
+
+import typer
+
+logger = logging.getLogger("handloop.bench.ui")
+
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                 "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+PASSWORD = "bench-password-123"
+ROLES = ("annotator", "reviewer", "admin")
+
+
+def register(app: typer.Typer, bench: typer.Typer) -> None:
+    @bench.command("ui")
+    def bench_ui(
+        json_out: bool = typer.Option(False, "--json", help="Print only the JSON line on stdout."),
+        quick: bool = typer.Option(False, "--quick", help="Fewer frames and repeats (about a minute)."),
+        width: int = typer.Option(1280, min=320, max=4096, help="Image width of the synthetic capture."),
+        frames: int = typer.Option(8, min=3, max=200, help="Frames (samples) in the capture."),
+        repeats: int = typer.Option(3, min=1, max=50, help="Cold page loads per page."),
+        brush_events: int = typer.Option(300, min=10, max=100_000, help="Pointer events in the brush test."),
+        chromium: str = typer.Option(CHROMIUM, help="Chromium executable."),
+    ) -> None:
+        """Page interactive, next sample after a decision, brush event handling: in a real browser."""
+        from workers.bench.common import emit
+
+        if quick:
+            frames, repeats, brush_events = min(frames, 4), 1, min(brush_events, 150)
+        if not Path(chromium).exists():
+            raise typer.BadParameter(f"Chromium not found at {chromium} (apt-get install -y chromium)")
+        started = time.perf_counter()
+        with tempfile.TemporaryDirectory(prefix="handloop-bench-ui-") as tmp:
+            result = run(Path(tmp), width=width, frames=frames, repeats=repeats, brush_events=brush_events,
+                         chromium=chromium)
+        emit("ui", result, {"width": width, "frames": frames, "repeats": repeats, "brush_events": brush_events,
+                            "chromium": chromium, "chromium_args": CHROMIUM_ARGS, "quick": quick,
+                            "load_average": [round(v, 2) for v in os.getloadavg()]}, started)
+        del json_out  # the JSON line is always the last stdout line; progress goes to stderr
+
+
+def _progress(message: str) -> None:
+    sys.stderr.write(f"[bench ui] {message}\n")
+    sys.stderr.flush()
+
+
+def run(tmp: Path, *, width: int, frames: int, repeats: int, brush_events: int, chromium: str) -> dict[str, Any]:
+    from backend.runtime import start_stack
+    from backend.settings import Settings
+
+    capture = _synthesise(tmp / "capture", width, frames)
+    settings = Settings(data_dir=tmp / "data", environment="test", secret_key=uuid.uuid4().hex * 2)
+    _prepare_database(settings, capture)
+    _progress("starting the API process")
+    with start_stack(settings, start_worker=False) as stack:
+        base = stack.base_url
+        tokens = {role: _token(base, role) for role in ROLES}
+        reviewable = frames - 1  # one sample stays in the annotation queue for the brush test
+        _progress(f"annotating and fitting {reviewable} samples from the ground truth (as a worker would)")
+        _into_review(base, tokens, settings, capture, reviewable)
+        from playwright.sync_api import sync_playwright
+
+        with sync_playwright() as playwright:
+            browser = playwright.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
+            try:
+                version = browser.version
+                interactive = _interactive(browser, base, tokens, repeats)
+                next_sample = _next_sample(browser, base, tokens["reviewer"], reviewable)
+                brush = _brush(browser, base, tokens["annotator"], brush_events)
+            finally:
+                browser.close()
+    worst_page = max(interactive, key=lambda p: interactive[p])
+    return {
+        "interactive_ms": interactive[worst_page],
+        "interactive_ms_by_page": interactive,
+        "interactive_slowest_page": worst_page,
+        "next_sample_ms": next_sample["median_ms"],
+        "next_sample_max_ms": next_sample["max_ms"],
+        "next_sample_decisions": next_sample["n"],
+        "decision_server_ms": next_sample["decided_median_ms"],
+        "keys_per_decision": next_sample["keys_per_decision"],
+        "brush_event_ms": brush["mean_ms"],
+        "brush_event_p95_ms": brush["p95_ms"],
+        "brush_event_max_ms": brush["max_ms"],
+        "brush_image_px": brush["image_px"],
+        "brush_pixels_painted": brush["painted"],
+        "targets": {"interactive_ms": 1000, "next_sample_ms": 200, "brush_event_ms": 16},
+        "chromium_version": version,
+    }
+
+
+# --- data ----------------------------------------------------------------------------------------------------
+
+
+def _synthesise(out: Path, width: int, frames: int) -> Path:
+    from workers.synth.generator import generate_capture
+    from workers.synth.plan import SynthConfig
+
+    _progress(f"synthesising {frames} frames at {width} px")
+    t0 = time.perf_counter()
+    generate_capture(out, SynthConfig(num_sequences=1, frames_per_sequence=frames, seed=7, width_px=width), workers=1,
+                     force=True)
+    _progress(f"capture ready in {time.perf_counter() - t0:.0f} s")
+    return out
+
+
+def _prepare_database(settings, capture: Path) -> None:
+    from backend.db.migrate import upgrade
+    from backend.db.session import create_engine_from_url, make_session_factory
+    from backend.models.enums import Role
+    from backend.services.importer import import_capture
+    from backend.services.storage import LocalDiskStorage
+    from backend.services.users import create_user
+
+    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    upgrade(settings.resolved_database_url)
+    engine = create_engine_from_url(settings.resolved_database_url)
+    try:
+        with make_session_factory(engine).begin() as session:
+            import_capture(session, LocalDiskStorage(settings.storage_dir), capture, project_name="bench")
+            for role in ROLES:
+                create_user(session, f"{role}@bench.local", PASSWORD, Role(role), role)
+    finally:
+        engine.dispose()
+
+
+def _token(base: str, role: str) -> str:
+    import httpx
+
+    response = httpx.post(f"{base}/api/auth/token", data={"username": f"{role}@bench.local", "password": PASSWORD},
+                          timeout=30)
+    response.raise_for_status()
+    return response.json()["access_token"]
+
+
+def _into_review(base: str, tokens: dict[str, str], settings, capture: Path, count: int) -> None:
+    """Submit the true clicks of `count` samples through the API, then record fits with the true
+    parameters in the database (the worker's part), which sends them to review."""
+    import httpx
+    import numpy as np
+
+    from backend.db.session import create_engine_from_url, make_session_factory
+    from backend.services import records
+    from backend.services.verification import HeuristicThresholds
+    from workers.capture import load_ground_truth, read_capture
+
+    frames = read_capture(capture, check_images=False).sequences[0].frames
+    engine = create_engine_from_url(settings.resolved_database_url)
+    factory = make_session_factory(engine)
+    headers = {"Authorization": f"Bearer {tokens['annotator']}"}
+    with httpx.Client(base_url=base, headers=headers, timeout=60) as http:
+        for _ in range(count):
+            task = http.post("/api/annotate/next").json()
+            gt = load_ground_truth(frames[task["frame_index"]])
+            names = list(gt.camera_names)
+            clicks = []
+            for view in task["views"]:
+                for k in task["keypoints_to_click"]:
+                    x, y = (float(v) for v in gt.keypoints_2d[names.index(view["camera"]), k])
+                    inside = -0.5 <= x <= view["width"] - 0.5 and -0.5 <= y <= view["height"] - 0.5
+                    clicks.append({"view_id": view["id"], "keypoint": k, "x": x, "y": y, "visibility": "visible"}
+                                  if inside else {"view_id": view["id"], "keypoint": k, "visibility": "not_annotated"})
+            body = {"submission_id": uuid.uuid4().hex, "lease_token": task["lease_token"], "time_spent_s": 10.0,
+                    "clicks": clicks}
+            submitted = http.post(f"/api/annotate/samples/{task['sample_id']}/submissions", json=body)
+            submitted.raise_for_status()
+            params = np.concatenate([gt.betas, gt.pose, gt.global_orient, gt.transl])
+            with factory.begin() as session:
+                records.record_fit(session, task["sample_id"], params=params.tolist(),
+                                   keypoints_m=gt.keypoints_3d.tolist(),
+                                   view_ious={v["id"]: 0.9 for v in task["views"]}, diagnostics={},
+                                   inputs={"submission_ids": [submitted.json()["id"]]},
+                                   model_file="handloop-builtin v1", thresholds=HeuristicThresholds())
+    engine.dispose()
+
+
+# --- browser measurements ------------------------------------------------------------------------------------
+
+
+def _context(browser, token: str):
+    context = browser.new_context(viewport={"width": 1600, "height": 900})
+    context.add_init_script(f"sessionStorage.setItem('handloop.token', {token!r});")
+    return context
+
+
+def _interactive(browser, base: str, tokens: dict[str, str], repeats: int) -> dict[str, float]:
+    """Median over `repeats` cold loads of each page: navigation start -> body[data-ready=<page>]."""
+    pages = {"annotate": "annotator", "review": "reviewer", "admin": "admin"}
+    out = {}
+    for name, role in pages.items():
+        runs = []
+        for _ in range(repeats):
+            context = _context(browser, tokens[role])
+            page = context.new_page()
+            page.goto(f"{base}/#/{name}")
+            page.wait_for_selector(f"body[data-ready={name}]", state="attached", timeout=60_000)
+            runs.append(page.evaluate(f"() => window.__handloop.marks[{name!r}]"))
+            if name != "admin":  # hand the leases back so the next run sees the same queues
+                page.evaluate("() => window.__handloop.page.releaseAll()")
+            context.close()
+        out[name] = round(statistics.median(runs), 1)
+        _progress(f"{name} page interactive: {out[name]} ms (runs {[round(r) for r in runs]})")
+    return out
+
+
+def _next_sample(browser, base: str, token: str, count: int) -> dict[str, Any]:
+    """Accept with one key press, each time once the next sample is prefetched (as when a reviewer looks
+    at a sample for a second or more); the page measures key press -> next sample painted."""
+    context = _context(browser, token)
+    page = context.new_page()
+    page.goto(f"{base}/#/review")
+    page.wait_for_selector("body[data-ready=review]", state="attached", timeout=60_000)
+    decisions = 0
+    for _ in range(count - 1):
+        page.wait_for_function("() => window.__handloop.page.prepared !== null", timeout=60_000)
+        before = page.evaluate("() => window.__handloop.page.metrics.decisions.length")
+        page.keyboard.press("a")
+        page.wait_for_function(f"() => window.__handloop.page.metrics.decisions.length > {before}", timeout=60_000)
+        decisions += 1
+    metrics = page.evaluate("() => window.__handloop.page.metrics.decisions")
+    context.close()
+    shown = [m["next_shown_ms"] for m in metrics if m["prefetched"]]
+    decided = [m["decided_ms"] for m in metrics]
+    _progress(f"next sample after a decision: {[round(s) for s in shown]} ms")
+    return {"median_ms": round(statistics.median(shown), 1), "max_ms": round(max(shown), 1), "n": len(shown),
+            "decided_median_ms": round(statistics.median(decided), 1),
+            "keys_per_decision": 1 if decisions == len(metrics) else None}
+
+
+BRUSH_SCRIPT = """async (n) => {
+  const page = window.__handloop.page;
+  const index = page.views.findIndex((v) => v.width === 1280 && v.height === 1024);
+  page.selectView(index >= 0 ? index : 0);
+  page.tool = 'brush';
+  page.setMode('mask');
+  page.setRadius(24);
+  page.renderNow();
+  const canvas = page.canvas, r = canvas.getBoundingClientRect();
+  const view = page.view;
+  const at = (i) => {
+    const t = i / n, u = view.width * (0.2 + 0.6 * t), v = view.height * (0.5 + 0.3 * Math.sin(6.283 * 3 * t));
+    const [x, y] = page.vp.toScreen(u, v);
+    return {clientX: r.left + x, clientY: r.top + y, pointerId: 7, bubbles: true, button: 0, buttons: 1};
+  };
+  const before = page.ensureMask(view).count();
+  canvas.dispatchEvent(new PointerEvent('pointerdown', at(0)));
+  const times = [];
+  for (let i = 1; i <= n; i++) {
+    const t0 = performance.now();
+    canvas.dispatchEvent(new PointerEvent('pointermove', at(i)));
+    page.renderNow();
+    times.push(performance.now() - t0);
+  }
+  canvas.dispatchEvent(new PointerEvent('pointerup', at(n)));
+  return {times, width: view.width, height: view.height, painted: view.mask.count() - before};
+}"""
+
+
+def _brush(browser, base: str, token: str, events: int) -> dict[str, Any]:
+    context = _context(browser, token)
+    page = context.new_page()
+    page.goto(f"{base}/#/annotate")
+    page.wait_for_selector("body[data-ready=annotate]", state="attached", timeout=60_000)
+    page.evaluate(BRUSH_SCRIPT, 20)  # warm-up (JIT, first overlay upload)
+    page.keyboard.press("Control+z")
+    out = page.evaluate(BRUSH_SCRIPT, events)
+    page.evaluate("() => window.__handloop.page.releaseAll()")
+    context.close()
+    times = sorted(out["times"])
+    mean = statistics.fmean(times)
+    p95 = times[min(len(times) - 1, int(0.95 * len(times)))]
+    _progress(f"brush on {out['width']}x{out['height']}: mean {mean:.2f} ms, p95 {p95:.2f} ms per event")
+    return {"mean_ms": round(mean, 3), "p95_ms": round(p95, 3), "max_ms": round(times[-1], 3),
+            "image_px": [out["width"], out["height"]], "painted": out["painted"]}

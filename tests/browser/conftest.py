@@ -1,0 +1,100 @@
+"""A real browser for the UI tests: Debian's Chromium, headless, driven by Playwright's Python package
+(never `playwright install`: scripts/test.sh installs the `chromium` package). Without Chromium the
+browser tests are skipped, or fail when CI is set. Screenshots go to test-output/browser/."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import threading
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from functools import partial
+from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+CHROMIUM = os.environ.get("HANDLOOP_CHROMIUM", "/usr/bin/chromium")
+CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                 "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+SHOTS = REPO / "test-output" / "browser"
+
+
+def _chromium_or_skip() -> str:
+    if not (Path(CHROMIUM).exists() or shutil.which(CHROMIUM)):
+        message = f"Chromium is not installed at {CHROMIUM} (scripts/test.sh runs `apt-get install -y chromium`)"
+        if os.environ.get("CI"):
+            pytest.fail(message + " (CI is set: the browser tests must run)")
+        pytest.skip(message)
+    return CHROMIUM
+
+
+@pytest.fixture(scope="session")
+def browser() -> Iterator:
+    executable = _chromium_or_skip()
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as playwright:
+        instance = playwright.chromium.launch(executable_path=executable, args=CHROMIUM_ARGS)
+        yield instance
+        instance.close()
+
+
+@dataclass
+class Tab:
+    """A page with its console errors collected (a test fails on any uncaught page error)."""
+
+    page: object
+    errors: list[str] = field(default_factory=list)
+
+    def shot(self, name: str) -> Path:
+        SHOTS.mkdir(parents=True, exist_ok=True)
+        path = SHOTS / f"{name}.png"
+        self.page.screenshot(path=str(path))
+        return path
+
+
+@pytest.fixture
+def tab(browser) -> Iterator:
+    """tab(viewport=(w, h)) -> Tab, closed after the test."""
+    contexts = []
+
+    def make(width: int = 1600, height: int = 900) -> Tab:
+        context = browser.new_context(viewport={"width": width, "height": height})
+        contexts.append(context)
+        page = context.new_page()
+        t = Tab(page)
+        page.on("pageerror", lambda e: t.errors.append(str(e)))
+        return t
+
+    yield make
+    for context in contexts:
+        context.close()
+
+
+def sign_in(tab: Tab, base_url: str, email: str, password: str, expect: str) -> None:
+    page = tab.page
+    page.goto(base_url + "/")
+    page.wait_for_selector("body[data-ready=login]", state="attached")
+    page.fill("input[name=email]", email)
+    page.fill("input[name=password]", password)
+    page.click("button[type=submit]")
+    page.wait_for_selector(f"body[data-ready={expect}]", state="attached", timeout=60_000)
+
+
+class _QuietHandler(SimpleHTTPRequestHandler):
+    def log_message(self, *args) -> None:  # the test output is not the place for access logs
+        pass
+
+
+@pytest.fixture(scope="session")
+def static_frontend() -> Iterator[str]:
+    """The frontend directory over HTTP (ES modules need an origin), for the JS logic tests."""
+    handler = partial(_QuietHandler, directory=str(REPO / "frontend"))
+    server = ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    yield f"http://127.0.0.1:{server.server_address[1]}"
+    server.shutdown()

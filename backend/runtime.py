@@ -176,7 +176,8 @@ class RunningStack:
 
 def start_stack(settings: Settings, *, host: str = "127.0.0.1", port: int = 0,
                 worker_queues: Sequence[str] = ("cpu", "gpu"), worker_concurrency: int = 1,
-                start_worker: bool = True, extra_env: dict[str, str] | None = None) -> RunningStack:
+                start_worker: bool = True, start_api: bool = True,
+                extra_env: dict[str, str] | None = None) -> RunningStack:
     """Start the API (uvicorn, a subprocess) and an embedded or distributed Celery worker (a subprocess).
 
     Args:
@@ -185,6 +186,7 @@ def start_stack(settings: Settings, *, host: str = "127.0.0.1", port: int = 0,
         worker_queues: queues the worker consumes ("cpu", "gpu").
         worker_concurrency: worker processes.
         start_worker: False for an API alone (e.g. workers on other machines).
+        start_api: False for a worker alone (benchmarks).
         extra_env: more environment for both processes.
     Returns:
         The running stack (`.base_url`, `.settings`, `.stop()`); use it as a context manager.
@@ -202,7 +204,8 @@ def start_stack(settings: Settings, *, host: str = "127.0.0.1", port: int = 0,
     env["PYTHONPATH"] = repo + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
     stack = RunningStack(settings, host, port or free_port(host), worker_queues, worker_concurrency, env)
     try:
-        stack.start_api()
+        if start_api:
+            stack.start_api()
         if start_worker:
             stack.start_worker()
     except BaseException:

@@ -16,7 +16,7 @@ from backend.runtime import free_port
 from tests.support.annotate import clicks_body, wait_until
 from tests.support.live_stack import redis_available, require_redis
 
-pytestmark = pytest.mark.redis
+pytestmark = [pytest.mark.redis, pytest.mark.slow]
 
 
 def _job(stack, job_id: int):

@@ -11,6 +11,8 @@ from sqlalchemy import func, select
 
 from tests.support.annotate import annotate_and_accept, queue_for_annotation
 
+pytestmark = pytest.mark.slow
+
 
 def run_round(stack) -> dict:
     queue_for_annotation(stack, 3)

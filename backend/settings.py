@@ -93,6 +93,9 @@ class Settings(BaseSettings):
     job_heartbeat_timeout_s: float = Field(
         default=120.0, ge=1, le=24 * 3600, description="A 'running' job whose row has not changed for this long "
         "belongs to a dead worker: a redelivered task takes it over, and the outbox re-sends it.")
+    job_max_attempts: int = Field(
+        default=3, ge=1, le=100, description="A job started this many times without finishing (its worker died or "
+        "it crashed) fails instead of running again.")
     task_time_limit_s: int = Field(
         default=3 * 3600, ge=10, le=7 * 24 * 3600, description="Hard time limit of the longest tasks (training, "
         "whole rounds' steps); the soft limit is 90 % of it.")

@@ -117,12 +117,15 @@ def get(session: Session, job_id: int) -> Job:
     return job
 
 
-def claim(session: Session, job_id: int, worker: str, stale_after_s: float, now: datetime | None = None) -> Job | None:
+def claim(session: Session, job_id: int, worker: str, stale_after_s: float, now: datetime | None = None, *,
+          max_attempts: int | None = None) -> Job | None:
     """For workers: start a job, or take over one whose worker died. Idempotent under redelivery.
 
     Returns None when there is nothing to do: the job is gone or final, or it is 'running' under another
     live attempt (its row changed within `stale_after_s`, so this delivery is a duplicate). A 'running'
-    job whose row is older belongs to a dead worker (killed, or its host lost) and is taken over.
+    job whose row is older belongs to a dead worker (killed, or its host lost) and is taken over, unless it
+    has been started `max_attempts` times already: then it fails (a job that kills or crashes every worker
+    must not come back forever), and a fit's sample goes back to the annotators.
     """
     now = now or utcnow()
     job = session.execute(select(Job).where(Job.id == job_id).with_for_update()
@@ -131,6 +134,16 @@ def claim(session: Session, job_id: int, worker: str, stale_after_s: float, now:
         return None
     if job.state == JobState.running and job.updated_at > now - timedelta(seconds=stale_after_s):
         logger.info("job %s is running under a live attempt (%s); duplicate delivery ignored", job_id, job.worker)
+        return None
+    if max_attempts is not None and (job.attempts or 0) >= max_attempts:
+        error = f"gave up after {job.attempts} attempts (the last by {job.worker}); see the worker logs"
+        logger.warning("job %s: %s", job_id, error)
+        if job.kind == JobKind.fit and job.sample_id is not None:
+            from backend.services.records import record_fit_failure  # records imports this module
+
+            record_fit_failure(session, job.sample_id, job.id, error)
+        else:
+            finish(session, job.id, JobState.failed, error=error)
         return None
     taken_over = job.state == JobState.running
     job.state = JobState.running

@@ -12,7 +12,8 @@ imports the capture, creates one user per role with known passwords (`USERS`), a
     frames, sequences, width: the capture (default 3 frames x 1 sequence, 160 px);
     broker: "embedded" (default) or "redis" (HANDLOOP_TEST_REDIS_URL, default redis://127.0.0.1:6379/0,
         under a key prefix of its own); or broker_url= any URL;
-    database_url: default a SQLite file in the data folder;
+    database: "sqlite" (default, a file in the data folder) or "postgres" (a fresh database on the server
+        at HANDLOOP_TEST_PG_URL, dropped afterwards); or database_url= any URL;
     queue_for_annotation: import samples as 'needs_annotation' (default) or 'unlabeled';
     worker: start the worker (default True);
     **settings: any other Settings field (e.g. fit_full_iterations=20).
@@ -25,6 +26,7 @@ import os
 import time
 import uuid
 from collections.abc import Callable, Iterator
+from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -37,6 +39,7 @@ from backend.settings import Settings
 
 SECRET = "live-stack-secret-key-0123456789"
 REDIS_URL = os.environ.get("HANDLOOP_TEST_REDIS_URL", "redis://127.0.0.1:6379/0")
+PG_ADMIN_URL = os.environ.get("HANDLOOP_TEST_PG_URL", "postgresql+psycopg://postgres@127.0.0.1:5432/postgres")
 
 
 @dataclass(frozen=True)
@@ -145,6 +148,32 @@ def require_redis(url: str = REDIS_URL) -> str:
     return url
 
 
+@contextmanager
+def fresh_postgres() -> Iterator[str]:
+    """A new, empty PostgreSQL database (dropped afterwards); skipped, or failed in CI, without a server."""
+    from sqlalchemy import create_engine, text
+
+    admin = create_engine(PG_ADMIN_URL, isolation_level="AUTOCOMMIT")
+    try:
+        with admin.connect() as conn:
+            conn.execute(text("SELECT 1"))
+    except Exception as exc:
+        admin.dispose()
+        message = f"PostgreSQL is unreachable at {PG_ADMIN_URL}: {exc.__class__.__name__}"
+        if os.environ.get("CI"):
+            pytest.fail(message + " (CI is set: the PostgreSQL tests must run)")
+        pytest.skip(message)
+    name = f"handloop_live_{uuid.uuid4().hex[:10]}"
+    with admin.connect() as conn:
+        conn.execute(text(f'CREATE DATABASE "{name}"'))
+    try:
+        yield PG_ADMIN_URL.rsplit("/", 1)[0] + f"/{name}"
+    finally:
+        with admin.connect() as conn:
+            conn.execute(text(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)'))
+        admin.dispose()
+
+
 def prepare_database(settings: Settings, capture_dir: Path, *, queue_for_annotation: bool = True) -> int:
     """Migrate, import the capture, create USERS; returns the project id."""
     from backend.db.migrate import upgrade
@@ -209,13 +238,19 @@ def live_stack(tmp_path: Path, capture_cache: Path) -> Iterator[Callable[..., Li
     """Factory: live_stack(**options) -> LiveStack (see the module docstring); stopped after the test."""
     stacks: list[LiveStack] = []
 
-    def make(*, frames: int = 3, sequences: int = 1, width: int = 160, seed: int = 0, **options: Any) -> LiveStack:
+    databases = ExitStack()
+
+    def make(*, frames: int = 3, sequences: int = 1, width: int = 160, seed: int = 0, database: str = "sqlite",
+             **options: Any) -> LiveStack:
         capture = tiny_capture(capture_cache, frames=frames, sequences=sequences, width=width, seed=seed)
         data_dir = tmp_path / f"stack-{len(stacks)}"
+        if database == "postgres" and "database_url" not in options:
+            options["database_url"] = databases.enter_context(fresh_postgres())
         stack = make_live_stack(data_dir, capture, **options)
         stacks.append(stack)
         return stack
 
-    yield make
-    for stack in stacks:
-        stack.stop()
+    with databases:
+        yield make
+        for stack in stacks:
+            stack.stop()

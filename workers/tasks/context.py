@@ -39,6 +39,13 @@ class WorkerContext:
                 self._cache[key] = make()
             return self._cache[key]
 
+    def claim(self, session: Session, job_id: int) -> Any:
+        """services.jobs.claim with this worker's name and the configured heartbeat and attempt limits."""
+        from backend.services import jobs
+
+        return jobs.claim(session, job_id, self.worker_name, self.settings.job_heartbeat_timeout_s,
+                          max_attempts=self.settings.job_max_attempts)
+
     def storage_path(self, key: str) -> Path:
         """The file behind a storage key. Workers read images and masks as files (the networks' data code
         takes paths), so storage must be a shared filesystem in distributed mode (docs/deployment.md)."""

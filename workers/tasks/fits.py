@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 from celery.exceptions import SoftTimeLimitExceeded
-from sqlalchemy.exc import IntegrityError
+from sqlalchemy.exc import DataError, IntegrityError
 
 from backend.models.capture import Sample
 from backend.models.enums import JobState, SampleState
@@ -131,7 +131,7 @@ def _claim_and_load(ctx: WorkerContext, job_id: int, summary: FitSummary) -> Fit
     sample_id = None
     try:
         with ctx.session_factory.begin() as session:
-            job = jobs.claim(session, job_id, ctx.worker_name, ctx.settings.job_heartbeat_timeout_s)
+            job = ctx.claim(session, job_id)
             if job is None:
                 summary.skipped.append(job_id)
                 return None
@@ -191,14 +191,15 @@ def _record(ctx: WorkerContext, fi: FitInput, result: Any, config: FitConfig, su
         mask_keys[str(view_id)] = key
     ious = {view_id: float(min(1.0, max(0.0, iou)))
             for view_id, iou in zip(fi.view_ids, result.diagnostics.iou_per_view, strict=True) if np.isfinite(iou)}
-    diagnostics = {**result.diagnostics.to_dict(), "model_mask_keys": mask_keys, "hand_model": result.hand_model,
-                   "weights": {"kp2d": config.weights.kp2d, "kp3d": config.weights.kp3d, "seg": config.weights.seg},
-                   "iterations_schedule": [config.global_iterations, config.full_iterations]}
+    diagnostics = json_safe({
+        **result.diagnostics.to_dict(), "model_mask_keys": mask_keys, "hand_model": result.hand_model,
+        "weights": {"kp2d": config.weights.kp2d, "kp3d": config.weights.kp3d, "seg": config.weights.seg},
+        "iterations_schedule": [config.global_iterations, config.full_iterations]})
     try:
         with ctx.session_factory.begin() as session:
             fit = records.record_fit(
                 session, fi.sample_id, params=result.theta.tolist(), keypoints_m=result.keypoints.tolist(),
-                view_ious=ious, diagnostics=diagnostics, inputs=fi.inputs, model_file=result.hand_model,
+                view_ious=ious, diagnostics=diagnostics, inputs=json_safe(fi.inputs), model_file=result.hand_model,
                 thresholds=HeuristicThresholds.from_settings(ctx.settings), job_id=fi.job_id,
                 prediction_id=fi.prediction_id)
             session.flush()
@@ -206,6 +207,24 @@ def _record(ctx: WorkerContext, fi: FitInput, result: Any, config: FitConfig, su
     except (DomainError, IntegrityError) as exc:  # cancelled, or recorded by a concurrent duplicate delivery
         log.info("fit of job %s not recorded: %s", fi.job_id, getattr(exc, "message", exc))
         summary.skipped.append(fi.job_id)
+    except DataError as exc:  # the database refused a value: this fit can never be stored, so say so
+        log.error("fit of job %s could not be stored: %s", fi.job_id, exc)
+        _record_failure(ctx, fi.sample_id, fi.job_id, f"fit could not be stored: {exc.orig}", summary)
+
+
+def json_safe(value: Any) -> Any:
+    """`value` with every non-finite float as None: JSON has no NaN, and PostgreSQL refuses it."""
+    if isinstance(value, dict):
+        return {str(k): json_safe(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [json_safe(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return json_safe(value.tolist())
+    if isinstance(value, float | np.floating):
+        return float(value) if np.isfinite(value) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    return value
 
 
 def _record_failure(ctx: WorkerContext, sample_id: int, job_id: int, error: str, summary: FitSummary) -> None:

@@ -48,7 +48,7 @@ def run_prediction_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
     """Claim a predict job (payload: sample_ids, mvnet and handsegnet versions, round_job_id), predict and
     record; returns {"fit_job_ids": [...], ...} for the fit task chained after it."""
     with ctx.session_factory.begin() as session:
-        job = jobs.claim(session, job_id, ctx.worker_name, ctx.settings.job_heartbeat_timeout_s)
+        job = ctx.claim(session, job_id)
         if job is None:
             return {"job_id": job_id, "skipped": True, "fit_job_ids": _fit_jobs_of(ctx, job_id)}
         payload = dict(job.payload or {})

@@ -61,7 +61,7 @@ def _fail(session: Session, round_job: Job, message: str) -> None:
 def start_round(ctx: WorkerContext, round_job_id: int) -> list[int] | None:
     """Claim the round job; the train jobs still to run (created on first call). None: nothing to do."""
     with ctx.session_factory.begin() as session:
-        job = jobs.claim(session, round_job_id, ctx.worker_name, ctx.settings.job_heartbeat_timeout_s)
+        job = ctx.claim(session, round_job_id)
         if job is None:
             return None
         round_ = session.get(Round, job.round_id) if job.round_id is not None else None

@@ -26,6 +26,7 @@ from backend.models.review import Round, RoundMember
 from backend.services import jobs
 from backend.services.errors import DomainError
 from workers.tasks.context import WorkerContext
+from workers.tasks.fits import json_safe
 from workers.tasks.inputs import InputError, Rig, SampleFrame, capture_for, load_frames, read_mask, rig_of
 from workers.tasks.progress import JobCancelledError, ProgressReporter
 
@@ -143,7 +144,7 @@ def run_training_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
     from workers.nets.configs import get_config
 
     with ctx.session_factory.begin() as session:
-        job = jobs.claim(session, job_id, ctx.worker_name, ctx.settings.job_heartbeat_timeout_s)
+        job = ctx.claim(session, job_id)
         if job is None:
             return {"job_id": job_id, "skipped": True}
         net = (job.payload or {}).get("net")
@@ -178,7 +179,7 @@ def run_training_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
         with ctx.session_factory.begin() as session:
             round_row = session.get(Round, session.get(Job, job_id).round_id)
             setattr(round_row, f"{net}_version", version)
-            jobs.finish(session, job_id, JobState.succeeded, result=_jsonable(outcome))
+            jobs.finish(session, job_id, JobState.succeeded, result=json_safe(outcome))
         log.info("trained %s: %s", net, outcome)
         return outcome
     except JobCancelledError:
@@ -228,6 +229,3 @@ def fail_with_round(ctx: WorkerContext, job_id: int, round_job_id: int | None, m
         if round_job_id is not None:
             jobs.finish(session, int(round_job_id), JobState.failed, error=message[:2000])
 
-
-def _jsonable(value: Any) -> Any:
-    return json.loads(json.dumps(value, default=lambda v: v.item() if hasattr(v, "item") else str(v)))

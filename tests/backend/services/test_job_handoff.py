@@ -45,6 +45,22 @@ def test_claim_starts_skips_duplicates_and_takes_over_dead_jobs(env):
         assert jobs.claim(session, job_id, "w3:3", stale_after_s=0) is None  # final: nothing to do
 
 
+def test_a_job_that_keeps_dying_fails_after_max_attempts_and_releases_its_sample(env, h):
+    sample_id = h.seed(env, frames=1, state="fitting")[0]
+    with env.session() as session, session.begin():
+        job_id = jobs.create(session, InMemoryJobQueue(), JobKind.fit, sample_id=sample_id).id
+    for attempt in (1, 2):
+        with env.session() as session, session.begin():
+            assert jobs.claim(session, job_id, f"w{attempt}", stale_after_s=0, max_attempts=2).attempts == attempt
+    with env.session() as session, session.begin():
+        assert jobs.claim(session, job_id, "w3", stale_after_s=0, max_attempts=2) is None
+    with env.session() as session:
+        job = session.get(Job, job_id)
+        assert job.state == JobState.failed and "gave up after 2 attempts" in job.error
+        assert session.execute(text("SELECT state FROM samples WHERE id = :i"), {"i": sample_id}).scalar_one() \
+            == "needs_annotation"
+
+
 def test_unavailable_queue_refuses_a_submission_with_503_and_writes_nothing(env, h):
     h.seed(env, frames=2)
     task = h.next_task(env)

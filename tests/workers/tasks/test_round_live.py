@@ -78,9 +78,12 @@ def test_round_runs_end_to_end_on_the_embedded_worker(live_stack):
 
 
 @pytest.mark.redis
-def test_round_runs_end_to_end_through_redis(live_stack):
-    stack = live_stack(frames=6, queue_for_annotation=False, broker="redis")
+@pytest.mark.postgres
+def test_round_runs_end_to_end_in_distributed_mode(live_stack):
+    """PostgreSQL and the Redis broker: the distributed configuration, on one machine."""
+    stack = live_stack(frames=6, queue_for_annotation=False, broker="redis", database="postgres")
     assert stack.settings.broker_url.startswith("redis://")
+    assert stack.settings.resolved_database_url.startswith("postgresql")
     check_round(stack, run_round(stack))
 
 

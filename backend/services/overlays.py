@@ -43,6 +43,16 @@ class ClickRow:
                 "visibility": self.visibility}
 
 
+def end_reads(session: Session) -> None:
+    """End a read-only transaction before the CPU work (projections, meshes, images): on SQLite every
+    transaction holds the single writer lock (BEGIN IMMEDIATE, backend.db.session), so keeping it open
+    would make other users' submissions and decisions wait. Nothing was written; the rows read stay
+    loaded (expire_on_commit=False)."""
+    if session.new or session.dirty or session.deleted:
+        raise RuntimeError("end_reads on a session with pending changes")
+    session.commit()
+
+
 def _held(session: Session, user: Actor, sample_id: int, kind: LeaseKind):
     sample = get_sample(session, sample_id)
     queues.check_lease(sample, user, kind, None)
@@ -85,24 +95,26 @@ def annotate_proposals(session: Session, user: Actor, sample_id: int) -> dict[st
 
     sample = _held(session, user, sample_id, LeaseKind.annotate)
     cameras = view_cameras(session, sample_id)
-    sources = []
     prediction = newest_prediction(session, sample_id)
+    fit = session.get(Fit, sample.current_fit_id) if sample.current_fit_id is not None else None
+    note = session.execute(
+        select(Decision.reason).where(Decision.sample_id == sample_id, Decision.decision == DecisionKind.annotate)
+        .order_by(Decision.id.desc()).limit(1)).scalar_one_or_none()
+    previous = clicks_of(session, sample_id)
+    end_reads(session)
+    sources = []
     if prediction is not None:
         projected = _projections(prediction.keypoints_m, cameras)
         sources.append({"kind": "mvnet", "label": f"MVNet {prediction.mvnet_version}",
                         "confidences": [round(float(c), 4) for c in prediction.confidences],
                         "views": {str(v): pixels_or_none(p) for v, p in projected.items()}})
-    fit = session.get(Fit, sample.current_fit_id) if sample.current_fit_id is not None else None
     if fit is not None:
         projected = _projections(fit.keypoints_m, cameras)
         sources.append({"kind": "fit", "label": f"fit {fit.id} ({hand_model_label(fit.model_file)})",
                         "confidences": None, "views": {str(v): pixels_or_none(p) for v, p in projected.items()}})
-    note = session.execute(
-        select(Decision.reason).where(Decision.sample_id == sample_id, Decision.decision == DecisionKind.annotate)
-        .order_by(Decision.id.desc()).limit(1)).scalar_one_or_none()
     return {"sample_id": sample_id, "cameras": [c.to_public() for c in cameras],
             "keypoints_to_click": list(SPARSE_KEYPOINTS), "sources": sources,
-            "previous_clicks": [c.to_public() for c in clicks_of(session, sample_id)], "review_note": note}
+            "previous_clicks": [c.to_public() for c in previous], "review_note": note}
 
 
 def _residuals(fit_px: dict[int, np.ndarray], clicks: list[ClickRow]) -> dict[int, dict[int, float]]:
@@ -151,10 +163,11 @@ def review_overlay(session: Session, user: Actor, sample_id: int, *, secret_key:
     if fit is None:
         raise NotFoundError(f"fit {sample.current_fit_id} of sample {sample_id} not found")
     cameras = view_cameras(session, sample_id)
-    fit_px = _projections(fit.keypoints_m, cameras)
     submission_ids = (fit.inputs or {}).get("submission_ids") or None
     clicks = clicks_of(session, sample_id, submission_ids) if submission_ids else []
     prediction = session.get(Prediction, fit.prediction_id) if fit.prediction_id else None
+    end_reads(session)
+    fit_px = _projections(fit.keypoints_m, cameras)
     pred_px = _projections(prediction.keypoints_m, cameras) if prediction is not None else {}
     residuals = _residuals(fit_px, clicks)
     if not clicks and prediction is not None:  # fitted from MVNet: measure against its keypoints instead

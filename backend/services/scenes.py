@@ -15,6 +15,7 @@ from backend.models.enums import Role
 from backend.models.fits import Fit, Prediction
 from backend.services import scene_tickets
 from backend.services.errors import AuthError, NotFoundError, PermissionDeniedError
+from backend.services.overlays import end_reads
 from backend.services.projection import view_cameras
 from backend.services.storage import Storage
 from backend.services.users import load_principal
@@ -75,12 +76,14 @@ def scene_bytes(session: Session, storage: Storage, fit: Fit, mano_path=None) ->
     from backend.viewer.hand_mesh import hand_model_label, load_arrays, posed_mesh
     from backend.viewer.scene import SampleScene, record_scene, scene_camera, thumbnail
 
-    arrays = load_arrays(fit.model_file, mano_path)
-    mesh = posed_mesh(arrays, np.asarray(fit.params)) if arrays is not None else None
     prediction = session.get(Prediction, fit.prediction_id) if fit.prediction_id else None
     keys = dict(session.execute(select(View.id, View.image_key).where(View.sample_id == fit.sample_id)).all())
+    views = view_cameras(session, fit.sample_id)
+    end_reads(session)
+    arrays = load_arrays(fit.model_file, mano_path)
+    mesh = posed_mesh(arrays, np.asarray(fit.params)) if arrays is not None else None
     cameras = [scene_camera(c.camera, c.width, c.height, c.K, c.R, c.t, thumbnail(storage.get_bytes(keys[c.view_id])))
-               for c in view_cameras(session, fit.sample_id)]
+               for c in views]
     content = SampleScene(vertices=None if mesh is None else mesh.vertices, faces=None if mesh is None else mesh.faces,
                           keypoints=np.asarray(fit.keypoints_m, float),
                           prediction=None if prediction is None else np.asarray(prediction.keypoints_m, float),

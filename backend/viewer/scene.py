@@ -52,6 +52,7 @@ def thumbnail(image_bytes: bytes, width: int = THUMBNAIL_WIDTH_PX) -> np.ndarray
     from PIL import Image
 
     with Image.open(io.BytesIO(image_bytes)) as img:
+        img.draft("RGB", (width, max(1, round(img.height * width / img.width))))  # JPEG: decode at 1/2..1/8 scale
         img = img.convert("RGB")
         if img.width > width:
             img = img.resize((width, max(1, round(img.height * width / img.width))), Image.Resampling.BILINEAR)

@@ -8,7 +8,7 @@ import { History } from "./history.js";
 import { loadViews } from "./images.js";
 import { colorOf, SPARSE, SPARSE_LABELS } from "./keypoints.js";
 import { LeaseKeeper } from "./lease.js";
-import { MaskLayer, MaskOverlay, StrokeRecorder } from "./mask.js";
+import { MaskLayer, MaskOverlay, StrokeRecorder, unionRect } from "./mask.js";
 import { ActionTimer } from "./timing.js";
 import { Viewport } from "./viewport.js";
 
@@ -105,12 +105,13 @@ class AnnotatePage {
   // --- tasks --------------------------------------------------------------------------------------
 
   async prepare(task) {
+    const t0 = performance.now();
     this.leases.hold(task);
     const [proposals, views] = await Promise.all([
       this.api.get(`/api/annotate/samples/${task.sample_id}/proposals`),
       loadViews(this.api, task),
     ]);
-    return { task, proposals, views };
+    return { task, proposals, views, loadMs: performance.now() - t0 };
   }
 
   async loadNext() {
@@ -186,9 +187,10 @@ class AnnotatePage {
     this.history.clear();
     this.buildThumbs();
     this.fitView();
-    this.renderNow();
+    this.renderNow(true);
     this.renderSide();
-    this.metrics.shown.push({ sample_id: task.sample_id, ms: performance.now() - t0 });
+    this.metrics.shown.push({ sample_id: task.sample_id, show_ms: performance.now() - t0, load_ms: prepared.loadMs,
+      at_ms: performance.now() });
     document.body.dataset.ready = "annotate";
     document.body.dataset.sample = String(task.sample_id);
   }
@@ -338,10 +340,11 @@ class AnnotatePage {
 
   pointermove(e) {
     const [sx, sy] = this.screenPoint(e);
+    const previous = this.hover;
     this.hover = [sx, sy];
     const d = this.drag;
     if (!d) {
-      if (this.mode === "mask") this.requestRender();
+      if (this.mode === "mask") this.requestRender(this.cursorRect(previous), this.cursorRect(this.hover));
       return;
     }
     if (d.type === "pan") {
@@ -350,7 +353,10 @@ class AnnotatePage {
       d.sy = sy;
     } else if (d.type === "stroke") {
       const [u, v] = this.vp.toImage(sx, sy);
-      this.strokeTo(u, v);
+      const rect = this.strokeTo(u, v);
+      // A stroke redraws only what it changed and where the cursor was and is (measured by bench ui).
+      this.requestRender(rect && this.imageRectOnScreen(rect), this.cursorRect(previous), this.cursorRect(this.hover));
+      return;
     } else {
       if (Math.hypot(sx - d.sx, sy - d.sy) > DRAG_PX) d.moved = true;
       [d.u, d.v] = this.vp.toImage(sx, sy);
@@ -368,6 +374,19 @@ class AnnotatePage {
       d.view.overlay.refresh(rect);
       d.recorder.add(rect);
     }
+    return rect;
+  }
+
+  imageRectOnScreen(rect) {
+    const [x0, y0] = this.vp.toScreen(rect.x - 0.5, rect.y - 0.5);
+    const [x1, y1] = this.vp.toScreen(rect.x + rect.w - 0.5, rect.y + rect.h - 0.5);
+    return { x: x0 - 2, y: y0 - 2, w: x1 - x0 + 4, h: y1 - y0 + 4 };
+  }
+
+  cursorRect(point) {
+    if (!point) return null;
+    const r = this.radius * this.vp.scale + 3;
+    return { x: point[0] - r, y: point[1] - r, w: 2 * r, h: 2 * r };
   }
 
   pointerup(e) {
@@ -574,18 +593,32 @@ class AnnotatePage {
 
   // --- rendering ----------------------------------------------------------------------------------
 
-  requestRender() {
+  // Schedule a redraw for the next frame: of the whole view (no rectangles given), or only of the given
+  // screen rectangles (null entries are skipped); a full request wins over partial ones.
+  requestRender(...rects) {
+    if (rects.length === 0) this.dirty = "all";
+    else if (this.dirty !== "all") for (const r of rects) if (r) this.dirty = unionRect(this.dirty, r);
     if (this.frame) return;
     this.frame = requestAnimationFrame(() => { this.frame = null; this.renderNow(); });
   }
 
-  renderNow() {
+  // Draw what is pending now (the whole view with force); a scheduled frame is then not needed.
+  renderNow(force = false) {
     if (this.frame) { cancelAnimationFrame(this.frame); this.frame = null; }
-    if (!this.task) return;
+    const pending = force ? "all" : this.dirty;
+    this.dirty = null;
+    if (!this.task || !pending) return;
+    const dirty = pending === "all" ? null : pending;
     const view = this.view;
     const { width, height, dpr } = fitCanvas(this.canvas);
     const ctx = this.canvas.getContext("2d");
+    ctx.save();
     ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
+    if (dirty) {
+      ctx.beginPath();
+      ctx.rect(Math.floor(dirty.x), Math.floor(dirty.y), Math.ceil(dirty.w) + 1, Math.ceil(dirty.h) + 1);
+      ctx.clip();
+    }
     ctx.fillStyle = "#1b1e24";
     ctx.fillRect(0, 0, width, height);
     this.vp.apply(ctx, dpr);
@@ -603,6 +636,8 @@ class AnnotatePage {
       ctx.stroke();
       ctx.restore();
     }
+    ctx.restore();
+    if (dirty) return;
     this.hud.textContent = `${view.camera} · ${view.width}×${view.height} · ${Math.round(this.vp.scale * 100)}% · ` +
       (this.mode === "mask" ? `mask: ${this.tool} r=${Math.round(this.radius)} px` : `points: ${labelFor(this.keypoint)}`);
   }

@@ -32,7 +32,8 @@ export function marker(ctx, x, y, keypoint, { style = "solid", r = 6, label = nu
     ctx.stroke();
   } else {
     ctx.fillStyle = color;
-    ctx.strokeStyle = "#fff";
+    ctx.strokeStyle = r <= 3 ? "rgba(0, 0, 0, 0.85)" : "#fff";
+    if (r <= 3) ctx.lineWidth = 1;
     ctx.beginPath();
     ctx.arc(x, y, r, 0, 2 * Math.PI);
     ctx.fill();

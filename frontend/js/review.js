@@ -22,6 +22,32 @@ const LAYERS = [
   ["mvnet", "P", "MVNet prediction"],
 ];
 const IOU_LOW = 0.5;
+const VIEWER_DELAY_MS = 350;
+const SHOW_3D_KEY = "handloop.show3d";
+let softwareGL = null;
+
+// Whether WebGL runs in software here (SwiftShader, llvmpipe): viser's client then costs seconds of the
+// page's CPU per sample, so the 3D view starts closed (the reviewer's own choice is remembered).
+function softwareWebGL() {
+  if (softwareGL === null) {
+    try {
+      const gl = document.createElement("canvas").getContext("webgl");
+      const info = gl && gl.getExtension("WEBGL_debug_renderer_info");
+      const renderer = gl ? String(gl.getParameter(info ? info.UNMASKED_RENDERER_WEBGL : gl.RENDERER)) : "none";
+      softwareGL = !gl || /swiftshader|llvmpipe|software/i.test(renderer);
+      const lose = gl && gl.getExtension("WEBGL_lose_context");
+      if (lose) lose.loseContext();
+    } catch {
+      softwareGL = true;
+    }
+  }
+  return softwareGL;
+}
+
+function initialShow3d() {
+  const saved = localStorage.getItem(SHOW_3D_KEY);
+  return saved === null ? !softwareWebGL() : saved === "1";
+}
 const RESIDUAL_HIGH_PX = 8;
 
 export async function mountReview(root, ctx) {
@@ -36,7 +62,7 @@ class ReviewPage {
     this.root = root;
     this.leases = new LeaseKeeper(api, "review");
     this.layers = { outline: true, silhouette: false, wireframe: false, keypoints: true, clicks: true, mvnet: false };
-    this.show3d = true;
+    this.show3d = initialShow3d();
     this.cropToHand = true;
     this.focus = null;
     this.reason = null;
@@ -69,6 +95,7 @@ class ReviewPage {
     window.removeEventListener("resize", this.onResize);
     clearInterval(this.clock);
     clearTimeout(this.emptyTimer);
+    clearTimeout(this.viewerTimer);
     if (this.prepared) this.leases.drop(this.prepared.task.sample_id, true);
     this.leases.dropAll(false);
   }
@@ -117,6 +144,8 @@ class ReviewPage {
       if (!task) return null;
       const prepared = await this.prepare(task);
       if (this.current && this.current.task.sample_id === current) this.prepared = prepared;
+      // Warm the next 3D scene (built once on the server, then from the browser's cache).
+      if (this.show3d) fetch(prepared.overlay.scene_path, { priority: "low" }).catch(() => null);
       return prepared;
     })().catch((error) => { toast(`prefetch failed: ${error.message}`, "warn"); return null; });
   }
@@ -226,9 +255,7 @@ class ReviewPage {
       this.renderViews();
       this.renderSide();
     } else if (lower === "v") {
-      this.show3d = !this.show3d;
-      this.timer.mark("toggle");
-      this.renderSide();
+      this.toggle3d();
     } else {
       const layer = LAYERS.find(([, k]) => k.toLowerCase() === lower);
       if (layer) {
@@ -372,6 +399,13 @@ class ReviewPage {
     }
   }
 
+  toggle3d() {
+    this.show3d = !this.show3d;
+    localStorage.setItem(SHOW_3D_KEY, this.show3d ? "1" : "0");
+    this.timer.mark("toggle");
+    this.renderSide();
+  }
+
   viewerUrl() {
     const { overlay } = this.current;
     const at = overlay.scene_look_at;
@@ -383,15 +417,24 @@ class ReviewPage {
 
   render3d() {
     if (!this.show3d || !this.current) {
-      fill(this.viewer, h("div", { class: "muted" }, "3D view hidden (V)"));
+      clearTimeout(this.viewerTimer);
+      fill(this.viewer, h("button", { class: "viewer-open", onclick: () => this.toggle3d() }, "Show the 3D view (V)"), softwareWebGL() ? h("div", { class: "muted" },
+        "Closed by default here: this browser renders WebGL in software, which would slow the page down.") : null);
       this.viewerSample = null;
       return this.viewer;
     }
     const sample = this.current.task.sample_id;
     if (this.viewerSample !== sample) {
+      // The iframe (viser's client, its recording, WebGL) starts a moment after the sample is shown, so it
+      // does not compete with drawing the views or with a quick decision.
       this.viewerSample = sample;
-      fill(this.viewer, h("iframe", { class: "viewer-frame", title: "3D view of this sample (viser)",
-        src: this.viewerUrl(), loading: "eager" }));
+      clearTimeout(this.viewerTimer);
+      fill(this.viewer, h("div", { class: "muted viewer-wait" }, "3D view loading…"));
+      const url = this.viewerUrl();
+      this.viewerTimer = setTimeout(() => {
+        if (this.viewerSample !== sample) return;
+        fill(this.viewer, h("iframe", { class: "viewer-frame", title: "3D view of this sample (viser)", src: url }));
+      }, VIEWER_DELAY_MS);
     }
     return this.viewer;
   }

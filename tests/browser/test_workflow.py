@@ -96,6 +96,8 @@ def test_annotate_fit_review_and_round_in_the_browser(live_stack, tab):
     assert "built-in stand-in hand, not MANO" in page.inner_text(".fit-banner")
     assert overlay["fit"]["mean_residual_px"] < 3.0  # the worker's fit lands on the clicks
     assert page.locator(".view-card").count() == len(task["views"])
+    if not page.evaluate("() => window.__handloop.page.show3d"):
+        page.keyboard.press("v")  # closed by default where WebGL is software-rendered (this headless browser)
     page.wait_for_selector("iframe.viewer-frame")
     page.wait_for_timeout(4000)  # let viser's client load the recording and draw
     reviewer.shot("03-review-fit")

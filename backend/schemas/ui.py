@@ -116,6 +116,8 @@ class ActivityPublic(Public):
 class DashboardPublic(Public):
     queues: dict[str, int]
     fits: int
+    fits_by_hand_model: dict[str, int] = Field(description="Label -> fits; the stand-in is 'built-in stand-in hand, "
+                                               "not MANO'.")
     confidence_histogram: dict[str, Any]
     sparsification: dict[str, Any] | None
     human_time: dict[str, Any]

@@ -76,12 +76,24 @@ def human_time(session: Session, limit: int = 5000) -> dict[str, Any]:
     }
 
 
+def fits_by_hand_model(session: Session) -> dict[str, int]:
+    """How many fits each hand model made, by label ("built-in stand-in hand, not MANO" for the stand-in)."""
+    from backend.viewer.hand_mesh import hand_model_label
+
+    out: dict[str, int] = {}
+    for model_file, n in session.execute(select(Fit.model_file, func.count()).group_by(Fit.model_file)).all():
+        label = hand_model_label(model_file)
+        out[label] = out.get(label, 0) + int(n)
+    return out
+
+
 def dashboard(session: Session) -> dict[str, Any]:
-    fits = session.execute(select(func.count()).select_from(Fit)).scalar_one()
+    by_model = fits_by_hand_model(session)
     return {
         "queues": {"annotate": queues.queue_length(session, LeaseKind.annotate),
                    "review": queues.queue_length(session, LeaseKind.review)},
-        "fits": int(fits),
+        "fits": sum(by_model.values()),
+        "fits_by_hand_model": by_model,
         "confidence_histogram": confidence_histogram(session),
         "sparsification": sparsification_curve(session),
         "human_time": human_time(session),

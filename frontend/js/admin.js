@@ -77,6 +77,9 @@ class AdminPage {
         state.replace("_", " "))))),
       h("div", { class: "muted" }, `${total} samples · ${s.submissions} submissions · ${s.clicks} clicks · ` +
         `${d.fits} fits · queues: ${d.queues.annotate} to annotate, ${d.queues.review} to review`),
+      Object.keys(d.fits_by_hand_model).length ? h("div", { class: "fit-models" }, "Fits made with: ",
+        Object.entries(d.fits_by_hand_model).map(([label, n]) => h("span", { class: label.includes("not MANO")
+          ? "badge warn" : "badge" }, `${label} (${n})`))) : null,
     );
   }
 

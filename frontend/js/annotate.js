@@ -5,7 +5,7 @@ import { Annotation, proposals as computeProposals } from "./annotation.js";
 import { fitCanvas, fmt, h, isTyping, toast, fill } from "./dom.js";
 import { marker, segment } from "./draw.js";
 import { History } from "./history.js";
-import { loadViews } from "./images.js";
+import { decodeMask, loadViews } from "./images.js";
 import { colorOf, SPARSE, SPARSE_LABELS } from "./keypoints.js";
 import { LeaseKeeper } from "./lease.js";
 import { MaskLayer, MaskOverlay, StrokeRecorder, unionRect } from "./mask.js";
@@ -166,12 +166,8 @@ class AnnotatePage {
     this.sources = proposals.sources;
     this.reviewNote = proposals.review_note;
     this.cameras = new Map(proposals.cameras.map((c) => [c.view_id, c]));
-    this.views = views.map((v) => ({
-      ...v,
-      mask: v.mask,
-      overlay: v.mask ? new MaskOverlay(v.mask) : null,
-      maskEdited: false,
-    }));
+    this.views = views.map((v) => ({ ...v, mask: null, overlay: null, maskEdited: false }));
+    this.decodeMask(this.views[0]);
     this.annotation = new Annotation(this.views.map((v) => v.id), task.keypoints_to_click || SPARSE);
     for (const c of proposals.previous_clicks) {
       if (this.annotation.clicks.has(c.view_id) && this.annotation.keypoints.includes(c.keypoint)) {
@@ -191,6 +187,7 @@ class AnnotatePage {
     this.renderSide();
     this.metrics.shown.push({ sample_id: task.sample_id, show_ms: performance.now() - t0, load_ms: prepared.loadMs,
       at_ms: performance.now() });
+    this.decodeRestLater(task.sample_id);
     document.body.dataset.ready = "annotate";
     document.body.dataset.sample = String(task.sample_id);
   }
@@ -274,7 +271,30 @@ class AnnotatePage {
     if (this.annotation.get(this.view.id, this.keypoint)) this.setClick(this.view.id, this.keypoint, null, "click");
   }
 
+  // The view's automatic mask as bits and overlay (decoded from its bitmap the first time it is needed).
+  decodeMask(view) {
+    if (!view.mask && view.maskImage) {
+      view.mask = decodeMask(view.maskImage, view.width, view.height);
+      view.overlay = new MaskOverlay(view.mask);
+    }
+    return view.mask;
+  }
+
+  // The other views' masks one per idle moment after the page is usable, each thumbnail redrawn after.
+  decodeRestLater(sampleId) {
+    const pending = this.views.filter((v) => !v.mask && v.maskImage);
+    const next = () => {
+      const view = pending.shift();
+      if (!view || !this.task || this.task.sample_id !== sampleId) return;
+      this.decodeMask(view);
+      this.renderThumb(this.views.indexOf(view));
+      setTimeout(next, 0);
+    };
+    setTimeout(next, 50);
+  }
+
   ensureMask(view) {
+    this.decodeMask(view);
     if (!view.mask) {
       view.mask = new MaskLayer(view.width, view.height);
       view.overlay = new MaskOverlay(view.mask);
@@ -540,6 +560,7 @@ class AnnotatePage {
   selectView(index) {
     if (index === this.viewIndex) return;
     this.viewIndex = index;
+    this.decodeMask(this.view);
     this.timer.mark("view", { view_id: this.view.id });
     this.keypoint = this.annotation.firstUnset(this.view.id) ?? this.keypoint;
     this.fitView();
@@ -755,6 +776,8 @@ class AnnotatePage {
       h("button", { class: "primary submit", onclick: () => this.submit(), disabled: this.submitting },
         this.submitting ? "Submitting…" : "Submit (Ctrl+Enter)"),
       h("div", { class: "muted legend" }, "proposals: T triangulated from your clicks, F current fit, M MVNet"),
+      this.sources.map((source) => h("div", { class: source.label.includes("not MANO") ? "badge warn" : "badge" },
+        `${SOURCE_LETTER[source.kind]}: ${source.label}`)),
       this.lastSubmission ? h("div", { class: "muted" },
         `last: sample ${this.lastSubmission.sample_id} → fit job ${this.lastSubmission.fit_job_id ?? "–"}`) : null,
       h("details", { class: "help" }, h("summary", {}, "Keys (?)"),

@@ -5,7 +5,7 @@ import { Annotation, proposals as computeProposals } from "./annotation.js";
 import { fitCanvas, fmt, h, isTyping, toast, fill } from "./dom.js";
 import { marker, segment } from "./draw.js";
 import { History } from "./history.js";
-import { decodeMask, loadViews } from "./images.js";
+import { decodeMask, loadView } from "./images.js";
 import { colorOf, SPARSE, SPARSE_LABELS } from "./keypoints.js";
 import { LeaseKeeper } from "./lease.js";
 import { MaskLayer, MaskOverlay, StrokeRecorder, unionRect } from "./mask.js";
@@ -104,14 +104,16 @@ class AnnotatePage {
 
   // --- tasks --------------------------------------------------------------------------------------
 
-  async prepare(task) {
+  // A task's proposals and images. The task shown next (eager=false) is ready as soon as its first view
+  // is: the others fill in while the annotator works on it. A prefetched task is loaded whole.
+  async prepare(task, { eager = true } = {}) {
     const t0 = performance.now();
     this.leases.hold(task);
-    const [proposals, views] = await Promise.all([
-      this.api.get(`/api/annotate/samples/${task.sample_id}/proposals`),
-      loadViews(this.api, task),
-    ]);
-    return { task, proposals, views, loadMs: performance.now() - t0 };
+    const loads = task.views.map((view) => loadView(this.api, view));
+    const proposals = this.api.get(`/api/annotate/samples/${task.sample_id}/proposals`);
+    const ready = eager ? await Promise.all(loads) : [await loads[0]];
+    const views = task.views.map((view, i) => ({ ...view, image: null, maskImage: null, ...(ready[i] || {}) }));
+    return { task, proposals: await proposals, views, loads, loadMs: performance.now() - t0 };
   }
 
   async loadNext() {
@@ -126,7 +128,7 @@ class AnnotatePage {
     if (!prepared) {
       const task = await this.api.post("/api/annotate/next");
       if (!task) return this.showEmpty();
-      prepared = await this.prepare(task);
+      prepared = await this.prepare(task, { eager: false });
     }
     this.show(prepared);
     this.prefetch();
@@ -168,6 +170,16 @@ class AnnotatePage {
     this.cameras = new Map(proposals.cameras.map((c) => [c.view_id, c]));
     this.views = views.map((v) => ({ ...v, mask: null, overlay: null, maskEdited: false }));
     this.decodeMask(this.views[0]);
+    this.views.forEach((view, i) => {
+      if (view.image) return;
+      prepared.loads[i].then((loaded) => {
+        if (this.task !== task) return;
+        Object.assign(view, loaded);
+        this.decodeMask(view);
+        if (i === this.viewIndex) this.requestRender();
+        this.renderThumb(i);
+      }).catch((error) => toast(`view ${view.camera} did not load: ${error.message}`, "error"));
+    });
     this.annotation = new Annotation(this.views.map((v) => v.id), task.keypoints_to_click || SPARSE);
     for (const c of proposals.previous_clicks) {
       if (this.annotation.clicks.has(c.view_id) && this.annotation.keypoints.includes(c.keypoint)) {
@@ -644,9 +656,14 @@ class AnnotatePage {
     ctx.fillRect(0, 0, width, height);
     this.vp.apply(ctx, dpr);
     ctx.imageSmoothingEnabled = this.vp.scale < 3;
-    ctx.drawImage(view.image, 0, 0);
+    if (view.image) ctx.drawImage(view.image, 0, 0);
     if (this.showMask && view.overlay) ctx.drawImage(view.overlay.canvas, 0, 0);
     ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
+    if (!view.image) {
+      ctx.fillStyle = "#9aa0ab";
+      ctx.font = "14px system-ui, sans-serif";
+      ctx.fillText(`loading ${view.camera}…`, 16, 24);
+    }
     this.drawPoints(ctx, view, this.vp, { labels: true, selected: this.keypoint });
     if (this.mode === "mask" && this.hover) {
       ctx.save();
@@ -716,7 +733,7 @@ class AnnotatePage {
     ctx.fillStyle = "#111";
     ctx.fillRect(0, 0, width, height);
     vp.apply(ctx, dpr);
-    ctx.drawImage(view.image, 0, 0);
+    if (view.image) ctx.drawImage(view.image, 0, 0);
     if (this.showMask && view.overlay) ctx.drawImage(view.overlay.canvas, 0, 0);
     ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
     this.drawPoints(ctx, view, vp, { r: 3 });

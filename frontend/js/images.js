@@ -22,13 +22,16 @@ export async function loadMask(api, url, width, height) {
   return layer;
 }
 
-// Every view's image and (when the task has one) automatic mask bitmap, decoded off the main thread.
-export async function loadViews(api, task, { masks = true } = {}) {
-  return Promise.all(task.views.map(async (view) => {
-    const [image, maskImage] = await Promise.all([
-      loadBitmap(api, view.image_url),
-      masks && view.mask_url ? loadBitmap(api, view.mask_url) : Promise.resolve(null),
-    ]);
-    return { ...view, image, maskImage };
-  }));
+// One view's image and (when it has one) automatic mask bitmap, decoded off the main thread.
+export async function loadView(api, view, { masks = true } = {}) {
+  const [image, maskImage] = await Promise.all([
+    loadBitmap(api, view.image_url),
+    masks && view.mask_url ? loadBitmap(api, view.mask_url) : Promise.resolve(null),
+  ]);
+  return { image, maskImage };
+}
+
+// Every view of a task, loaded.
+export async function loadViews(api, task, options = {}) {
+  return Promise.all(task.views.map(async (view) => ({ ...view, ...(await loadView(api, view, options)) })));
 }

@@ -124,6 +124,10 @@ async function route() {
   }
 }
 
+// Start loading the page's module while the session is checked (its import is cached by the browser).
+const wanted = location.hash.replace(/^#\/?/, "");
+if (PAGES[wanted] && api.signedIn) PAGES[wanted].load().catch(() => null);
+
 window.addEventListener("hashchange", route);
 window.addEventListener("unhandledrejection", (e) => toast(`error: ${e.reason && e.reason.message ? e.reason.message : e.reason}`, "error", 8000));
 route();

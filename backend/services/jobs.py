@@ -13,7 +13,7 @@ import logging
 from datetime import datetime, timedelta
 from typing import Any, Protocol
 
-from sqlalchemy import insert, select
+from sqlalchemy import insert, select, update
 from sqlalchemy.orm import Session
 
 from backend.db.base import utcnow
@@ -153,6 +153,12 @@ def claim(session: Session, job_id: int, worker: str, stale_after_s: float, now:
     job.message = f"taken over by {worker} (attempt {job.attempts})" if taken_over else f"started by {worker}"
     audit.record(session, None, "job.start", "job", job.id, attempt=job.attempts, worker=worker)
     return job
+
+
+def touch(session: Session, job_id: int, now: datetime | None = None) -> None:
+    """Heartbeat of a running job whose progress someone else reports (a round while its batches run)."""
+    session.execute(update(Job).where(Job.id == job_id, Job.state == JobState.running)
+                    .values(updated_at=now or utcnow()))
 
 
 def is_final(session: Session, job_id: int) -> bool:

@@ -68,9 +68,10 @@ def engine_for(ctx: WorkerContext, fi: FitInput, config: FitConfig) -> Any:
                       lambda: FittingEngine(ctx.hand_model(), list(fi.rig.cameras), config))
 
 
-def run_fit_jobs(ctx: WorkerContext, job_ids: list[int], *, parent: tuple[int, float, float] | None = None
-                 ) -> FitSummary:
-    """Claim, fit and record these fit jobs (any mix of sources and rigs)."""
+def run_fit_jobs(ctx: WorkerContext, job_ids: list[int], *, parent: tuple[int, float, float] | None = None,
+                 heartbeat_of: int | None = None) -> FitSummary:
+    """Claim, fit and record these fit jobs (any mix of sources and rigs); `heartbeat_of`: a round job kept
+    alive while they run."""
     started = time.perf_counter()
     summary = FitSummary()
     claimed: list[FitInput] = []
@@ -81,7 +82,7 @@ def run_fit_jobs(ctx: WorkerContext, job_ids: list[int], *, parent: tuple[int, f
     groups: dict[tuple[str, str], list[FitInput]] = defaultdict(list)
     for fi in claimed:
         groups[(fi.rig.digest, fi.source)].append(fi)
-    progress = ProgressReporter(ctx, [fi.job_id for fi in claimed], parent=parent)
+    progress = ProgressReporter(ctx, [fi.job_id for fi in claimed], parent=parent, heartbeat_of=heartbeat_of)
     done = 0
     try:
         for (_, source), group in groups.items():
@@ -112,7 +113,7 @@ def run_fit_jobs_batched(ctx: WorkerContext, job_ids: list[int], *, round_job_id
     size = ctx.settings.fit_batch_size
     total = FitSummary()
     for start in range(0, len(job_ids), size):
-        part = run_fit_jobs(ctx, job_ids[start:start + size])
+        part = run_fit_jobs(ctx, job_ids[start:start + size], heartbeat_of=round_job_id)
         total.fitted += part.fitted
         total.failed.update(part.failed)
         total.skipped += part.skipped

@@ -64,7 +64,7 @@ def run_prediction_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
             frames = load_frames(ctx, session, [s for s in sample_ids if s not in done])
             todo = [f for f in frames.values() if f.state in PREDICTABLE]
             cameras = list(rig_of(ctx, session, todo[0].project_id).cameras) if todo else []
-        reporter = ProgressReporter(ctx, [job_id])
+        reporter = ProgressReporter(ctx, [job_id], heartbeat_of=int(round_job_id) if round_job_id else None)
         summary = {"predicted": 0, "not_localised": 0, "skipped": len(sample_ids) - len(todo)}
         chunk = 4
         for start in range(0, len(todo), chunk):

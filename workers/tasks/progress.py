@@ -30,14 +30,16 @@ class ProgressReporter:
         ctx: the worker context.
         job_ids: the jobs doing this work.
         parent: (job id, start, end): also set the parent's progress to start + fraction (end - start).
+        heartbeat_of: a job (the round) kept alive by each write, its progress left alone.
         interval_s: least time between writes (capped below the heartbeat timeout).
     """
 
     def __init__(self, ctx: WorkerContext, job_ids: Iterable[int], *, parent: tuple[int, float, float] | None = None,
-                 interval_s: float = 2.0) -> None:
+                 heartbeat_of: int | None = None, interval_s: float = 2.0) -> None:
         self.ctx = ctx
         self.live = list(dict.fromkeys(job_ids))
         self.parent = parent
+        self.heartbeat_of = heartbeat_of
         self.interval_s = min(interval_s, ctx.settings.job_heartbeat_timeout_s / 4)
         self._last = 0.0
 
@@ -58,6 +60,8 @@ class ProgressReporter:
                     jobs.update_progress(session, job_id, fraction, message[:500])
                 except (ConflictError, NotFoundError):
                     cancelled.append(job_id)
+            if self.heartbeat_of is not None:
+                jobs.touch(session, self.heartbeat_of)
             if self.parent is not None:
                 parent_id, start, end = self.parent
                 try:

@@ -16,7 +16,7 @@ from backend.runtime import free_port
 from tests.support.annotate import clicks_body, wait_until
 from tests.support.live_stack import redis_available, require_redis
 
-pytestmark = [pytest.mark.redis, pytest.mark.slow]
+pytestmark = pytest.mark.slow
 
 
 def _job(stack, job_id: int):
@@ -41,6 +41,7 @@ def _submit(stack, role: str) -> tuple[dict, dict]:
         return task, clicks_body(stack, task)
 
 
+@pytest.mark.redis
 def test_worker_killed_mid_fit_is_redelivered_and_recorded_once(live_stack):
     require_redis()
     # Redis gives an unacknowledged task back after the visibility timeout (20 s here, above the 15 s task
@@ -69,6 +70,25 @@ def test_worker_killed_mid_fit_is_redelivered_and_recorded_once(live_stack):
     with stack.client("admin") as http:
         sample = http.get("/api/admin/jobs", params={"kind": "fit"}).json()
     assert [j["state"] for j in sample] == ["succeeded"]
+
+
+def test_embedded_worker_killed_mid_fit_is_resent_by_the_outbox_and_recorded_once(live_stack):
+    """The filesystem broker keeps no unacknowledged messages: the API's outbox re-sends the job once its
+    heartbeat is older than twice JOB_HEARTBEAT_TIMEOUT_S, and the new worker takes it over."""
+    stack = live_stack(frames=1, job_heartbeat_timeout_s=3, fit_global_iterations=100, fit_full_iterations=1200)
+    task, body = _submit(stack, "annotator")
+    with stack.client("annotator") as http:
+        response = http.post(f"/api/annotate/samples/{task['sample_id']}/submissions", json=body)
+    assert response.status_code == 201, response.text
+    job_id = response.json()["fit_job_id"]
+    wait_until(lambda: _job(stack, job_id).state == "running", 120, "fit running", stack)
+    time.sleep(1.0)
+    stack.stack.kill_worker()
+    assert _fits_of_job(stack, job_id) == 0
+    stack.stack.start_worker()
+    done = stack.wait_for_job(job_id, timeout_s=180)
+    assert done["state"] == "succeeded" and done["attempts"] == 2, done
+    assert _fits_of_job(stack, job_id) == 1
 
 
 @pytest.fixture
@@ -100,6 +120,7 @@ def private_redis():
     server.stop()
 
 
+@pytest.mark.redis
 def test_redis_down_answers_503_writes_nothing_and_work_resumes(live_stack, private_redis):
     # The broker check is trusted for an hour: a submission right after the outage passes it, commits, and
     # its hand-off fails after the commit (the outbox's case); the next one re-checks and is refused.

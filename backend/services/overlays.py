@@ -10,6 +10,7 @@ from __future__ import annotations
 import base64
 import logging
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -133,7 +134,7 @@ def _b64(array: np.ndarray, dtype: str) -> str:
     return base64.b64encode(np.ascontiguousarray(array, dtype=dtype).tobytes()).decode("ascii")
 
 
-def _mesh_payload(fit: Fit, mano_path) -> tuple[dict[str, Any] | None, str | None, float | None]:
+def _mesh_payload(fit: Fit, mano_path: Path | None) -> tuple[dict[str, Any] | None, str | None, float | None]:
     """(mesh, note, keypoint offset mm): the fit's mesh as little-endian float32 vertices (V, 3) and int32
     faces (F, 3), base64; or None and why not."""
     from backend.viewer.hand_mesh import load_arrays, posed_mesh
@@ -151,7 +152,7 @@ def _mesh_payload(fit: Fit, mano_path) -> tuple[dict[str, Any] | None, str | Non
     return payload, None, round(offset_mm, 3)
 
 
-def review_overlay(session: Session, user: Actor, sample_id: int, *, secret_key: str, mano_path=None,
+def review_overlay(session: Session, user: Actor, sample_id: int, *, secret_key: str, mano_path: Path | None = None,
                    with_mesh: bool = True) -> dict[str, Any]:
     """Everything the review page draws for a sample under the caller's review lease."""
     from backend.viewer.hand_mesh import hand_model_label, is_stand_in

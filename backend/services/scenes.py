@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import threading
 from collections import OrderedDict
+from pathlib import Path
 
 import numpy as np
 from sqlalchemy import select
@@ -67,7 +68,7 @@ def etag_of(fit: Fit) -> str:
     return f'"scene-{_key(fit)}"'
 
 
-def scene_bytes(session: Session, storage: Storage, fit: Fit, mano_path=None) -> bytes:
+def scene_bytes(session: Session, storage: Storage, fit: Fit, mano_path: Path | None = None) -> bytes:
     """The `.viser` recording of a fit's sample."""
     key = _key(fit)
     cached = _cached(key)

@@ -15,12 +15,15 @@ from collections import defaultdict
 from dataclasses import dataclass, field
 from typing import Any
 
+import cv2
 import numpy as np
 from celery.exceptions import SoftTimeLimitExceeded
+from sqlalchemy import select
 from sqlalchemy.exc import DataError, IntegrityError
 
 from backend.models.capture import Sample
 from backend.models.enums import JobState, SampleState
+from backend.models.jobs import Job
 from backend.services import jobs, records
 from backend.services.errors import DomainError
 from backend.services.masks import encode_png
@@ -29,7 +32,7 @@ from workers.capture.schema import CaptureError
 from workers.fitting.config import FitConfig, LossWeights
 from workers.fitting.inputs import FitInputError
 from workers.tasks.context import WorkerContext
-from workers.tasks.inputs import FitInput, InputError, fit_input
+from workers.tasks.inputs import FitInput, InputError, fit_input, load_frames
 from workers.tasks.progress import JobCancelledError, ProgressReporter
 
 log = logging.getLogger(__name__)
@@ -74,11 +77,7 @@ def run_fit_jobs(ctx: WorkerContext, job_ids: list[int], *, parent: tuple[int, f
     alive while they run."""
     started = time.perf_counter()
     summary = FitSummary()
-    claimed: list[FitInput] = []
-    for job_id in job_ids:
-        fi = _claim_and_load(ctx, job_id, summary)
-        if fi is not None:
-            claimed.append(fi)
+    claimed = _claim_and_load_all(ctx, job_ids, summary)
     groups: dict[tuple[str, str], list[FitInput]] = defaultdict(list)
     for fi in claimed:
         groups[(fi.rig.digest, fi.source)].append(fi)
@@ -96,9 +95,10 @@ def run_fit_jobs(ctx: WorkerContext, job_ids: list[int], *, parent: tuple[int, f
             done += len(group)
     except (SoftTimeLimitExceeded, JobCancelledError) as exc:
         reason = "time limit exceeded" if isinstance(exc, SoftTimeLimitExceeded) else "cancelled"
-        for fi in claimed:
-            if fi.job_id not in summary.failed and not jobs_final(ctx, fi.job_id):
-                _record_failure(ctx, fi.sample_id, fi.job_id, f"fit stopped: {reason}", summary)
+        with ctx.session_factory.begin() as session:
+            for fi in claimed:
+                if fi.job_id not in summary.failed and not jobs.is_final(session, fi.job_id):
+                    _record_failure_in(session, fi.sample_id, fi.job_id, f"fit stopped: {reason}", summary)
         if isinstance(exc, SoftTimeLimitExceeded):
             log.warning("fit batch %s stopped at its time limit", job_ids)
     summary.seconds = time.perf_counter() - started
@@ -123,38 +123,49 @@ def run_fit_jobs_batched(ctx: WorkerContext, job_ids: list[int], *, round_job_id
     return total.to_dict()
 
 
-def jobs_final(ctx: WorkerContext, job_id: int) -> bool:
-    with ctx.session_factory() as session:
-        return jobs.is_final(session, job_id)
+def _claim_and_load_all(ctx: WorkerContext, job_ids: list[int], summary: FitSummary) -> list[FitInput]:
+    """Claim the jobs and load their inputs in one transaction (one commit per batch: on SQLite each commit
+    is a disk sync), each job in a savepoint of its own, so that one bad job changes nothing for the others."""
+    claimed: list[FitInput] = []
+    failures: list[tuple[int, int, str]] = []
+    with ctx.session_factory.begin() as session:
+        sample_ids = [s for s in session.execute(select(Job.sample_id).where(Job.id.in_(job_ids))).scalars() if s]
+        try:
+            frames = load_frames(ctx, session, sample_ids)
+        except SAMPLE_ERRORS:
+            frames = {}  # one bad sample: each is loaded (and fails) on its own below
+        for job_id in job_ids:
+            sample_id = None
+            try:
+                with session.begin_nested():
+                    job = ctx.claim(session, job_id)
+                    if job is None:
+                        summary.skipped.append(job_id)
+                        continue
+                    sample_id = job.sample_id
+                    problem = _not_fittable(session, job)
+                    if problem:
+                        jobs.finish(session, job_id, JobState.failed, error=problem)
+                        summary.failed[job_id] = problem
+                        continue
+                    claimed.append(fit_input(ctx, session, job, frames))
+            except SAMPLE_ERRORS as exc:  # the savepoint is rolled back: the job is as it was
+                message = getattr(exc, "message", None) or str(exc)
+                log.warning("fit job %s: cannot load inputs: %s", job_id, message)
+                if sample_id is not None:
+                    failures.append((sample_id, job_id, f"inputs: {message}"))
+        for sample_id, job_id, error in failures:
+            _record_failure_in(session, sample_id, job_id, error, summary)
+    return claimed
 
 
-def _claim_and_load(ctx: WorkerContext, job_id: int, summary: FitSummary) -> FitInput | None:
-    sample_id = None
-    try:
-        with ctx.session_factory.begin() as session:
-            job = ctx.claim(session, job_id)
-            if job is None:
-                summary.skipped.append(job_id)
-                return None
-            sample_id = job.sample_id
-            if job.kind != "fit":
-                jobs.finish(session, job_id, JobState.failed, error=f"job {job_id} is a {job.kind} job, not a fit")
-                summary.failed[job_id] = "not a fit job"
-                return None
-            state = session.get(Sample, job.sample_id).state if job.sample_id is not None else None
-            if state != SampleState.fitting:
-                jobs.finish(session, job_id, JobState.failed,
-                            error=f"sample {job.sample_id} is '{state}', not 'fitting'; nothing to fit")
-                summary.failed[job_id] = f"sample is {state}"
-                return None
-            return fit_input(ctx, session, job)
-    except SAMPLE_ERRORS as exc:
-        message = getattr(exc, "message", None) or str(exc)
-        log.warning("fit job %s: cannot load inputs: %s", job_id, message)
-        if sample_id is not None:
-            # The claim rolled back with the failed load; record the failure on its own.
-            _record_failure(ctx, sample_id, job_id, f"inputs: {message}", summary)
-        return None
+def _not_fittable(session: Any, job: Any) -> str | None:
+    if job.kind != "fit":
+        return f"job {job.id} is a {job.kind} job, not a fit"
+    state = session.get(Sample, job.sample_id).state if job.sample_id is not None else None
+    if state != SampleState.fitting:
+        return f"sample {job.sample_id} is '{state}', not 'fitting'; nothing to fit"
+    return None
 
 
 def _fit_group(ctx: WorkerContext, engine: Any, group: list[FitInput], tick: Any, summary: FitSummary) -> None:
@@ -179,38 +190,57 @@ def _fit_group(ctx: WorkerContext, engine: Any, group: list[FitInput], tick: Any
         for fi in valid:
             _fit_group(ctx, engine, [fi], tick, summary)
         return
-    for fi, result in zip(valid, results, strict=True):
-        _record(ctx, fi, result, engine.config, summary)
+    _record_all(ctx, list(zip(valid, results, strict=True)), engine.config, summary)
 
 
-def _record(ctx: WorkerContext, fi: FitInput, result: Any, config: FitConfig, summary: FitSummary) -> None:
-    # Model masks are the HandSegNet labels of later rounds and the reviewers' overlay: stored as files.
-    mask_keys = {}
-    for view_id, mask in zip(fi.view_ids, result.model_masks, strict=True):
-        key = f"fits/sample-{fi.sample_id}/job-{fi.job_id}/view-{view_id}.png"
-        ctx.storage.put_bytes(key, encode_png(mask))
-        mask_keys[str(view_id)] = key
-    ious = {view_id: float(min(1.0, max(0.0, iou)))
-            for view_id, iou in zip(fi.view_ids, result.diagnostics.iou_per_view, strict=True) if np.isfinite(iou)}
-    diagnostics = json_safe({
-        **result.diagnostics.to_dict(), "model_mask_keys": mask_keys, "hand_model": result.hand_model,
-        "weights": {"kp2d": config.weights.kp2d, "kp3d": config.weights.kp3d, "seg": config.weights.seg},
-        "iterations_schedule": [config.global_iterations, config.full_iterations]})
-    try:
-        with ctx.session_factory.begin() as session:
-            fit = records.record_fit(
-                session, fi.sample_id, params=result.theta.tolist(), keypoints_m=result.keypoints.tolist(),
-                view_ious=ious, diagnostics=diagnostics, inputs=json_safe(fi.inputs), model_file=result.hand_model,
-                thresholds=HeuristicThresholds.from_settings(ctx.settings), job_id=fi.job_id,
-                prediction_id=fi.prediction_id)
-            session.flush()
-            summary.fitted.append(fit.id)
-    except (DomainError, IntegrityError) as exc:  # cancelled, or recorded by a concurrent duplicate delivery
-        log.info("fit of job %s not recorded: %s", fi.job_id, getattr(exc, "message", exc))
-        summary.skipped.append(fi.job_id)
-    except DataError as exc:  # the database refused a value: this fit can never be stored, so say so
-        log.error("fit of job %s could not be stored: %s", fi.job_id, exc)
-        _record_failure(ctx, fi.sample_id, fi.job_id, f"fit could not be stored: {exc.orig}", summary)
+def _record_all(ctx: WorkerContext, fitted: list[tuple[FitInput, Any]], config: FitConfig, summary: FitSummary
+                ) -> None:
+    """Store the model masks, then record every fit in one transaction, each in its own savepoint."""
+    rows = []
+    for fi, result in fitted:
+        # Model masks are the HandSegNet labels of later rounds and the reviewers' overlay: stored as files.
+        mask_keys = {}
+        for view_id, mask in zip(fi.view_ids, result.model_masks, strict=True):
+            key = f"fits/sample-{fi.sample_id}/job-{fi.job_id}/view-{view_id}.png"
+            ctx.storage.put_bytes(key, _png(mask))
+            mask_keys[str(view_id)] = key
+        ious = {view_id: float(min(1.0, max(0.0, iou)))
+                for view_id, iou in zip(fi.view_ids, result.diagnostics.iou_per_view, strict=True) if np.isfinite(iou)}
+        diagnostics = json_safe({
+            **result.diagnostics.to_dict(), "model_mask_keys": mask_keys, "hand_model": result.hand_model,
+            "weights": {"kp2d": config.weights.kp2d, "kp3d": config.weights.kp3d, "seg": config.weights.seg},
+            "iterations_schedule": [config.global_iterations, config.full_iterations]})
+        rows.append((fi, result, ious, diagnostics))
+    unstorable: list[tuple[FitInput, str]] = []
+    thresholds = HeuristicThresholds.from_settings(ctx.settings)
+    with ctx.session_factory.begin() as session:
+        for fi, result, ious, diagnostics in rows:
+            try:
+                with session.begin_nested():
+                    fit = records.record_fit(
+                        session, fi.sample_id, params=result.theta.tolist(), keypoints_m=result.keypoints.tolist(),
+                        view_ious=ious, diagnostics=diagnostics, inputs=json_safe(fi.inputs),
+                        model_file=result.hand_model, thresholds=thresholds, job_id=fi.job_id,
+                        prediction_id=fi.prediction_id)
+                    session.flush()
+                summary.fitted.append(fit.id)
+            except (DomainError, IntegrityError) as exc:  # cancelled, or recorded by a concurrent duplicate
+                log.info("fit of job %s not recorded: %s", fi.job_id, getattr(exc, "message", exc))
+                summary.skipped.append(fi.job_id)
+            except DataError as exc:  # the database refused a value: this fit can never be stored, so say so
+                log.error("fit of job %s could not be stored: %s", fi.job_id, exc)
+                unstorable.append((fi, f"fit could not be stored: {exc.orig}"))
+        for fi, error in unstorable:
+            _record_failure_in(session, fi.sample_id, fi.job_id, error, summary)
+
+
+def _png(mask: np.ndarray) -> bytes:
+    """An 8-bit grayscale PNG (0 / 255) of a bool mask; OpenCV's encoder at low compression, a few times
+    faster than the API's pure-numpy encoder on the fit's hot path."""
+    ok, data = cv2.imencode(".png", np.asarray(mask, np.uint8) * 255, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    if not ok:
+        return encode_png(mask)
+    return data.tobytes()
 
 
 def json_safe(value: Any) -> Any:
@@ -229,9 +259,14 @@ def json_safe(value: Any) -> Any:
 
 
 def _record_failure(ctx: WorkerContext, sample_id: int, job_id: int, error: str, summary: FitSummary) -> None:
+    with ctx.session_factory.begin() as session:
+        _record_failure_in(session, sample_id, job_id, error, summary)
+
+
+def _record_failure_in(session: Any, sample_id: int, job_id: int, error: str, summary: FitSummary) -> None:
     summary.failed[job_id] = error
     try:
-        with ctx.session_factory.begin() as session:
+        with session.begin_nested():
             records.record_fit_failure(session, sample_id, job_id, error[:2000])
     except DomainError as exc:
         log.warning("failure of fit job %s not recorded: %s", job_id, exc.message)

@@ -154,11 +154,14 @@ class FitInput:
     round_id: int | None = None
 
 
-def fit_input(ctx: WorkerContext, session: Session, job: Job) -> FitInput:
-    """The fit input of a fit job: from the annotators' clicks and masks, or from a prediction."""
+def fit_input(ctx: WorkerContext, session: Session, job: Job, frames: dict[int, SampleFrame] | None = None
+              ) -> FitInput:
+    """The fit input of a fit job: from the annotators' clicks and masks, or from a prediction. `frames`:
+    frames already loaded for several jobs (load_frames), to save the queries."""
     if job.sample_id is None:
         raise InputError(f"fit job {job.id} names no sample")
-    frames = load_frames(ctx, session, [job.sample_id])
+    if frames is None or job.sample_id not in frames:
+        frames = load_frames(ctx, session, [job.sample_id])
     if job.sample_id not in frames:
         raise InputError(f"sample {job.sample_id} of fit job {job.id} no longer exists")
     frame = frames[job.sample_id]

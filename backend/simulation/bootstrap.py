@@ -91,6 +91,9 @@ class RoundReport:
     reviewed: int
     reviewed_vertex_mm: float | None
     reviewed_vertex_mm_median: float | None
+    reviewed_from_predictions: int
+    reviewed_from_predictions_median_mm: float | None
+    reviewed_after_annotation_median_mm: float | None
     mvnet_predictions: int
     mvnet_keypoint_mm: float | None
     mvnet_auc: float | None
@@ -101,6 +104,10 @@ class RoundReport:
 
 def _mean(values: list[float]) -> float | None:
     return float(np.mean(values)) if values else None
+
+
+def _median(values: list[float]) -> float | None:
+    return float(np.median(values)) if values else None
 
 
 class BootstrapSimulation:
@@ -243,7 +250,10 @@ class BootstrapSimulation:
                           and int(row["added_total"]) == sum(int(row["added"][s]) for s in STREAMS)
                           == len(this_round))
         self._previous_size = size
-        reviewed_mm = [r.vertex_mm for r in work.reviews] if work is not None else []
+        reviews = work.reviews if work is not None else []
+        reviewed_mm = [r.vertex_mm for r in reviews]
+        from_predictions = [r.vertex_mm for r in reviews if not r.after_annotation]
+        after_annotation = [r.vertex_mm for r in reviews if r.after_annotation]
         return RoundReport(
             index=index, added={s: int(row["added"][s]) for s in STREAMS}, added_total=int(row["added_total"]),
             dataset_size=size, human_hours=self.ledger.hours(index),
@@ -256,7 +266,9 @@ class BootstrapSimulation:
                                           for s in STREAMS},
             added_vertex_mm=_mean(errors_of(this_round)), reviewed=len(reviewed_mm),
             reviewed_vertex_mm=_mean(reviewed_mm),
-            reviewed_vertex_mm_median=float(np.median(reviewed_mm)) if reviewed_mm else None,
+            reviewed_vertex_mm_median=_median(reviewed_mm), reviewed_from_predictions=len(from_predictions),
+            reviewed_from_predictions_median_mm=_median(from_predictions),
+            reviewed_after_annotation_median_mm=_median(after_annotation),
             mvnet_predictions=len(predictions),
             mvnet_keypoint_mm=float(mvnet_errors.mean() * 1000) if mvnet_errors is not None else None,
             mvnet_auc=summarise_errors(mvnet_errors).auc if mvnet_errors is not None else None,

@@ -37,13 +37,15 @@ class ReviewerConfig:
 
 @dataclass(frozen=True)
 class ReviewOutcome:
-    """One decision: what was decided, on what true error, and whether it was a mistake."""
+    """One decision: what was decided, on what true error, whether it was a mistake, and whether the fit
+    came after an annotation pass of this team (else: from predictions)."""
 
     sample_id: int
     decision: str
     vertex_mm: float
     mistake: bool
     stream: str | None
+    after_annotation: bool
 
 
 class SimulatedReviewer:
@@ -86,4 +88,4 @@ class SimulatedReviewer:
                         rejects=int(decision == "reject"), sent_to_annotation=int(decision == "annotate"),
                         reviewer_mistakes=int(mistake))
         return ReviewOutcome(sample_id=sample_id, decision=decision, vertex_mm=error.vertex_mm, mistake=mistake,
-                             stream=result.get("stream"))
+                             stream=result.get("stream"), after_annotation=annotation_attempts.get(sample_id, 0) > 0)

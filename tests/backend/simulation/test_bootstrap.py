@@ -119,6 +119,10 @@ def test_bootstrap_books_add_up_round_by_round(env_with, sqlite_url, capture_dir
     assert summary["initial_set"] == 4
     assert rounds[0]["added"] == {"heuristic": 0, "manual": 0, "annotated": 4} and rounds[0]["dataset_size"] == 4
     assert rounds[0]["accepted_vertex_mm"] == pytest.approx(2.0, abs=1e-6)
+    assert rounds[0]["reviewed_from_predictions"] == 0
+    assert rounds[0]["reviewed_after_annotation_median_mm"] == pytest.approx(2.0, abs=1e-6)
+    # Round 1: the reviewers saw fits from predictions (3 mm, or 18 mm when wrong) and the re-annotated ones.
+    assert rounds[1]["reviewed_from_predictions"] == rounds[1]["reviewed"] - rounds[1]["effort"]["submissions"] > 0
     for before, after in itertools.pairwise(rounds):
         assert after["dataset_size"] == before["dataset_size"] + sum(after["added"].values())
     stats = admin.statistics()

@@ -40,6 +40,7 @@ def test_simulate_d0_through_the_real_server_and_worker(capture_dir, tmp_path):
     assert d0["added"] == {"heuristic": 0, "manual": 0, "annotated": 4} and summary["dataset_size"] == 4
     assert summary["bookkeeping_ok"] and summary["failure"] is None
     assert 0 < d0["accepted_vertex_mm"] < 40 and d0["reviewed_vertex_mm"] == pytest.approx(d0["accepted_vertex_mm"])
+    assert d0["reviewed_from_predictions"] == 0
     hours = (d0["effort"]["clicks"] * 2 + d0["effort"]["mask_corrections"] * 12 + 4 * 5) / 3600
     assert summary["human_hours"] == pytest.approx(hours)
     assert summary["labels_per_human_hour"] == pytest.approx(4 / hours)

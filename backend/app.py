@@ -11,7 +11,7 @@ from fastapi import FastAPI
 from backend.api import errors, frontend
 from backend.api.limits import BodySizeLimit
 from backend.api.main import api_router
-from backend.db.session import create_engine_from_url, make_session_factory
+from backend.db.session import create_engine_from_url, make_session_factory, read_only_engine
 from backend.services.auth_cache import AuthCache, watch_user_changes
 from backend.services.jobs import JobQueue
 from backend.services.storage import LocalDiskStorage, Storage
@@ -33,6 +33,7 @@ def create_app(settings: Settings | None = None, *, job_queue: JobQueue | None =
     app.state.settings = settings
     app.state.engine = engine
     app.state.session_factory = make_session_factory(engine)
+    app.state.read_session_factory = make_session_factory(read_only_engine(engine))
     app.state.auth_cache = AuthCache(settings.auth_cache_seconds)
     watch_user_changes(app.state.session_factory, app.state.auth_cache)
     if job_queue is None:

@@ -27,13 +27,20 @@ async def get_settings(request: Request) -> Settings:  # async: no I/O, so no th
     return request.app.state.settings
 
 
+_SAFE_METHODS = frozenset({"GET", "HEAD"})
+
+
 async def get_session(request: Request) -> AsyncIterator[Session]:
     """One transaction per request: committed when the route returns (before the response is sent),
     rolled back on any error, so a failed request writes nothing.
 
     Async, with only the commit (or rollback) in the thread pool: creating a session does no I/O (the
-    connection is taken at its first statement), and each thread-pool hop showed in the profile."""
-    session: Session = request.app.state.session_factory()
+    connection is taken at its first statement), and each thread-pool hop showed in the profile.
+    GET and HEAD requests only read: their transactions do not take SQLite's writer lock
+    (backend.db.session.read_only_engine), so image serving never queues behind submissions."""
+    state = request.app.state
+    factory = state.read_session_factory if request.method in _SAFE_METHODS else state.session_factory
+    session: Session = factory()
     try:
         yield session
     except BaseException:

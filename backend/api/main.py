@@ -4,13 +4,28 @@ from __future__ import annotations
 
 from fastapi import APIRouter
 
-from backend.api.routes import annotate, auth, exports, files, health, imports, jobs, review, rounds, users
-from backend.api.routes import activity, dashboard, overlays, prefetch, viewer  # the browser UI's routes
-from backend.api.routes.annotation_set import router as annotation_set_router
+from backend.api.routes import (
+    activity,
+    annotate,
+    annotation_set,
+    auth,
+    dashboard,
+    exports,
+    files,
+    health,
+    imports,
+    jobs,
+    overlays,
+    prefetch,
+    review,
+    rounds,
+    users,
+    viewer,
+)
 
 api_router = APIRouter(prefix="/api")
-for module in (health, auth, users, annotate, review, files, rounds, jobs, exports, imports):
-    api_router.include_router(module.router)
-api_router.include_router(annotation_set_router)  # admin: which samples people annotate (e.g. D_0)
-for module in (prefetch, overlays, viewer, activity, dashboard):
+# The service's own resources, then the admin's choice of what people annotate (e.g. D_0), then the routes the
+# browser UI needs (prefetch, overlays, 3D scenes, activity timing, dashboard).
+for module in (health, auth, users, annotate, review, files, rounds, jobs, exports, imports, annotation_set,
+               prefetch, overlays, viewer, activity, dashboard):
     api_router.include_router(module.router)

@@ -13,7 +13,8 @@ def create_engine_from_url(url: str, *, pool_size: int = 10, max_overflow: int =
 
     SQLite: every transaction starts with BEGIN IMMEDIATE, so a transaction holds the single writer lock
     from its first statement; a lease taken by select-then-update cannot race another writer. WAL mode
-    lets readers of other connections proceed meanwhile.
+    lets readers of other connections proceed meanwhile. Connections of `read_only_engine(engine)` begin
+    deferred instead (plain BEGIN): they read a snapshot without taking the writer lock.
     """
     if url.startswith("sqlite"):
         engine = create_engine(url, echo=echo, connect_args={"check_same_thread": False, "timeout": 30})
@@ -30,10 +31,21 @@ def create_engine_from_url(url: str, *, pool_size: int = 10, max_overflow: int =
 
         @event.listens_for(engine, "begin")
         def _sqlite_begin(connection: Any) -> None:
-            connection.exec_driver_sql("BEGIN IMMEDIATE")
+            read_only = connection.get_execution_options().get(READ_ONLY_OPTION, False)
+            connection.exec_driver_sql("BEGIN" if read_only else "BEGIN IMMEDIATE")
 
         return engine
     return create_engine(url, echo=echo, pool_size=pool_size, max_overflow=max_overflow, pool_pre_ping=True)
+
+
+READ_ONLY_OPTION = "handloop_read_only"
+
+
+def read_only_engine(engine: Engine) -> Engine:
+    """The same engine and pool for transactions that only read (GET requests). On SQLite they begin deferred,
+    so serving images, statistics or progress never waits for (or blocks) the single writer; a write in such a
+    transaction would have to upgrade its lock and may fail as 'database busy'. PostgreSQL: unchanged."""
+    return engine.execution_options(**{READ_ONLY_OPTION: True})
 
 
 def make_session_factory(engine: Engine) -> sessionmaker[Session]:

@@ -45,10 +45,9 @@ class ClickRow:
 
 
 def end_reads(session: Session) -> None:
-    """End a read-only transaction before the CPU work (projections, meshes, images): on SQLite every
-    transaction holds the single writer lock (BEGIN IMMEDIATE, backend.db.session), so keeping it open
-    would make other users' submissions and decisions wait. Nothing was written; the rows read stay
-    loaded (expire_on_commit=False)."""
+    """End a read-only transaction before the CPU work (projections, meshes, images), so the request holds
+    no database connection (nor, on SQLite, a WAL snapshot) while it computes. Nothing was written; the rows
+    read stay loaded (expire_on_commit=False)."""
     if session.new or session.dirty or session.deleted:
         raise RuntimeError("end_reads on a session with pending changes")
     session.commit()

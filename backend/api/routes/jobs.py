@@ -45,7 +45,7 @@ def job_events(job_id: int, request: Request, session: SessionDep, settings: Set
                _admin: AdminUser) -> StreamingResponse:
     """Server-sent events: one `progress` event per change, then `done` when the job is final."""
     jobs.get(session, job_id)  # 404 before the stream starts
-    factory = request.app.state.session_factory
+    factory = request.app.state.read_session_factory  # polls must not hold SQLite's writer lock
     poll_s = settings.sse_poll_seconds
 
     def snapshot() -> dict:

@@ -11,7 +11,9 @@ Per repeat, on its own samples (the two paths in alternating order):
   (embedded filesystem broker by default, or Redis), clock from the first send until the last job row's
   finished_at: claiming, loading clicks and masks from the database and storage, fitting, storing model masks,
   recording fits (heuristic routing included) and the broker's latency.
-`celery_overhead_pct` = 100 (t_celery / t_direct - 1) over all repeats. Both paths use one torch thread.
+`celery_overhead_pct` = 100 (t_celery / t_direct - 1) over all repeats; `handling_overhead_pct` compares
+t_celery with the seconds the worker itself spent inside FittingEngine.fit, so the fits' run-to-run spread
+(large on a shared machine) cancels out. Both paths use one torch thread.
 """
 
 from __future__ import annotations
@@ -130,9 +132,10 @@ def _direct(engine: Any, observations: list[Any], batch: int) -> float:
 
 
 def _through_celery(client: Any, factory: Any, job_ids: list[int], batch: int
-                    ) -> tuple[float, dict[str, int], float]:
-    """Seconds from sending `job_ids` as fit_batch tasks until every job row is final, their states, and the
-    seconds the worker's fit service reported (claim, load, fit, record; without delivery)."""
+                    ) -> tuple[float, dict[str, int], float, float]:
+    """Seconds from sending `job_ids` as fit_batch tasks until every job row is final, their states, the
+    seconds the worker's fit service reported (claim, load, fit, record; without delivery) and the part of
+    those inside FittingEngine.fit."""
     from backend.services.celery_queue import TASK_FIT_BATCH
 
     t0 = time.time()  # wall clock, as the rows' finished_at
@@ -140,8 +143,8 @@ def _through_celery(client: Any, factory: Any, job_ids: list[int], batch: int
             for start in range(0, len(job_ids), batch)]
     states, finished = _wait_final(factory, job_ids, 3600)
     elapsed = finished - t0
-    service_s = sum(result.get(timeout=60)["seconds"] for result in sent)
-    return elapsed, states, service_s
+    results = [result.get(timeout=60) for result in sent]
+    return elapsed, states, sum(r["seconds"] for r in results), sum(r["fit_seconds"] for r in results)
 
 
 def run(*, quick: bool = False, emit_json: bool = False, broker: str = "embedded", batch_size: int | None = None,
@@ -212,14 +215,14 @@ def run(*, quick: bool = False, emit_json: bool = False, broker: str = "embedded
             # Alternate the order: the machine's load drifts, and neither path should always go first.
             if r % 2 == 0:
                 t_direct = _direct(engine, [fi.observations for fi in inputs], batch)
-                t_celery, states, t_service = _through_celery(client, factory, subset, batch)
+                t_celery, states, t_service, t_engine = _through_celery(client, factory, subset, batch)
             else:
-                t_celery, states, t_service = _through_celery(client, factory, subset, batch)
+                t_celery, states, t_service, t_engine = _through_celery(client, factory, subset, batch)
                 t_direct = _direct(engine, [fi.observations for fi in inputs], batch)
             print(f"[bench jobs] repeat {r + 1}: {len(subset)} fits, direct {t_direct:.1f} s, Celery {t_celery:.1f} s "
                   f"{states}", file=sys.stderr)
             rows.append({"fits": len(subset), "direct_s": round(t_direct, 3), "celery_s": round(t_celery, 3),
-                         "worker_service_s": round(t_service, 3),
+                         "worker_service_s": round(t_service, 3), "worker_engine_s": round(t_engine, 3),
                          "job_states": states, "load_avg_1min": round(os.getloadavg()[0], 2)})
         total_direct = sum(row["direct_s"] for row in rows)
         total_celery = sum(row["celery_s"] for row in rows)
@@ -229,7 +232,11 @@ def run(*, quick: bool = False, emit_json: bool = False, broker: str = "embedded
             "celery_overhead_pct": round(100 * (total_celery / total_direct - 1), 2),
             # The machine's load drifts between repeats: the median of per-repeat ratios is the steadier figure.
             "celery_overhead_pct_median": round(100 * (float(np.median(ratios)) - 1), 2),
+            # What Celery and the job services add to the same process's fitting time (broker, claim, loading,
+            # recording): immune to the fits' own run-to-run spread on a loaded machine.
+            "handling_overhead_pct": round(100 * (total_celery / sum(row["worker_engine_s"] for row in rows) - 1), 2),
             "worker_service_s": round(sum(row["worker_service_s"] for row in rows), 3),
+            "worker_engine_s": round(sum(row["worker_engine_s"] for row in rows), 3),
             "fits_per_s_celery": round(n / total_celery, 4),
             "fits_per_s_direct": round(n / total_direct, 4),
             "fits": n,

@@ -24,10 +24,10 @@ import httpx
 import numpy as np
 
 from backend.simulation.annotator import AnnotatorConfig, SimulatedAnnotator
-from backend.simulation.client import ApiClient
+from backend.simulation.client import ApiClient, ApiError
 from backend.simulation.costs import PAPER_FULL_ANNOTATION_S, HumanLedger, UnitCosts
 from backend.simulation.reviewer import ReviewerConfig, SimulatedReviewer
-from backend.simulation.team import Team, TeamWork, wait_for_job, wait_until_idle
+from backend.simulation.team import SimulationTimeoutError, Team, TeamWork, wait_for_job, wait_until_idle
 from backend.simulation.truth import GroundTruthIndex
 from workers.capture import read_capture
 
@@ -186,26 +186,32 @@ class BootstrapSimulation:
         started = time.perf_counter()
         team = self.prepare(capture_dir, initial_every)
         reports: list[RoundReport] = []
-        round_started = time.perf_counter()
-        work = team.work_until_done(0, self.wait_for_workers)
-        reports.append(self._report(0, None, round_started, work))
-        self._announce(reports[-1])
         failure = None
-        for index in range(1, self.config.rounds + 1):
+        for index in range(self.config.rounds + 1):
             round_started = time.perf_counter()
-            launched = self.admin.launch_round(note=f"bootstrap simulation round {index}")
-            job = self.run_round(launched["job_id"])
-            job_info = {k: job.get(k) for k in ("id", "state", "message", "error")}
-            if job["state"] != "succeeded":
-                failure = f"round {index}: the round job ended '{job['state']}': {job.get('error') or job['message']}"
-                log.error("%s", failure)
+            job_info = None
+            try:
+                if index > 0:
+                    launched = self.admin.launch_round(note=f"bootstrap simulation round {index}")
+                    job = self.run_round(launched["job_id"])
+                    job_info = {k: job.get(k) for k in ("id", "state", "message", "error")}
+                    if job["state"] != "succeeded":
+                        failure = (f"round {index}: the round job ended '{job['state']}': "
+                                   f"{job.get('error') or job['message']}")
+                        reports.append(self._report(index, job_info, round_started, None))
+                        break
+                    self.wait_for_workers()
+                    self.admin.build_review_queue()  # the round job built it; this adds fits that finished later
+                work = team.work_until_done(index, self.wait_for_workers)
+            except (ApiError, SimulationTimeoutError) as exc:
+                # The rounds measured so far are still worth reporting; say where and why it stopped.
+                failure = f"round {index}: {exc}"
                 reports.append(self._report(index, job_info, round_started, None))
                 break
-            self.wait_for_workers()
-            self.admin.build_review_queue()  # the round job built it; this picks up fits that finished later
-            work = team.work_until_done(index, self.wait_for_workers)
             reports.append(self._report(index, job_info, round_started, work))
             self._announce(reports[-1])
+        if failure:
+            log.error("%s", failure)
         return self.summary(reports, time.perf_counter() - started, failure)
 
     def _announce(self, report: RoundReport) -> None:

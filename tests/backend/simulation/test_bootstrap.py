@@ -27,6 +27,7 @@ from backend.simulation.bootstrap import BootstrapConfig, BootstrapSimulation
 from backend.simulation.client import ApiClient
 from backend.simulation.report import write_plots
 from backend.simulation.reviewer import ReviewerConfig
+from backend.simulation.team import SimulationTimeoutError
 
 
 @pytest.fixture(scope="module")
@@ -173,3 +174,22 @@ def test_a_failed_round_job_ends_the_run_and_says_why(env_with, sqlite_url, capt
     assert summary["rounds_completed"] == 0 and [r["index"] for r in summary["rounds"]] == [0, 1]
     assert "round 1" in summary["failure"] and "needs 8 samples" in summary["failure"]
     assert summary["rounds"][1]["round_job"]["state"] == "failed" and summary["bookkeeping_ok"]
+
+
+def test_a_timeout_keeps_the_rounds_measured_so_far(env_with, sqlite_url, capture_dir, tmp_path):
+    env = env_with(sqlite_url, tmp_path / "data")
+    admin = ApiClient(env.client, token_of(env, Role.admin))
+    sim = BootstrapSimulation(env.client, admin, BootstrapConfig(rounds=2, annotator=AnnotatorConfig(
+        max_mask_corrections=0)))
+    workers = FakeWorkers(env, sim)
+    sim.wait_for_workers = workers.fit_submissions
+
+    def stuck_round(job_id: int) -> dict:
+        raise SimulationTimeoutError(f"job {job_id} (round) still running after 3600 s: training mvnet")
+
+    sim.run_round = stuck_round
+    summary = sim.run(capture_dir, initial_every=3)
+    assert summary["failure"].startswith("round 1: job ")
+    assert summary["failure"].endswith("(round) still running after 3600 s: training mvnet")
+    assert [r["index"] for r in summary["rounds"]] == [0, 1] and summary["rounds"][0]["dataset_size"] == 4
+    assert summary["dataset_size"] == 4 and summary["bookkeeping_ok"]

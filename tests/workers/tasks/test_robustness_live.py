@@ -107,7 +107,11 @@ def private_redis():
         def start(self) -> None:
             args = [binary, "--port", str(port), "--bind", "127.0.0.1", "--save", "", "--appendonly", "no"]
             self.process = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-            wait_until(lambda: redis_available(self.url) is None, 20, "private redis up")
+            try:
+                wait_until(lambda: redis_available(self.url) is None, 20, "private redis up")
+            except BaseException:
+                self.stop()  # never leave a server behind
+                raise
 
         def stop(self) -> None:
             if self.process is not None and self.process.poll() is None:
@@ -116,8 +120,10 @@ def private_redis():
 
     server = Server()
     server.start()
-    yield server
-    server.stop()
+    try:
+        yield server
+    finally:
+        server.stop()
 
 
 @pytest.mark.redis

@@ -196,6 +196,17 @@ def _undistort(image: np.ndarray, view: ViewRecord, nearest: bool = False) -> np
                      borderMode=cv2.BORDER_CONSTANT)
 
 
+def cut_and_paste(image_rgb: np.ndarray, foreground: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """The supplementary's Cut&Paste: the image blended onto a random background of the networks' pool
+    (workers/nets/data.py) with the foreground mask as alpha, softened by one pixel; the foreground keeps
+    its colours (the training augmentation of workers/nets may recolour it; a dataset must not)."""
+    from workers.nets.data import random_background
+
+    alpha = cv2.GaussianBlur(np.asarray(foreground, np.float32), (3, 3), 0)[..., None]
+    background = random_background(image_rgb.shape[0], image_rgb.shape[1], rng).astype(np.float32)
+    return np.clip(image_rgb.astype(np.float32) * alpha + background * (1 - alpha), 0, 255).astype(np.uint8)
+
+
 def _pinhole(view: ViewRecord):
     from workers.geometry.camera import Camera
 
@@ -233,7 +244,6 @@ def write_freihand(samples: Sequence[SampleRecord], out_dir: Path, read_bytes: C
     Everything is written into a temporary sibling folder that replaces `out_dir` at the end: a failed
     export leaves nothing behind.
     """
-    from workers.nets.data import cut_and_paste
     from workers.rendering.rasterizer import model_mask
 
     options = options or ExportOptions()
@@ -301,7 +311,7 @@ def write_freihand(samples: Sequence[SampleRecord], out_dir: Path, read_bytes: C
                                                f"{where} foreground mask"), view, nearest=True)
                     rgb = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
                     for version in range(1, options.composites + 1):
-                        composite = cut_and_paste(rgb, np.where(alpha >= 128, 255, 0).astype(np.uint8), rng)
+                        composite = cut_and_paste(rgb, alpha >= 128, rng)
                         cv2.imwrite(str(tmp / set_name / "rgb" / f"{i + counts[set_name] * version:08d}.jpg"),
                                     cv2.cvtColor(composite, cv2.COLOR_RGB2BGR), quality)
                         images[set_name] += 1

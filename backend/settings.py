@@ -85,6 +85,9 @@ class Settings(BaseSettings):
     broker_check_cache_s: float = Field(
         default=2.0, ge=0, le=3600, description="The API trusts a successful broker check for this long before "
         "writing jobs (an unreachable broker answers 503 and writes nothing).")
+    fit_dispatch_linger_s: float = Field(
+        default=0.02, ge=0, le=10, description="The API sends annotators' fit jobs to the broker several per message: "
+        "it waits this long for more (at most fit_batch_size) before sending.")
     outbox_poll_s: float = Field(
         default=2.0, gt=0, le=3600, description="How often the API re-sends jobs whose hand-off to the broker failed.")
     job_redispatch_after_s: float = Field(
@@ -116,7 +119,8 @@ class Settings(BaseSettings):
                                             description="A round needs at least this many accepted samples.")
     round_seed: int = Field(default=0, ge=0, description="Seeds training (plus the round index).")
     predict_batch_size: int = Field(default=16, ge=1, le=4096, description="Samples per prediction task.")
-    fit_batch_size: int = Field(default=6, ge=1, le=512, description="Samples per fit task in a round.")
+    fit_batch_size: int = Field(default=6, ge=1, le=512, description="Samples per fit task: a round's batches, "
+                                "and at most this many annotators' fits sent together.")
     fit_global_iterations: int = Field(default=40, ge=1, le=100_000, description="Fit stage 1 iterations.")
     fit_full_iterations: int = Field(default=160, ge=0, le=100_000, description="Fit stage 2 iterations.")
 

@@ -11,8 +11,10 @@ Job state and progress live in the database (services.jobs); Celery's result bac
 from __future__ import annotations
 
 import logging
+import queue
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -176,6 +178,7 @@ class CeleryJobQueue:
         self._session_factory: Any = None
         self._outbox: threading.Thread | None = None
         self._stop = threading.Event()
+        self._fit_sender: BatchingSender | None = None
 
     # -- JobQueue ------------------------------------------------------------------------------------
     def ensure_available(self) -> None:
@@ -195,6 +198,9 @@ class CeleryJobQueue:
         self._ok_until = time.monotonic() + self.settings.broker_check_cache_s
 
     def enqueue(self, job_id: int, kind: str, payload: dict[str, Any] | None = None) -> None:
+        if kind == "fit" and self._fit_sender is not None:
+            self._fit_sender.put(job_id)  # sent with others by the sender thread: off the request's path
+            return
         if not self.send(job_id, kind, payload):
             self._ok_until = 0.0
             self._mark_undispatched(job_id)
@@ -217,6 +223,22 @@ class CeleryJobQueue:
             return False
         return True
 
+    def send_fits(self, job_ids: list[int]) -> bool:
+        """One `handloop.fit` message for several fit jobs (the worker fits them as one batch); False (logged)
+        when the broker refused or is unreachable."""
+        try:
+            self.app.send_task(TASK_FIT, args=[job_ids], queue=ROUTES[TASK_FIT], retry=True,
+                               retry_policy={"max_retries": 1, "interval_start": 0, "interval_step": 0.2})
+        except Exception as exc:  # as in send
+            logger.warning("fit jobs %s not handed to the broker (%s); the outbox will re-send them", job_ids, exc)
+            return False
+        return True
+
+    def _fits_not_sent(self, job_ids: list[int]) -> None:
+        self._ok_until = 0.0
+        for job_id in job_ids:
+            self._mark_undispatched(job_id)
+
     def _mark_undispatched(self, job_id: int) -> None:
         if self._session_factory is None:
             return  # no outbox bound: the job is re-sent after job_redispatch_after_s by any outbox
@@ -236,9 +258,14 @@ class CeleryJobQueue:
         self._stop.clear()
         self._outbox = threading.Thread(target=self._run_outbox, name="handloop-outbox", daemon=True)
         self._outbox.start()
+        self._fit_sender = BatchingSender(self.send_fits, self._fits_not_sent, self.settings.fit_batch_size,
+                                          self.settings.fit_dispatch_linger_s)
 
     def stop(self) -> None:
         self._stop.set()
+        if self._fit_sender is not None:
+            self._fit_sender.close()  # sends what is still buffered
+            self._fit_sender = None
         if self._outbox is not None:
             self._outbox.join(timeout=10)
             self._outbox = None
@@ -253,6 +280,53 @@ class CeleryJobQueue:
                     logger.info("outbox: re-sent %d job(s)", sent)
             except Exception as exc:  # keep the thread alive through database or broker outages
                 logger.warning("outbox pass failed: %s", exc)
+
+
+class BatchingSender:
+    """A thread that hands fit jobs to the broker several per message.
+
+    Publishing one Celery message costs the API process about 2 ms of CPU (measured: the probe in
+    docs/benchmarks.md, `api`), as much as the rest of a submission; annotators' fits arrive many per second
+    at scale, and the worker fits a batch as one optimisation anyway. So `put` only buffers the id; the thread
+    waits up to `linger_s` for more (at most `max_batch`), then sends them as one message. A failed send is
+    reported to `on_failure` (the jobs go back to the outbox)."""
+
+    def __init__(self, send: Callable[[list[int]], bool], on_failure: Callable[[list[int]], None], max_batch: int,
+                 linger_s: float) -> None:
+        self._send, self._on_failure = send, on_failure
+        self._max_batch, self._linger_s = max(1, max_batch), linger_s
+        self._pending: queue.SimpleQueue[int | None] = queue.SimpleQueue()
+        self._thread = threading.Thread(target=self._run, name="handloop-fit-sender", daemon=True)
+        self._thread.start()
+
+    def put(self, job_id: int) -> None:
+        self._pending.put(job_id)
+
+    def close(self, timeout_s: float = 10.0) -> None:
+        self._pending.put(None)
+        self._thread.join(timeout=timeout_s)
+
+    def _run(self) -> None:
+        closing = False
+        while not closing:
+            first = self._pending.get()
+            if first is None:
+                return
+            batch, deadline = [first], time.monotonic() + self._linger_s
+            while len(batch) < self._max_batch:
+                try:
+                    job_id = self._pending.get(timeout=max(0.0, deadline - time.monotonic()))
+                except queue.Empty:
+                    break
+                if job_id is None:
+                    closing = True
+                    break
+                batch.append(job_id)
+            try:
+                if not self._send(batch):
+                    self._on_failure(batch)
+            except Exception:  # keep sending later jobs; these are left to the outbox
+                logger.exception("fit jobs %s: hand-off failed", batch)
 
 
 def _redact(url: str) -> str:

@@ -37,11 +37,12 @@ FIT_LIMITS = {"time_limit": _SETTINGS.fit_task_time_limit_s,
 
 
 @celery_app.task(name=TASK_FIT, ignore_result=True, **FIT_LIMITS)
-def fit(job_id: int) -> dict[str, Any]:
-    """Fit one sample (an annotator's submission, or a single prediction)."""
+def fit(job_ids: int | list[int]) -> dict[str, Any]:
+    """Fit one sample or a few sent together (annotators' submissions, single predictions) as one batch."""
     from workers.tasks.fits import run_fit_jobs
 
-    return run_fit_jobs(get_context(), [int(job_id)]).to_dict()
+    ids = [int(job_ids)] if isinstance(job_ids, int) else [int(i) for i in job_ids]
+    return run_fit_jobs(get_context(), ids).to_dict()
 
 
 @celery_app.task(name=TASK_FIT_BATCH, **FIT_LIMITS)

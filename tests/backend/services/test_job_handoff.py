@@ -3,6 +3,9 @@ the outbox that re-sends jobs whose hand-off failed after their commit."""
 
 from __future__ import annotations
 
+import base64
+import json
+import threading
 from datetime import timedelta
 
 import pytest
@@ -12,7 +15,7 @@ from backend.db.base import utcnow
 from backend.models.enums import JobKind, JobState, Role
 from backend.models.jobs import Job
 from backend.services import dispatch, jobs
-from backend.services.celery_queue import CeleryJobQueue, task_for_job
+from backend.services.celery_queue import BatchingSender, CeleryJobQueue, task_for_job
 from backend.services.errors import ServiceUnavailableError
 from backend.services.jobs import InMemoryJobQueue
 from backend.settings import Settings
@@ -141,3 +144,39 @@ def test_each_job_kind_maps_to_its_task():
 def test_visibility_timeout_must_exceed_the_longest_task(tmp_path):
     with pytest.raises(ValueError, match="visibility"):
         Settings(data_dir=tmp_path, broker_visibility_timeout_s=100, task_time_limit_s=200)
+
+
+def test_fit_jobs_are_sent_several_per_message():
+    sent: list[list[int]] = []
+    failed: list[list[int]] = []
+    release = threading.Event()
+
+    def send(ids: list[int]) -> bool:
+        release.wait(5)  # the first send is slow: what arrives meanwhile goes into the next message
+        sent.append(list(ids))
+        return ids[0] != 100
+
+    sender = BatchingSender(send, failed.append, max_batch=3, linger_s=0.05)
+    for job_id in range(1, 6):
+        sender.put(job_id)
+    release.set()
+    sender.put(100)
+    sender.close()
+    assert sorted(i for batch in sent for i in batch) == [1, 2, 3, 4, 5, 100]  # every job once
+    assert all(1 <= len(batch) <= 3 for batch in sent) and len(sent) < 6
+    assert failed == [batch for batch in sent if batch[0] == 100]  # a refused send goes back to the outbox
+
+
+def test_celery_queue_sends_buffered_fits_as_one_message(env, tmp_path):
+    settings = Settings(data_dir=tmp_path, environment="test", secret_key="x" * 20, fit_dispatch_linger_s=0.5)
+    queue = CeleryJobQueue(settings)
+    queue.start(env.session_factory)
+    try:
+        for job_id in (11, 12, 13):
+            queue.enqueue(job_id, "fit")
+    finally:
+        queue.stop()  # sends what is buffered
+    messages = list((tmp_path / "broker" / "messages").iterdir())
+    assert len(messages) == 1
+    body = json.loads(base64.b64decode(json.loads(messages[0].read_text())["body"]))
+    assert body[0] == [[11, 12, 13]]  # the task's args: one list of job ids

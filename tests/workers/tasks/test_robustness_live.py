@@ -143,7 +143,10 @@ def test_redis_down_answers_503_writes_nothing_and_work_resumes(live_stack, priv
         committed = http.post(f"/api/annotate/samples/{second['sample_id']}/submissions", json=second_body)
     assert committed.status_code == 201, committed.text
     committed_job = committed.json()["fit_job_id"]
-    assert _job(stack, committed_job).state == "queued" and _job(stack, committed_job).dispatched_at is None
+    # Fit jobs are handed to the broker by the API's sender thread after the response: its failed send
+    # leaves the job for the outbox (dispatched_at cleared) and makes the next request check the broker again.
+    wait_until(lambda: _job(stack, committed_job).dispatched_at is None, 30, "the failed hand-off marked", stack)
+    assert _job(stack, committed_job).state == "queued"
 
     from backend.models.jobs import Job
     from backend.models.labels import Submission

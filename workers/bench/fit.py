@@ -10,6 +10,7 @@ The capture uses a seed the tests do not use.
 from __future__ import annotations
 
 import logging
+import os
 import sys
 import tempfile
 import time
@@ -64,7 +65,13 @@ def _load_frames(capture_dir: Path) -> tuple[list[dict[str, Any]], list]:
 
 
 def run(*, quick: bool = False, emit_json: bool = True, frames_per_sequence: int | None = None) -> dict[str, Any]:
-    """Run the benchmark; return its record (printed as the last stdout line when `emit_json`)."""
+    """Run the benchmark; return its record (printed as the last stdout line when `emit_json`).
+
+    Frames: 3 green-screen sequences of `frames_per_sequence` frames (default 10, i.e. 30 frames;
+    3 with `quick`).
+    """
+    if frames_per_sequence is not None and frames_per_sequence < 1:
+        raise ValueError(f"frames_per_sequence must be >= 1, got {frames_per_sequence}")
     import torch
     from tqdm import tqdm
 
@@ -77,6 +84,7 @@ def run(*, quick: bool = False, emit_json: bool = True, frames_per_sequence: int
     from workers.synth.plan import SynthConfig
 
     started = time.perf_counter()
+    load_before = os.getloadavg()
     settings = get_settings()
     per_sequence = frames_per_sequence or (3 if quick else 10)
     synth = SynthConfig(num_sequences=4, frames_per_sequence=per_sequence, seed=BENCH_SEED,
@@ -94,7 +102,7 @@ def run(*, quick: bool = False, emit_json: bool = True, frames_per_sequence: int
     with tqdm(total=len(combos) * len(frames), unit="fit", desc="bench fit", file=sys.stderr) as bar:
         for sigma, mask_kind, silhouette in combos:
             rng = np.random.default_rng(BENCH_SEED + int(10 * sigma))
-            vertex_mm, keypoint_mm, seconds = [], [], []
+            vertex_mm, keypoint_mm, seconds, cpu_seconds, iterations = [], [], [], [], []
             for frame in frames:
                 gt = frame["gt"]
                 clicks, weights = simulated_clicks(gt.keypoints_2d, gt.visibility, sizes, sigma, rng)
@@ -103,9 +111,12 @@ def run(*, quick: bool = False, emit_json: bool = True, frames_per_sequence: int
                 obs = FrameObservations(clicks, weights, masks, masks_include_forearm=not hand_only)
                 if (sigma, mask_kind, silhouette) == (2.0, "chroma_key", True):
                     main_observations.append(obs)
-                t0 = time.perf_counter()
+                t0, c0 = time.perf_counter(), time.process_time()
                 result = engines[silhouette].fit([obs])[0]
                 seconds.append(time.perf_counter() - t0)
+                # CPU time too: on a shared machine wall time also counts other people's work.
+                cpu_seconds.append(time.process_time() - c0)
+                iterations.append(result.diagnostics.iterations)
                 vertex_mm.append(1000 * np.linalg.norm(result.vertices - gt.vertices, axis=1).mean())
                 keypoint_mm.append(1000 * np.linalg.norm(result.keypoints - gt.keypoints_3d, axis=1).mean())
                 bar.update()
@@ -116,6 +127,8 @@ def run(*, quick: bool = False, emit_json: bool = True, frames_per_sequence: int
                 "keypoint_mm": round(float(np.mean(keypoint_mm)), 3),
                 "median_s_per_frame": round(float(np.median(seconds)), 4),
                 "p90_s_per_frame": round(float(np.percentile(seconds, 90)), 4),
+                "median_cpu_s_per_frame": round(float(np.median(cpu_seconds)), 4),
+                "mean_iterations": round(float(np.mean(iterations)), 1),
             })
             log.info("sigma %.0f px, %s masks, silhouette %s: vertex %.2f mm, keypoints %.2f mm, median %.2f s",
                      sigma, mask_kind, silhouette, rows[-1]["vertex_mm"], rows[-1]["keypoint_mm"],
@@ -123,6 +136,7 @@ def run(*, quick: bool = False, emit_json: bool = True, frames_per_sequence: int
     t0 = time.perf_counter()
     engines[True].fit(main_observations)
     batched_fps = len(main_observations) / (time.perf_counter() - t0)
+    load_after = os.getloadavg()
 
     def pick(sigma: float, masks: str, silhouette: bool) -> dict[str, Any]:
         return next(r for r in rows if (r["sigma_px"], r["masks"], r["silhouette"]) == (sigma, masks, silhouette))
@@ -132,6 +146,7 @@ def run(*, quick: bool = False, emit_json: bool = True, frames_per_sequence: int
     record = {
         "median_s_per_frame": main["median_s_per_frame"],
         "p90_s_per_frame": main["p90_s_per_frame"],
+        "median_cpu_s_per_frame": main["median_cpu_s_per_frame"],
         "median_s_per_frame_all_rows": round(float(np.median(all_seconds)), 4),
         "frames_per_s_batched": round(batched_fps, 3),
         "vertex_mm_exact": pick(0.0, "ground_truth", True)["vertex_mm"],
@@ -139,13 +154,15 @@ def run(*, quick: bool = False, emit_json: bool = True, frames_per_sequence: int
         "vertex_mm_noisy": main["vertex_mm"],
         "vertex_mm_noisy_no_silhouette": pick(2.0, "chroma_key", False)["vertex_mm"],
         "keypoint_mm_noisy": main["keypoint_mm"],
+        "load_average_1min": {"start": round(load_before[0], 2), "end": round(load_after[0], 2)},
         "rows": rows,
     }
     config = FitConfig()
     bench_settings = {
         "quick": quick, "frames": len(frames), "capture_seed": BENCH_SEED, "width_px": synth.width_px,
         "hand_model": arrays.name, "torch_threads": torch.get_num_threads(),
-        "iterations": config.global_iterations + config.full_iterations,
+        "optimizer": config.optimizer,
+        "max_iterations": config.global_iterations + config.full_iterations,
         "weights": vars(config.weights),
     }
     if emit_json:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 from typing import Literal
 
@@ -47,17 +48,28 @@ class FitConfig:
         robust: robust penalty on 2D click residuals ("none" = plain squares).
         reference_width_px: image distances in the loss are pixels at this image width.
         robust_scale_px: residual (reference pixels) where the robust penalty bends.
-        global_iterations: first stage, only global rotation + translation + coarse pose.
-        full_iterations: second stage, every parameter, silhouettes included.
-        learning_rate: Adam step size.
+        optimizer: "levenberg_marquardt" (default: Gauss-Newton steps with adaptive damping, converges in
+            tens of steps) or "adam" (the paper's optimiser; needs about 40 + 160 steps, see `adam`).
+        global_iterations: most steps of the first stage (global rotation, translation and pose from
+            keypoints, shape frozen); Levenberg-Marquardt stops a frame earlier once it converges.
+        full_iterations: most steps of the second stage (every parameter, silhouettes included).
+        learning_rate: Adam step size (Adam only).
+        start_candidates: Levenberg-Marquardt starts per frame (the best-placed candidate articulations of
+            the initialisation) taken through the first stage; the fit landscape has local minima.
+        finalists: of those, how many (lowest full objective) go through the second stage; the one with
+            the lowest objective is the fit. Adam uses one start.
+        lm_damping: initial Levenberg-Marquardt damping, relative to the Hessian's diagonal.
+        lm_tolerance: a frame stops once an accepted step lowers its objective by less than this fraction.
         num_pca_comps: PCA components used for the articulation (paper: pose as PCA coefficients).
         nn_neighbours: N of the nearest-neighbour pose prior.
         silhouette_vertices: vertices sampled (farthest-point) for the silhouette term.
         boundary_points: mask boundary points sampled per view for the coverage term.
-        silhouette_cap_px: distances (reference pixels) above which the "model outside the mask" term
-            stops pulling (mask errors).
+        silhouette_cap_px: scale (reference pixels) of the robust penalty of the "model outside the mask"
+            term: masks of the visible hand lack what an object or the forearm hides, and masks have errors.
         coverage_cap_px: the same for the "mask not covered" term, smaller: chroma-key masks also
             hold objects, sleeves and the forearm stump, which the model must not reach for.
+        coverage_tangent_weight: weight of the offset along the mask boundary, relative to the offset
+            along its normal, in the "mask not covered" term (1: Euclidean distance). See docs/fitting.md.
         cut_forearm: cut masks at the wrist before comparing them with the model.
         seed: seeds everything random in a fit (sampling of boundary points).
         torch_threads: intra-op threads during a fit (None: leave torch's setting). A fit is many
@@ -70,18 +82,54 @@ class FitConfig:
     robust: Literal["none", "geman_mcclure", "huber"] = "geman_mcclure"
     reference_width_px: float = 1280.0
     robust_scale_px: float = 32.0
-    global_iterations: int = 40
-    full_iterations: int = 160
+    optimizer: Literal["levenberg_marquardt", "adam"] = "levenberg_marquardt"
+    global_iterations: int = 12
+    full_iterations: int = 30
     learning_rate: float = 0.03
+    start_candidates: int = 8
+    finalists: int = 1
+    lm_damping: float = 1e-2
+    lm_tolerance: float = 1e-4
     num_pca_comps: int = 45
     nn_neighbours: int = 5
     silhouette_vertices: int = 384
     boundary_points: int = 96
-    silhouette_cap_px: float = 100.0
-    coverage_cap_px: float = 20.0
+    silhouette_cap_px: float = 25.0
+    coverage_cap_px: float = 10.0
+    coverage_tangent_weight: float = 0.5
     cut_forearm: bool = True
     seed: int = 0
     torch_threads: int | None = 1
+
+    def __post_init__(self) -> None:
+        counts = {"global_iterations": 0, "full_iterations": 0, "start_candidates": 1, "finalists": 1,
+                  "num_pca_comps": 1, "nn_neighbours": 1, "silhouette_vertices": 1, "boundary_points": 1}
+        for name, least in counts.items():
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < least:
+                raise ValueError(f"FitConfig.{name} must be an integer >= {least}, got {value!r}")
+        if self.num_pca_comps > 45:
+            raise ValueError(f"FitConfig.num_pca_comps must be at most 45, got {self.num_pca_comps}")
+        positive = ("reference_width_px", "robust_scale_px", "learning_rate", "lm_damping", "lm_tolerance",
+                    "silhouette_cap_px", "coverage_cap_px")
+        for name in positive:
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise ValueError(f"FitConfig.{name} must be a positive finite number, got {value!r}")
+        if not (math.isfinite(self.coverage_tangent_weight) and self.coverage_tangent_weight >= 0):
+            raise ValueError(f"FitConfig.coverage_tangent_weight must be >= 0, got {self.coverage_tangent_weight!r}")
+        for name, value in vars(self.weights).items():
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"LossWeights.{name} must be a finite number >= 0, got {value!r}")
+        if self.optimizer not in ("levenberg_marquardt", "adam"):
+            raise ValueError(f"FitConfig.optimizer must be 'levenberg_marquardt' or 'adam', got {self.optimizer!r}")
+        if self.robust not in ("none", "geman_mcclure", "huber"):
+            raise ValueError(f"FitConfig.robust must be 'none', 'geman_mcclure' or 'huber', got {self.robust!r}")
+
+    @classmethod
+    def adam(cls, **changes) -> FitConfig:
+        """The Adam schedule (the paper's optimiser): 40 + 160 steps, cosine-decayed learning rate."""
+        return cls(**{"optimizer": "adam", "global_iterations": 40, "full_iterations": 160, **changes})
 
     def with_weights(self, **changes: float) -> FitConfig:
         return replace(self, weights=replace(self.weights, **changes))

@@ -1,9 +1,14 @@
 """The fitting engine: multi-view clicks, 3D keypoints and silhouettes -> hand pose and shape.
 
-Minimises L = L2D_kp + L3D_kp + L_seg + L_shape + L_pose (+ joint limits) with Adam, as the paper
-does (section "Hand Model Fitting with Sparse Annotations"), over a batch of frames at once (each frame
-keeps its own parameters; the terms are summed, so frames stay independent). Two stages: global pose
-and coarse articulation from keypoints, then everything with silhouettes against wrist-cut masks.
+Minimises L = L2D_kp + L3D_kp + L_seg + L_shape + L_pose (+ joint limits), the paper's objective
+(section "Hand Model Fitting with Sparse Annotations", eq. 1-6), over a batch of frames at once (each
+frame keeps its own parameters, so frames stay independent). Two stages: global pose and
+articulation from keypoints, then everything with silhouettes against wrist-cut masks.
+
+The default optimiser is batched Levenberg-Marquardt on the objective's residual form
+(`residuals.py`, `gauss_newton.py`, `solver.py`): tens of steps instead of the hundreds Adam needs,
+which makes a fit interactive on two CPU cores, and several starts per frame against the fit's local
+minima. The paper's Adam is kept (`FitConfig.adam()`), on the same objective (`losses.py`).
 """
 
 from __future__ import annotations
@@ -17,10 +22,14 @@ import torch
 
 from workers.fitting import losses
 from workers.fitting.config import FitConfig
-from workers.fitting.init import observed_points_3d, place_hand
+from workers.fitting.gauss_newton import normal_equations
+from workers.fitting.init import Placement, observed_points_3d, rank_placements
 from workers.fitting.inputs import FitInputError, FrameObservations
-from workers.fitting.masks import boundary_points, cut_forearm, outside_distance_px
+from workers.fitting.kinematics import FitKinematics
+from workers.fitting.masks import boundary_samples, cut_forearm, outside_distance_px
+from workers.fitting.residuals import Objective, Targets
 from workers.fitting.result import FitDiagnostics, FitResult
+from workers.fitting.solver import LMSettings, levenberg_marquardt
 from workers.geometry.camera import Camera
 from workers.geometry.projection import project_points_torch, stack_cameras
 from workers.handmodel.arrays import HandModelArrays
@@ -81,6 +90,17 @@ class FittingEngine:
         if init_poses is None:
             init_poses = np.stack(list(pose_sampler.canonical_poses(arrays).values()))
         self.init_coefficients = self._to_coefficients(np.asarray(init_poses, dtype=np.float64))
+        with torch.no_grad():  # the candidates' rest keypoints and wrists, for every fit's placement
+            rest = self.layer(pose=self._tensor(self.init_coefficients), batch_size=len(self.init_coefficients))
+        self._candidates = (rest.keypoints.double().cpu().numpy(), rest.joints[:, 0].double().cpu().numpy())
+        # Levenberg-Marquardt works in float64 whatever `dtype`: its hand-model Jacobians are forward
+        # differences, and its per-step work is small enough that float64 costs little (measured).
+        lm = torch.float64
+        self.kinematics = FitKinematics(arrays, self.silhouette_ids.cpu().numpy(), k, lm, self.device)
+        self.objective = Objective(self.kinematics, stack_cameras(self.cameras, lm, self.device),
+                                   self.px_scale.to(lm),
+                                   torch.as_tensor(np.asarray(bank), dtype=lm, device=self.device),
+                                   self.limit_frames, self.config)
 
     # -- parameter helpers -------------------------------------------------------------------------
     def _to_coefficients(self, poses: np.ndarray) -> np.ndarray:
@@ -115,41 +135,150 @@ class FittingEngine:
         started = time.perf_counter()
         cfg = self.config
         torch.manual_seed(cfg.seed)
-        rng = np.random.default_rng(cfg.seed)
         B = len(frames)
         notify = progress or (lambda fraction, message: None)
-
         clicks = self._tensor(np.stack([np.nan_to_num(f.clicks_px, nan=0.0) for f in frames]))
         click_w = self._tensor(np.stack([f.click_weights for f in frames]))
         kp3d, kp3d_w = self._targets_3d(frames)
-        params = self._initial_parameters(frames)
-        total = cfg.global_iterations + cfg.full_iterations
-
-        # Stage 1: global pose and coarse articulation from keypoints only.
-        stage1 = [params["global_orient"], params["transl"], params["coefficients"]]
-        self._optimise(stage1, params, cfg.global_iterations, clicks, click_w, kp3d, kp3d_w, None,
-                       lambda i: notify(i / total, "placing the hand"), coarse=True)
-
-        # Masks are cut at the wrist of the stage-1 model, then stage 2 refines everything.
-        silhouettes = None
-        if cfg.use_silhouette and any(f.masks is not None for f in frames):
-            with torch.no_grad():
-                stage1 = self._forward(params)
-            silhouettes = self._prepare_silhouettes(frames, stage1.joints.double().cpu().numpy(),
-                                                    stage1.vertices.double().cpu().numpy(), rng)
-        everything = [params["global_orient"], params["transl"], params["coefficients"], params["betas"]]
-        iterations = cfg.global_iterations + self._optimise(
-            everything, params, cfg.full_iterations, clicks, click_w, kp3d, kp3d_w, silhouettes,
-            lambda i: notify((cfg.global_iterations + i) / total, "fitting pose and shape"))
-
+        targets = Targets(clicks, click_w, kp3d, kp3d_w)
+        placements = self._placements(frames)
+        if cfg.optimizer == "adam":
+            params, terms, silhouettes, iterations = self._fit_adam(frames, targets, placements, notify)
+        else:
+            params, terms, silhouettes, iterations = self._fit_lm(frames, targets, placements, notify)
         with torch.no_grad():
-            terms = self._loss_terms(params, clicks, click_w, kp3d, kp3d_w, silhouettes)
             out = self._forward(params)
         notify(1.0, "done")
         seconds = (time.perf_counter() - started) / B
-        return [self._result(b, frames[b], params, out, terms, silhouettes, iterations, seconds) for b in range(B)]
+        return [self._result(b, frames[b], params, out, terms, silhouettes, int(iterations[b]), seconds)
+                for b in range(B)]
 
-    # -- stages --------------------------------------------------------------------------------------
+    # -- Levenberg-Marquardt (default) ---------------------------------------------------------------
+    _LAYOUT = (("global_orient", 3), ("transl", 3), ("coefficients", None), ("betas", 10))
+    _STAGE1 = ("global_orient", "transl", "coefficients")  # shape frozen while the hand is placed
+    _STAGE2 = ("global_orient", "transl", "coefficients", "betas")
+
+    def _fit_lm(self, frames, targets: Targets, placements, notify):
+        """Several starts per frame through stage 1 (keypoints), the best `finalists` of them (by the full
+        objective) through stage 2 (silhouettes too); the start with the lowest objective wins."""
+        cfg = self.config
+        B = len(frames)
+        M = min(cfg.start_candidates, len(placements[0]))
+        targets = targets.to(torch.float64)
+        starts = self._start_vectors(placements, M)  # (B * M, P), frame-major
+        keypoint_targets = targets.repeat(M)
+        stage1, steps1 = self._solve(starts, self._STAGE1, keypoint_targets, cfg.global_iterations,
+                                     lambda i: notify(0.3 * i / max(cfg.global_iterations, 1), "placing the hand"),
+                                     silhouette=False, coarse=True)
+        cost1, _ = self.objective.evaluate(stage1, keypoint_targets, False, coarse=True)
+        best1 = cost1.reshape(B, M).argmin(1)
+        pick = torch.arange(B, device=self.device) * M + best1
+        silhouettes = None
+        if cfg.use_silhouette and any(f.masks is not None for f in frames):
+            # Masks are cut at the wrist of each frame's best stage-1 model.
+            with torch.no_grad():
+                placed = self._forward(self._params(stage1[pick]))
+            silhouettes = self._prepare_silhouettes(frames, placed.joints.double().cpu().numpy(),
+                                                    placed.vertices.double().cpu().numpy())
+            targets = self._with_silhouettes(targets, silhouettes).to(torch.float64)
+        silhouette = silhouettes is not None
+        K = min(cfg.finalists, M)
+        if K < M:
+            full, _ = self.objective.evaluate(stage1, targets.repeat(M), silhouette)
+            keep = full.reshape(B, M).topk(K, dim=1, largest=False).indices  # (B, K)
+        else:
+            keep = torch.arange(M, device=self.device).expand(B, M)
+        rows = (torch.arange(B, device=self.device)[:, None] * M + keep).reshape(-1)
+        finalist_targets = targets.repeat(K)
+        stage2, steps2 = self._solve(stage1[rows], self._STAGE2, finalist_targets, cfg.full_iterations,
+                                     lambda i: notify(0.3 + 0.7 * i / max(cfg.full_iterations, 1),
+                                                      "fitting pose and shape"), silhouette=silhouette)
+        final, _ = self.objective.evaluate(stage2, finalist_targets, silhouette)
+        winner = final.reshape(B, K).argmin(1)
+        chosen = torch.arange(B, device=self.device) * K + winner
+        solved = stage2[chosen]
+        iterations = steps1[rows[chosen]] + steps2[chosen]
+        terms = self.objective.terms(solved, targets, silhouette)
+        return self._params(solved), terms, silhouettes, iterations.cpu().numpy()
+
+    def _columns(self, names: tuple[str, ...]) -> torch.Tensor:
+        """Columns of the parameter vector (see `kinematics`) that hold the named parameters."""
+        columns, start = [], 0
+        for name, size in self._LAYOUT:
+            size = size or self.config.num_pca_comps
+            if name in names:
+                columns.extend(range(start, start + size))
+            start += size
+        return torch.as_tensor(columns, dtype=torch.int64, device=self.device)
+
+    def _params(self, vector: torch.Tensor) -> dict[str, torch.Tensor]:
+        """(B, P) parameter vector -> named parameters in the engine's dtype."""
+        params, start = {}, 0
+        for name, size in self._LAYOUT:
+            size = size or self.config.num_pca_comps
+            params[name] = vector[:, start: start + size].to(self.dtype).contiguous()
+            start += size
+        return params
+
+    def _start_vectors(self, placements, M: int) -> torch.Tensor:
+        """The M best placements of each frame as (B * M, P) float64 parameter vectors, frame-major."""
+        rows = []
+        for ranked in placements:
+            for placement in ranked[:M]:
+                rows.append(np.concatenate([placement.global_orient, placement.transl,
+                                            self.init_coefficients[placement.candidate], np.zeros(10)]))
+        return torch.as_tensor(np.stack(rows), dtype=torch.float64, device=self.device)
+
+    def _solve(self, start: torch.Tensor, names: tuple[str, ...], targets: Targets, iterations: int,
+               tick: Callable[[int], None], silhouette: bool,
+               coarse: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+        """Levenberg-Marquardt on the named parameters from start (B, P): solution and steps per row."""
+        if iterations <= 0:
+            return start, torch.zeros(len(start), dtype=torch.int64, device=self.device)
+        objective = self.objective
+        active = self._columns(names)
+        every = max(1, iterations // 10)
+        return levenberg_marquardt(
+            lambda p, a: normal_equations(objective, p, targets, a, silhouette, coarse, active),
+            lambda p: objective.evaluate(p, targets, silhouette, coarse),
+            lambda take, new, old: new.where(take, old),
+            start, active, LMSettings(iterations, self.config.lm_damping, self.config.lm_tolerance),
+            tick=lambda i: tick(i) if i % every == 0 else None)
+
+    def _with_silhouettes(self, targets: Targets, silhouettes: dict[str, torch.Tensor]) -> Targets:
+        outside = silhouettes["outside"]
+        B, C, H, W = outside.shape
+        return Targets(targets.clicks, targets.click_weights, targets.keypoints_3d, targets.keypoint_3d_weights,
+                       outside=outside.reshape(B, C, H * W), height=H, width=W, boundary=silhouettes["boundary"],
+                       boundary_normals=silhouettes["normals"], boundary_weights=silhouettes["valid"].to(self.dtype),
+                       view_weights=silhouettes["view_weights"])
+
+    # -- Adam (the paper's optimiser) ----------------------------------------------------------------
+    def _fit_adam(self, frames, targets: Targets, placements, notify):
+        """One start per frame (the best placement); stage 1 from keypoints, stage 2 with silhouettes."""
+        cfg = self.config
+        best = [ranked[0] for ranked in placements]
+        start = self._start_vectors([[p] for p in best], 1).to(self.dtype)
+        params = {name: value.requires_grad_() for name, value in self._params(start).items()}
+        clicks, click_w, kp3d, kp3d_w = targets.clicks, targets.click_weights, targets.keypoints_3d, \
+            targets.keypoint_3d_weights
+        total = cfg.global_iterations + cfg.full_iterations
+        iterations = self._optimise([params[n] for n in self._STAGE1], params, cfg.global_iterations, clicks, click_w,
+                                    kp3d, kp3d_w, None, lambda i: notify(i / total, "placing the hand"), coarse=True)
+        silhouettes = None
+        if cfg.use_silhouette and any(f.masks is not None for f in frames):
+            with torch.no_grad():
+                placed = self._forward(params)
+            silhouettes = self._prepare_silhouettes(frames, placed.joints.double().cpu().numpy(),
+                                                    placed.vertices.double().cpu().numpy())
+        iterations = iterations + self._optimise(
+            [params[n] for n in self._STAGE2], params, cfg.full_iterations, clicks, click_w, kp3d, kp3d_w, silhouettes,
+            lambda i: notify((cfg.global_iterations + i) / total, "fitting pose and shape"))
+        with torch.no_grad():
+            terms = self._loss_terms(params, clicks, click_w, kp3d, kp3d_w, silhouettes)
+        return {k: v.detach() for k, v in params.items()}, terms, silhouettes, iterations
+
+    # -- shared stages -------------------------------------------------------------------------------
     def _targets_3d(self, frames: list[FrameObservations]) -> tuple[torch.Tensor, torch.Tensor]:
         targets = np.zeros((len(frames), 21, 3))
         weights = np.zeros((len(frames), 21))
@@ -162,30 +291,20 @@ class FittingEngine:
             targets[b, ok], weights[b, ok] = kp[ok], w[ok]
         return self._tensor(targets), self._tensor(weights)
 
-    def _initial_parameters(self, frames: list[FrameObservations]) -> dict[str, torch.Tensor]:
-        B, M = len(frames), len(self.init_coefficients)
-        with torch.no_grad():
-            rest = self.layer(pose=self._tensor(self.init_coefficients), batch_size=M)
-        candidate_kp = rest.keypoints.double().cpu().numpy()
-        candidate_wrist = rest.joints[:, 0].double().cpu().numpy()
-        orient, transl, coeffs = np.zeros((B, 3)), np.zeros((B, 3)), np.zeros((B, len(self.init_coefficients[0])))
+    def _placements(self, frames: list[FrameObservations]) -> list[list[Placement]]:
+        """Per frame, the candidate articulations placed on the triangulated clicks, best first."""
+        candidate_kp, candidate_wrist = self._candidates
+        ranked = []
         for b, obs in enumerate(frames):
             targets, weights = observed_points_3d(obs, self.cameras)
             try:
-                placement = place_hand(candidate_kp, candidate_wrist, targets, weights)
+                ranked.append(rank_placements(candidate_kp, candidate_wrist, targets, weights))
             except ValueError as exc:
                 raise FitInputError(f"frame {b}: {exc} (clicks agreeing across views, or 3D keypoints)") from None
-            orient[b], transl[b] = placement.global_orient, placement.transl
-            coeffs[b] = self.init_coefficients[placement.candidate]
-        return {
-            "global_orient": self._tensor(orient).requires_grad_(),
-            "transl": self._tensor(transl).requires_grad_(),
-            "coefficients": self._tensor(coeffs).requires_grad_(),
-            "betas": torch.zeros(B, 10, dtype=self.dtype, device=self.device, requires_grad=True),
-        }
+        return ranked
 
     def _prepare_silhouettes(self, frames: list[FrameObservations], joints: np.ndarray, vertices: np.ndarray,
-                             rng: np.random.Generator) -> dict[str, torch.Tensor]:
+                             ) -> dict[str, torch.Tensor]:
         """Wrist-cut masks -> padded outside-distance fields (B, C, H, W), boundary samples (B, C, N, 2)."""
         cfg = self.config
         B, C = len(frames), len(self.cameras)
@@ -194,10 +313,13 @@ class FittingEngine:
         N = cfg.boundary_points
         dist = np.zeros((B, C, H, W), dtype=np.float32)
         boundary = np.zeros((B, C, N, 2))
+        normals = np.zeros((B, C, N, 2))
         valid = np.zeros((B, C, N), dtype=bool)
         view_w = np.zeros((B, C))
         cut_masks: list[list[np.ndarray | None]] = []
         for b, f in enumerate(frames):
+            # Each frame samples with its own generator: a frame fits the same alone or in any batch.
+            rng = np.random.default_rng(cfg.seed)
             row: list[np.ndarray | None] = []
             for c, cam in enumerate(self.cameras):
                 mask = None if f.masks is None else f.masks[c]
@@ -216,13 +338,14 @@ class FittingEngine:
                 canvas = np.zeros((H, W), dtype=bool)
                 canvas[: cam.height, : cam.width] = mask
                 dist[b, c] = outside_distance_px(canvas)
-                pts = boundary_points(hand, N, rng, exclude=mask & ~hand)
-                boundary[b, c, : len(pts)], valid[b, c, : len(pts)] = pts, True
+                pts, nrm = boundary_samples(hand, N, rng, exclude=mask & ~hand)
+                boundary[b, c, : len(pts)], normals[b, c, : len(pts)], valid[b, c, : len(pts)] = pts, nrm, True
                 view_w[b, c] = 1.0
             cut_masks.append(row)
         return {
             "outside": self._tensor(dist),
             "boundary": self._tensor(boundary),
+            "normals": self._tensor(normals),
             "valid": torch.as_tensor(valid, device=self.device),
             "view_weights": self._tensor(view_w),
             "cut_masks": cut_masks,  # type: ignore[dict-item]
@@ -255,14 +378,17 @@ class FittingEngine:
             outside = losses.silhouette_outside_loss(verts_px, silhouettes["outside"], silhouettes["view_weights"],
                                                      self.px_scale, cfg.silhouette_cap_px)
             cover = losses.silhouette_coverage_loss(verts_px, silhouettes["boundary"], silhouettes["valid"],
-                                                    silhouettes["view_weights"], self.px_scale, cfg.coverage_cap_px)
+                                                    silhouettes["view_weights"], self.px_scale, cfg.coverage_cap_px,
+                                                    silhouettes["normals"], cfg.coverage_tangent_weight)
             terms["seg"] = w.seg * (outside + cover)
         return terms
 
     def _optimise(self, variables, params, iterations, clicks, click_w, kp3d, kp3d_w, silhouettes,
-                  tick: Callable[[int], None], coarse: bool = False) -> int:
+                  tick: Callable[[int], None], coarse: bool = False) -> np.ndarray:
+        """Adam (the paper's optimiser) on `variables` with the loss functions of `losses.py`; steps per frame."""
+        B = len(params["transl"])
         if iterations <= 0:
-            return 0
+            return np.zeros(B, dtype=np.int64)
         lr = self.config.learning_rate
         groups = [{"params": [v], "lr": lr * (0.2 if v is params["transl"] else 1.0)} for v in variables]
         optimizer = torch.optim.Adam(groups)
@@ -276,7 +402,7 @@ class FittingEngine:
             schedule.step()
             if i % every == 0:
                 tick(i)
-        return iterations
+        return np.full(B, iterations, dtype=np.int64)
 
     # -- results -------------------------------------------------------------------------------------
     def _result(self, b, obs, params, out, terms, silhouettes, iterations, seconds) -> FitResult:

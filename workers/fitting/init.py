@@ -1,7 +1,8 @@
 """Initialisation without a manual pose: triangulate the clicks, then place and orient the hand.
 
 The model's keypoints (for a few candidate articulations) are rigidly aligned (Kabsch, no scale) to
-the triangulated clicks or given 3D keypoints; the candidate with the smallest residual wins.
+the triangulated clicks or given 3D keypoints; candidates are ranked by their residual (the engine
+refines several of them and keeps the one that fits best).
 """
 
 from __future__ import annotations
@@ -64,9 +65,9 @@ def kabsch(source: np.ndarray, target: np.ndarray, weights: np.ndarray) -> tuple
     return R, mu_t - R @ mu_s
 
 
-def place_hand(candidate_keypoints: np.ndarray, candidate_wrists: np.ndarray, targets: np.ndarray,
-               weights: np.ndarray) -> Placement:
-    """Align each candidate's rest keypoints to the targets and keep the best.
+def rank_placements(candidate_keypoints: np.ndarray, candidate_wrists: np.ndarray, targets: np.ndarray,
+                    weights: np.ndarray) -> list[Placement]:
+    """Align each candidate's rest keypoints to the targets; placements from best to worst.
 
     Args:
         candidate_keypoints: (M, 21, 3) model keypoints per candidate, zero global pose, metres.
@@ -76,13 +77,17 @@ def place_hand(candidate_keypoints: np.ndarray, candidate_wrists: np.ndarray, ta
     ok = np.isfinite(targets).all(1) & (weights > 0)
     if ok.sum() < 3:
         raise ValueError("at least three keypoints must be located in 3D to place the hand")
-    best: Placement | None = None
+    placements = []
     for m, (source, wrist) in enumerate(zip(candidate_keypoints, candidate_wrists, strict=True)):
         R, t = kabsch(source[ok], targets[ok], weights[ok])
         residual = float(np.sqrt(np.mean(np.sum((source[ok] @ R.T + t - targets[ok]) ** 2, axis=1))))
-        if best is None or residual < best.residual_m:
-            # The layer rotates about the wrist joint J0: x = R (p - J0) + J0 + transl.
-            transl = t + R @ wrist - wrist
-            best = Placement(m, Rotation.from_matrix(R).as_rotvec(), transl, targets, residual)
-    assert best is not None
-    return best
+        # The layer rotates about the wrist joint J0: x = R (p - J0) + J0 + transl.
+        transl = t + R @ wrist - wrist
+        placements.append(Placement(m, Rotation.from_matrix(R).as_rotvec(), transl, targets, residual))
+    return sorted(placements, key=lambda p: p.residual_m)
+
+
+def place_hand(candidate_keypoints: np.ndarray, candidate_wrists: np.ndarray, targets: np.ndarray,
+               weights: np.ndarray) -> Placement:
+    """The best placement of `rank_placements`."""
+    return rank_placements(candidate_keypoints, candidate_wrists, targets, weights)[0]

@@ -98,16 +98,43 @@ def boundary_points(mask: np.ndarray, count: int, rng: np.random.Generator,
     `exclude` (H, W) bool drops contour pixels next to it: after a wrist cut, the cut line is not a
     real silhouette edge.
     """
+    return boundary_samples(mask, count, rng, exclude)[0]
+
+
+def boundary_samples(mask: np.ndarray, count: int, rng: np.random.Generator,
+                     exclude: np.ndarray | None = None,
+                     tangent_span: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """Boundary samples as in `boundary_points` and the mask's outward unit normal at each.
+
+    The normal is perpendicular to the contour chord from `tangent_span` contour pixels before the
+    sample to as many after it, turned to point out of the mask. Returns (N, 2) positions (x, y) and
+    (N, 2) normals.
+    """
     contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    if not contours:
-        return np.zeros((0, 2))
-    points = np.concatenate([c.reshape(-1, 2) for c in contours]).astype(np.float64)
+    points, normals = [], []
+    for contour in contours:
+        c = contour.reshape(-1, 2).astype(np.float64)
+        chord = np.roll(c, -tangent_span, axis=0) - np.roll(c, tangent_span, axis=0)
+        n = np.stack([chord[:, 1], -chord[:, 0]], 1)
+        length = np.linalg.norm(n, axis=1, keepdims=True)
+        n = np.where(length > 0, n / np.maximum(length, 1e-12), 0.0)
+        points.append(c)
+        normals.append(n)
+    if not points:
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    points_all, normals_all = np.concatenate(points), np.concatenate(normals)
+    # Outward: a step along the normal should leave the mask (sampled 1.5 px away, clamped to the image).
+    H, W = mask.shape
+    probe = np.rint(points_all + 1.5 * normals_all).astype(int)
+    inside = mask[probe[:, 1].clip(0, H - 1), probe[:, 0].clip(0, W - 1)]
+    normals_all[inside] *= -1
+    keep = np.ones(len(points_all), dtype=bool)
     if exclude is not None and exclude.any():
         near = cv2.dilate(exclude.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
-        points = points[~near[points[:, 1].astype(int), points[:, 0].astype(int)]]
-        if len(points) == 0:
-            return np.zeros((0, 2))
-    if len(points) <= count:
-        return points
-    start = rng.uniform(0, len(points) / count)
-    return points[(start + np.arange(count) * len(points) / count).astype(int) % len(points)]
+        keep = ~near[points_all[:, 1].astype(int), points_all[:, 0].astype(int)]
+    points_all, normals_all = points_all[keep], normals_all[keep]
+    if len(points_all) <= count:
+        return points_all, normals_all
+    start = rng.uniform(0, len(points_all) / count)
+    pick = (start + np.arange(count) * len(points_all) / count).astype(int) % len(points_all)
+    return points_all[pick], normals_all[pick]

@@ -106,3 +106,41 @@ def test_fit_from_3d_keypoints_alone(hand, rig, known_frames):
     result = FittingEngine(hand, rig, config).fit([obs])[0]
     assert 1000 * np.linalg.norm(result.keypoints - truth["keypoints"][0], axis=1).mean() < 5.0
     assert np.all(np.isnan(result.diagnostics.iou_per_view))
+
+
+def test_the_papers_adam_schedule_also_recovers_the_hand(hand, rig, known_frames):
+    frames, truth = known_frames
+    result = FittingEngine(hand, rig, FitConfig.adam()).fit(frames[:1])[0]
+    assert result.diagnostics.iterations == 200
+    assert 1000 * np.linalg.norm(result.vertices - truth["vertices"][0], axis=1).mean() < 8.0
+
+
+def test_frames_of_a_batch_stay_independent(engine, known_frames):
+    frames, _ = known_frames
+    together = engine.fit(frames)
+    for b, frame in enumerate(frames):
+        alone = engine.fit([frame])[0]
+        assert np.abs(alone.vertices - together[b].vertices).max() < 1e-4  # metres
+        assert alone.diagnostics.iterations == together[b].diagnostics.iterations
+
+
+def test_levenberg_marquardt_lowers_the_objective_more_than_its_first_stage(hand, rig, known_frames):
+    frames, _ = known_frames
+    placed = FittingEngine(hand, rig, FitConfig(full_iterations=0)).fit(frames[1:])[0]
+    fitted = FittingEngine(hand, rig, FitConfig()).fit(frames[1:])[0]
+    assert sum(fitted.diagnostics.loss_terms.values()) < 0.5 * sum(placed.diagnostics.loss_terms.values())
+    assert fitted.diagnostics.iterations <= FitConfig().global_iterations + FitConfig().full_iterations
+
+
+@pytest.mark.parametrize(("changes", "message"), [
+    ({"finalists": 0}, "finalists must be an integer >= 1"),
+    ({"lm_damping": float("nan")}, "lm_damping must be a positive finite number"),
+    ({"optimizer": "sgd"}, "optimizer must be"),
+    ({"coverage_tangent_weight": -1.0}, "coverage_tangent_weight must be >= 0"),
+    ({"num_pca_comps": 46}, "num_pca_comps must be at most 45"),
+])
+def test_bad_config_fails_with_a_clear_error(changes, message):
+    with pytest.raises(ValueError, match=message):
+        FitConfig(**changes)
+    with pytest.raises(ValueError, match=r"LossWeights\.seg"):
+        FitConfig().with_weights(seg=-1.0)

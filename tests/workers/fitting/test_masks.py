@@ -61,3 +61,20 @@ def test_boundary_skips_the_cut_line():
     hand[:, :20] = False  # cut at x = 20
     pts = boundary_points(hand, 200, np.random.default_rng(0), exclude=mask & ~hand)
     assert len(pts) > 0 and pts[:, 0].min() >= 22
+
+
+def test_boundary_normals_point_out_of_the_mask():
+    from workers.fitting.masks import boundary_samples
+
+    mask = np.zeros((40, 50), dtype=bool)
+    mask[10:30, 10:40] = True
+    pts, normals = boundary_samples(mask, 400, np.random.default_rng(0))
+    assert np.allclose(np.linalg.norm(normals, axis=1), 1.0)
+    mid_right = (pts[:, 0] == 39) & (pts[:, 1] > 14) & (pts[:, 1] < 25)
+    mid_top = (pts[:, 1] == 10) & (pts[:, 0] > 14) & (pts[:, 0] < 35)
+    assert mid_right.any() and mid_top.any()
+    assert np.allclose(normals[mid_right], [1.0, 0.0])
+    assert np.allclose(normals[mid_top], [0.0, -1.0])
+    # boundary_points is the same sampling without the normals
+    assert np.array_equal(boundary_points(mask, 50, np.random.default_rng(1)),
+                          boundary_samples(mask, 50, np.random.default_rng(1))[0])

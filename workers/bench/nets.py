@@ -2,7 +2,8 @@
 a fixed budget and evaluate on held-out subjects in front of other backgrounds.
 
 Full run: 16 sequences x 60 frames at 320 px (12 training sequences = 720 frames of 6 subjects, 4
-evaluation sequences = 240 frames of 2 other subjects); HandSegNet 150 s, each MVNet 420 s of training.
+evaluation sequences = 240 frames of 2 other subjects); HandSegNet 180 s (on 240 of the training frames),
+each MVNet 400 s of training (the soft-argmax network only for the confidence comparison).
 --quick: 8 sequences x 4 frames at 160 px, 10 s / 15 s budgets. The synthetic capture is cached in the
 data folder and reused when its settings match (synthesis is not training time).
 
@@ -42,8 +43,8 @@ class NetsBenchSize:
 
 
 SIZES: dict[bool, NetsBenchSize] = {
-    False: NetsBenchSize(sequences=16, frames=60, width_px=320, handseg_budget_s=150.0, mvnet_budget_s=420.0,
-                         handseg_max_frames=120),
+    False: NetsBenchSize(sequences=16, frames=60, width_px=320, handseg_budget_s=180.0, mvnet_budget_s=400.0,
+                         handseg_max_frames=240),
     True: NetsBenchSize(sequences=8, frames=4, width_px=160, handseg_budget_s=10.0, mvnet_budget_s=15.0,
                         handseg_max_frames=24),
 }
@@ -140,9 +141,12 @@ def run(*, quick: bool = False, data_dir: Path | None = None, out_dir: Path | No
     ckpt = out_dir / "checkpoints" / "round-000"
     trained: dict[str, Any] = {}
     train_s: dict[str, float] = {}
+    train_steps: dict[str, int] = {}
+    train_load: dict[str, list[float]] = {}
     jobs = [("handsegnet", size.handseg_budget_s), ("scorevolume", size.mvnet_budget_s),
             ("softargmax", size.mvnet_budget_s)]
     for name, budget in jobs:
+        load_before = os.getloadavg()[0]
         with tqdm(total=round(budget), desc=f"train {name}", unit="s", file=sys.stderr) as bar:
             if name == "handsegnet":
                 result = train_handsegnet(seg_data, config, budget, ckpt, resume=False, seed=seed,
@@ -152,9 +156,13 @@ def run(*, quick: bool = False, data_dir: Path | None = None, out_dir: Path | No
                 result = train_mvnet(mv_data, mv_config, budget, ckpt / name, resume=False, seed=seed,
                                      progress=bar_progress(bar))
         trained[name], train_s[name] = result.model, result.metadata["train_seconds"]
+        train_steps[name] = int(result.metadata["steps"])
+        # 1-minute load average when the phase started and ended: tells compute starvation from a bad model.
+        train_load[name] = [round(load_before, 2), round(os.getloadavg()[0], 2)]
     torch.set_grad_enabled(False)
 
     ious, errors, errors_gt_center, confidences, failures, times_ms = [], {}, {}, {}, 0, []
+    center_errors_mm: list[float] = []
     confidences_gt_center: dict[str, list[float]] = {}
     for name in ("scorevolume", "softargmax"):
         errors[name], errors_gt_center[name], confidences[name], confidences_gt_center[name] = [], [], [], []
@@ -172,6 +180,8 @@ def run(*, quick: bool = False, data_dir: Path | None = None, out_dir: Path | No
             if gt.hand_masks[cam.name].any():
                 ious.append(mask_iou(prob > trained["handsegnet"].config.threshold, gt.hand_masks[cam.name]))
         gt_center = hand_center_from_labels([gt.hand_masks[c.name] for c in cameras], gt.keypoints_3d, cameras)
+        if masks.location is not None:
+            center_errors_mm.append(1000 * float(np.linalg.norm(masks.location.center_world - gt_center)))
         for name in ("scorevolume", "softargmax"):
             model = trained[name]
             if masks.location is not None:
@@ -223,6 +233,12 @@ def run(*, quick: bool = False, data_dir: Path | None = None, out_dir: Path | No
         "inference_ms": round(float(np.mean(times_ms)), 1),
         "inference_ms_median": round(float(np.median(times_ms)), 1),
         "localisation_failures": failures,
+        "hand_center_error_mm": round(float(np.mean(center_errors_mm)), 1) if center_errors_mm else None,
+        "hand_center_error_mm_median": round(float(np.median(center_errors_mm)), 1) if center_errors_mm else None,
+        "train_steps_handsegnet": train_steps["handsegnet"],
+        "train_steps_mvnet": train_steps["scorevolume"],
+        "train_steps_softargmax": train_steps["softargmax"],
+        "train_load_average": train_load,
         "train_frames": len(train_frames),
         "handsegnet_train_frames": len(train_frames[::step]),
         "eval_frames": len(eval_frames),

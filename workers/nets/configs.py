@@ -25,52 +25,88 @@ class MVNetConfig:
             crop's pixel size follows from each camera's focal length and depth).
         backbone_widths: channels of the 2D CNN, one stage per entry; a 2x max-pool between stages.
         convs_per_stage: 3x3 convolutions per 2D stage.
+        stem_stride: stride of the first 2D convolution (2 halves the cost of a larger crop).
+        norm: "group" or "batch" normalisation in both CNNs (batch: faster on CPU, and learned faster here).
+        bf16: run the convolutions in bfloat16 (autocast; weights, losses and unprojection stay float32).
+        decoder_levels: upsampling steps (with skip connections) after the deepest 2D stage; the feature map
+            has side crop_px / 2^(len(backbone_widths) - 1 - decoder_levels).
         feature_channels: channels of the 2D feature map f_i (last 1x1 convolution).
         grid_size: voxels per side N of the cubic grid.
         grid_side_m: side of the cubic grid centred on the hand, metres (paper: 0.4).
         unet_widths: channels of the 3D U-Net per level (level 0 = full grid resolution).
         sigma_voxels: standard deviation of the Gaussian score targets, voxels (paper: 2).
         loss: "scorevolume" (paper eq. 7, L2 to peak-normalised Gaussians) or "softargmax".
+        aux_2d_weight: weight of an auxiliary 2D keypoint loss on the shared features (deep supervision of
+            the 2D CNN with the keypoints projected into each crop); 0 = off (the paper's loss alone).
+        aux_2d_sigma_px: standard deviation of the 2D targets, pixels of the feature map.
         batch_frames: frames per training step (each frame brings all its views to the 2D CNN).
         lr: Adam learning rate.
         weight_decay: Adam weight decay.
         center_jitter_m: standard deviation of the random grid-centre shift in training, metres.
         cut_paste_prob: probability of replacing a green-screen view's background in training.
+        recolor: strength of the random skin-tone change of pasted foregrounds (0 = none, 1 = full range).
         color_jitter: amplitude of the random per-view gain and offset in training.
+        crop_rotation_deg: maximal random in-plane rotation of a training crop (its intrinsics follow).
+        crop_scale: maximal random log-scale of a training crop (0.1 = +-10 %).
+        train_views: views per frame in a training step (a random subset; 0 = all). The view average makes
+            MVNet indifferent to the count; fewer views per step = more frames per CPU second.
+        warmup_2d_fraction: fraction of the training budget spent on the auxiliary 2D loss alone (no 3D
+            network: about twice the steps per second) before the whole network trains.
+        grid_rotation: randomly orient the voxel grid in training (labels rotate along).
+        heatmap_residual: add the view-averaged 2D keypoint maps (the auxiliary head's, peak-normalised,
+            weighted by the fraction of views that see a voxel) to the 3D U-Net's output, so the score
+            volumes start from a triangulation-like estimate the U-Net refines (needs aux_2d_weight > 0).
     """
 
     crop_px: int = 32
     crop_radius_m: float = 0.15
     backbone_widths: tuple[int, ...] = (16, 32)
     convs_per_stage: int = 2
+    decoder_levels: int = 0
+    stem_stride: int = 1
+    norm: str = "group"
+    bf16: bool = False
     feature_channels: int = 16
     grid_size: int = 16
     grid_side_m: float = 0.4
     unet_widths: tuple[int, ...] = (16, 32, 48)
     sigma_voxels: float = 2.0
     loss: LossKind = "scorevolume"
+    aux_2d_weight: float = 0.0
+    aux_2d_sigma_px: float = 1.0
     batch_frames: int = 4
     lr: float = 1e-3
     weight_decay: float = 0.0
     center_jitter_m: float = 0.015
     cut_paste_prob: float = 0.5
+    recolor: float = 0.0
     color_jitter: float = 0.15
+    crop_rotation_deg: float = 0.0
+    crop_scale: float = 0.0
+    train_views: int = 0
+    warmup_2d_fraction: float = 0.0
+    grid_rotation: bool = False
+    heatmap_residual: bool = False
 
     def __post_init__(self) -> None:
         if self.loss not in ("scorevolume", "softargmax"):
             raise ValueError(f"loss must be 'scorevolume' or 'softargmax', got {self.loss!r}")
-        stride = 2 ** (len(self.backbone_widths) - 1)
+        if not 0 <= self.decoder_levels < len(self.backbone_widths):
+            raise ValueError(f"decoder_levels must be in 0..{len(self.backbone_widths) - 1}")
+        stride = self.stem_stride * 2 ** (len(self.backbone_widths) - 1)
         if self.crop_px % stride:
             raise ValueError(f"crop_px={self.crop_px} must be divisible by the backbone stride {stride}")
         if self.grid_size % 2 ** (len(self.unet_widths) - 1):
             raise ValueError(f"grid_size={self.grid_size} must be divisible by 2^(levels-1) of the U-Net")
+        if (self.heatmap_residual or self.warmup_2d_fraction > 0) and self.aux_2d_weight <= 0:
+            raise ValueError("heatmap_residual and warmup_2d_fraction need the 2D keypoint head (aux_2d_weight > 0)")
         if not (self.grid_side_m > 0 and self.crop_radius_m > 0 and self.sigma_voxels > 0):
             raise ValueError("grid_side_m, crop_radius_m and sigma_voxels must be positive")
 
     @property
     def feature_px(self) -> int:
         """Side of the 2D feature map, pixels of the feature grid."""
-        return self.crop_px // 2 ** (len(self.backbone_widths) - 1)
+        return self.crop_px // (self.stem_stride * 2 ** (len(self.backbone_widths) - 1 - self.decoder_levels))
 
     @property
     def voxel_m(self) -> float:
@@ -90,31 +126,43 @@ class HandSegNetConfig:
 
     Attributes:
         widths: channels per level (a 2x max-pool between levels).
+        stem_stride: stride of the first convolution; 2 runs the U-Net at half resolution and adds a light
+            full-resolution head that sees the image (cheap, edge-accurate masks).
+        norm: "group" or "batch" normalisation.
+        bf16: run the convolutions in bfloat16 (autocast).
         crop_px: side of the network's square input, pixels.
         crop_radius_m: half side of the fine crop at the hand's depth, metres.
         coarse_radius_m: half side that `crop_px` pixels cover in the coarse pass, metres.
         batch_size: crops per training step.
         lr: Adam learning rate.
         fine_prob: probability that a training crop is at the fine scale (else log-uniform up to coarse).
+        center_jitter: standard deviation of the training crop's centre shift, as a fraction of its radius
+            (the fine pass must cope with the error of the coarser passes before it).
         cut_paste_prob: probability of replacing a green-screen image's background in training.
+        recolor: strength of the random skin-tone change of pasted foregrounds (0 = none, 1 = full range).
         color_jitter: amplitude of the random gain and offset in training.
         threshold: probability above which a pixel is hand.
     """
 
     widths: tuple[int, ...] = (12, 24, 32)
+    stem_stride: int = 1
+    norm: str = "group"
+    bf16: bool = False
     crop_px: int = 80
     crop_radius_m: float = 0.15
     coarse_radius_m: float = 0.45
     batch_size: int = 8
     lr: float = 2e-3
     fine_prob: float = 0.6
+    center_jitter: float = 0.1
     cut_paste_prob: float = 0.7
+    recolor: float = 0.0
     color_jitter: float = 0.2
     threshold: float = 0.5
 
     def __post_init__(self) -> None:
-        if self.crop_px % 2 ** (len(self.widths) - 1):
-            raise ValueError(f"crop_px={self.crop_px} must be divisible by 2^(levels-1)")
+        if self.crop_px % (self.stem_stride * 2 ** (len(self.widths) - 1)):
+            raise ValueError(f"crop_px={self.crop_px} must be divisible by stem_stride * 2^(levels-1)")
         if not 0 < self.crop_radius_m <= self.coarse_radius_m:
             raise ValueError("need 0 < crop_radius_m <= coarse_radius_m")
 
@@ -142,15 +190,29 @@ def config_digest(config: MVNetConfig | HandSegNetConfig) -> str:
     (checkpoints refuse a configuration with another digest)."""
     data = asdict(config)
     arch_keys = {
-        "crop_px", "backbone_widths", "convs_per_stage", "feature_channels", "grid_size", "unet_widths", "widths",
-        "loss", "crop_radius_m", "grid_side_m", "coarse_radius_m",
+        "crop_px", "backbone_widths", "convs_per_stage", "stem_stride", "norm", "decoder_levels", "feature_channels",
+        "grid_size", "unet_widths", "widths", "loss", "crop_radius_m", "grid_side_m", "coarse_radius_m",
     }
     arch = {k: v for k, v in sorted(data.items()) if k in arch_keys}
+    if data.get("aux_2d_weight", 0) > 0:  # the 2D head exists only then (its weight's value does not matter)
+        arch["head_2d"] = True
+    if data.get("heatmap_residual"):
+        arch["heatmap_residual"] = True
     return hashlib.sha1(json.dumps(arch, sort_keys=True).encode()).hexdigest()[:12]
 
 
 CONFIGS: dict[str, NetsConfig] = {
-    "cpu-small": NetsConfig(name="cpu-small"),
+    "cpu-small": NetsConfig(
+        name="cpu-small",
+        mvnet=MVNetConfig(crop_px=64, crop_radius_m=0.14, backbone_widths=(32, 64, 128), stem_stride=2,
+                          decoder_levels=1, norm="batch", bf16=True, feature_channels=32, unet_widths=(16, 32, 48),
+                          aux_2d_weight=1.0, heatmap_residual=True, warmup_2d_fraction=0.5, lr=3e-3,
+                          center_jitter_m=0.02, cut_paste_prob=0.9, recolor=1.0, crop_rotation_deg=30.0,
+                          crop_scale=0.1, train_views=6),
+        handsegnet=HandSegNetConfig(widths=(16, 32, 64), stem_stride=2, norm="batch", bf16=True, crop_px=104,
+                                    crop_radius_m=0.14, batch_size=8, lr=2e-3, fine_prob=0.6, center_jitter=0.25,
+                                    cut_paste_prob=0.9, recolor=1.0),
+    ),
     "paper": NetsConfig(
         name="paper",
         mvnet=MVNetConfig(crop_px=224, crop_radius_m=0.15, backbone_widths=(64, 128, 256, 128), convs_per_stage=3,

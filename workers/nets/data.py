@@ -124,43 +124,136 @@ def augmentation_backgrounds() -> tuple[np.ndarray, ...]:
     return tuple(out)
 
 
-def random_background(height: int, width: int, rng: np.random.Generator) -> np.ndarray:
-    """A random background (H, W, 3) uint8: a tinted crop of a pool photo or a procedural texture."""
+def _noise_field(height: int, width: int, rng: np.random.Generator, cells: int) -> np.ndarray:
+    """(H, W) float32 smooth noise in about [-1, 1]."""
+    coarse = rng.uniform(-1, 1, (cells, cells)).astype(np.float32)
+    return cv2.resize(coarse, (width, height), interpolation=cv2.INTER_CUBIC)
+
+
+def procedural_background(height: int, width: int, rng: np.random.Generator) -> np.ndarray:
+    """A procedural background (H, W, 3) float32 0..255 of our own (not the synthetic evaluation's): a
+    muted base colour with one of: multi-scale texture (foliage, gravel, fabric), flat rectangles with
+    shading (walls, furniture), a smooth gradient, or saturated colour blobs."""
+    base = rng.uniform(0, 1, 3) ** 1.5 * 255
+    kind = rng.random()
+    if kind < 0.15:  # grey fine-grained texture (foliage, gravel, fabric in grey light): high-frequency noise
+        fine = sum(_noise_field(height, width, rng, max(4, height // k)) * w for k, w in ((2, 1.0), (4, 0.7), (8, 0.4)))
+        out = np.repeat((base.mean() + rng.uniform(30, 70) * fine)[..., None], 3, axis=2) * rng.uniform(0.9, 1.1, 3)
+    elif kind < 0.4:  # texture: noise at two scales, coloured around the base
+        amount = rng.uniform(15, 70)
+        out = base + amount * (_noise_field(height, width, rng, int(rng.integers(4, 24)))[..., None]
+                               * rng.uniform(0.5, 1.0, 3) + 0.6 * _noise_field(height, width, rng, max(height // 3, 8))
+                               [..., None])
+    elif kind < 0.7:  # rectangles: flat surfaces with a gentle illumination gradient
+        out = np.broadcast_to(base, (height, width, 3)).astype(np.float32).copy()
+        for _ in range(int(rng.integers(1, 6))):
+            x0, x1 = np.sort(rng.integers(0, width, 2))
+            y0, y1 = np.sort(rng.integers(0, height, 2))
+            out[y0:y1 + 1, x0:x1 + 1] = rng.uniform(0, 1, 3) ** 1.5 * 255
+        yy, xx = np.mgrid[:height, :width].astype(np.float32)
+        gx, gy = rng.uniform(-0.4, 0.4, 2)
+        out *= (1 + gx * (xx / width - 0.5) + gy * (yy / height - 0.5))[..., None]
+    elif kind < 0.85:  # smooth gradient between two colours
+        t = (_noise_field(height, width, rng, 2)[..., None] + 1) / 2
+        out = base * t + (rng.uniform(0, 1, 3) ** 1.5 * 255) * (1 - t)
+    else:  # saturated blobs
+        cells = int(rng.integers(2, 9))
+        coarse = rng.uniform(0, 255, (cells, cells, 3)).astype(np.float32)
+        out = cv2.resize(coarse, (width, height), interpolation=cv2.INTER_CUBIC)
+    return out.astype(np.float32) + rng.normal(0, rng.uniform(1, 8), (height, width, 3)).astype(np.float32)
+
+
+def _fresh_background(height: int, width: int, rng: np.random.Generator) -> np.ndarray:
+    """A newly drawn background (H, W, 3) float32 0..255: a tinted, randomly scaled crop of a pool photo
+    (half the time) or a procedural background."""
     pool = augmentation_backgrounds()
-    if pool and rng.random() < 0.7:
+    if pool and rng.random() < 0.5:
         photo = pool[int(rng.integers(len(pool)))]
         ph, pw = photo.shape[:2]
-        scale = rng.uniform(0.2, 1.0)
+        scale = rng.uniform(0.1, 1.0)
         ch, cw = max(4, int(ph * scale)), max(4, int(pw * scale))
         ch, cw = min(ch, ph), min(cw, pw)
         y0, x0 = int(rng.integers(0, ph - ch + 1)), int(rng.integers(0, pw - cw + 1))
         out = cv2.resize(photo[y0:y0 + ch, x0:x0 + cw], (width, height), interpolation=cv2.INTER_AREA)
-        tint = rng.uniform(0.5, 1.2, 3)
-        out = out.astype(np.float32) * tint
-    else:
-        cells = int(rng.integers(2, 9))
-        coarse = rng.uniform(0, 255, (cells, cells, 3)).astype(np.float32)
-        out = cv2.resize(coarse, (width, height), interpolation=cv2.INTER_CUBIC)
-        out += rng.normal(0, rng.uniform(2, 20), out.shape).astype(np.float32)
+        out = out.astype(np.float32)
+        if rng.random() < 0.3:  # grey photographs: the hand must be found by shape, not by colour alone
+            out = np.repeat(out.mean(axis=2, keepdims=True), 3, axis=2)
+        return out * rng.uniform(0.4, 1.2, 3)
+    return procedural_background(height, width, rng)
+
+
+BANK_SIDE_PX = 128
+BANK_SIZE = 512
+
+
+@lru_cache(maxsize=1)
+def background_bank() -> np.ndarray:
+    """(BANK_SIZE, 128, 128, 3) uint8 backgrounds drawn once per process (fixed seed): drawing a fresh
+    procedural texture per view cost more than the network's forward pass; windows of a bank are cheap."""
+    rng = np.random.default_rng(20190)
+    return np.stack([np.clip(_fresh_background(BANK_SIDE_PX, BANK_SIDE_PX, rng), 0, 255).astype(np.uint8)
+                     for _ in range(BANK_SIZE)])
+
+
+def random_background(height: int, width: int, rng: np.random.Generator) -> np.ndarray:
+    """A random background (H, W, 3) uint8: a random window of a bank image (random scale, flip, tint)."""
+    bank = background_bank()
+    image = bank[int(rng.integers(len(bank)))]
+    side = int(rng.integers(BANK_SIDE_PX // 3, BANK_SIDE_PX + 1))
+    y0, x0 = (int(v) for v in rng.integers(0, BANK_SIDE_PX - side + 1, 2))
+    window = image[y0:y0 + side, x0:x0 + side]
     if rng.random() < 0.5:
-        out = out[:, ::-1]
-    return np.clip(out, 0, 255).astype(np.uint8)
+        window = window[:, ::-1]
+    if rng.random() < 0.5:
+        window = window.transpose(1, 0, 2)
+    out = cv2.resize(np.ascontiguousarray(window), (width, height), interpolation=cv2.INTER_LINEAR)
+    return np.clip(out.astype(np.float32) * rng.uniform(0.7, 1.3, 3), 0, 255).astype(np.uint8)
 
 
-def cut_and_paste(image: np.ndarray, alpha: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Put the foreground of a green-screen image (alpha (H, W) uint8 0..255) on a random background."""
+def despill(image: np.ndarray) -> np.ndarray:
+    """Remove green-screen spill: green limited to the mean of red and blue ((H, W, 3) uint8 RGB)."""
+    out = image.copy()
+    limit = ((image[..., 0].astype(np.uint16) + image[..., 2]) // 2).astype(np.uint8)
+    np.minimum(out[..., 1], limit, out=out[..., 1])
+    return out
+
+
+def recolor_foreground(image: np.ndarray, rng: np.random.Generator, amount: float = 1.0) -> np.ndarray:
+    """Random skin-tone change of a despilled foreground ((H, W, 3) uint8 -> float32 0..255): brightness
+    (log-uniform 0.25..1.5, covering very dark to very pale skin), saturation (0.2..1.3) and a mild tint."""
+    img = image.astype(np.float32)
+    if amount <= 0:
+        return img
+    gray = img.mean(axis=-1, keepdims=True)
+    saturation = rng.uniform(1 - 0.8 * amount, 1 + 0.3 * amount)
+    gain = np.exp(rng.uniform(np.log(0.25) * amount, np.log(1.5) * amount))
+    tint = 1 + rng.uniform(-0.12, 0.12, 3) * amount
+    return (gray + saturation * (img - gray)) * gain * tint
+
+
+def cut_and_paste(image: np.ndarray, alpha: np.ndarray, rng: np.random.Generator,
+                  recolor: float = 1.0) -> np.ndarray:
+    """Put the foreground of a green-screen image (alpha (H, W) uint8 0..255) on a random background:
+    despilled, recoloured (`recolor` = strength, 0 = keep colours), composited with a softened alpha."""
     a = cv2.GaussianBlur(alpha.astype(np.float32) / 255.0, (3, 3), 0)[..., None]
+    foreground = recolor_foreground(despill(image), rng, recolor)
     background = random_background(image.shape[0], image.shape[1], rng).astype(np.float32)
-    return np.clip(image.astype(np.float32) * a + background * (1 - a), 0, 255).astype(np.uint8)
+    return np.clip(foreground * a + background * (1 - a), 0, 255).astype(np.uint8)
 
 
 def color_jitter(image: np.ndarray, amount: float, rng: np.random.Generator) -> np.ndarray:
-    """Random per-channel gain and a common offset, amplitude `amount` (fraction)."""
+    """Random per-channel gain and a common offset, amplitude `amount` (fraction), and mild noise."""
     if amount <= 0:
         return image
     gain = 1 + rng.uniform(-amount, amount, 3)
     offset = rng.uniform(-amount, amount) * 60
-    return np.clip(image.astype(np.float32) * gain + offset, 0, 255).astype(np.uint8)
+    out = image.astype(np.float32)
+    if rng.random() < 0.1:  # now and then a grey image (low-saturation skin in grey surroundings)
+        out = np.repeat(out.mean(axis=2, keepdims=True), 3, axis=2)
+    out = out * gain + offset
+    if rng.random() < 0.5:
+        out += rng.normal(0, rng.uniform(1, 6), out.shape).astype(np.float32)
+    return np.clip(out, 0, 255).astype(np.uint8)
 
 
 # --- MVNet dataset -----------------------------------------------------------------------------------------
@@ -264,21 +357,70 @@ def build_mvnet_dataset(capture: Capture, frames: Sequence[FrameRef], config: MV
                         tuple(frame_id(f) for f in frames), S, config.crop_radius_m)
 
 
+def random_rotation(rng: np.random.Generator) -> np.ndarray:
+    """A uniformly random 3D rotation matrix (3, 3) (from a random unit quaternion)."""
+    q = rng.normal(size=4)
+    w, x, y, z = q / np.linalg.norm(q)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def crop_affine(crop_px: int, angle_rad: float, scale: float, shift_px: np.ndarray) -> np.ndarray:
+    """(3, 3) map of crop pixels onto themselves: rotation by `angle_rad` and scaling about the crop centre,
+    then a shift (pixel-centre convention)."""
+    c = (crop_px - 1) / 2
+    cos, sin = scale * np.cos(angle_rad), scale * np.sin(angle_rad)
+    return np.array([[cos, -sin, c - cos * c + sin * c + shift_px[0]],
+                     [sin, cos, c - sin * c - cos * c + shift_px[1]], [0, 0, 1.0]])
+
+
 def augment_mvnet_batch(dataset: MVNetDataset, indices: np.ndarray, config: MVNetConfig,
                         rng: np.random.Generator, augment: bool = True) -> dict[str, np.ndarray]:
-    """One training batch: crops (B, C, S, S, 3) uint8, K_crop, view_valid, centers_world (jittered),
-    keypoints_3d."""
-    crops = dataset.crops[indices].copy()
+    """One training batch.
+
+    Augmentation (config): per view a random in-plane rotation / scale / shift of the crop (its intrinsics
+    follow: K' = A K, so the geometry stays exact), cut-and-paste onto a new background with a new skin
+    tone, colour jitter; per frame a random subset of `train_views` views, a jittered grid centre and,
+    with `grid_rotation`, a random orientation of the voxel grid (the 3D network then sees hands in every
+    orientation; labels rotate with it).
+
+    Returns:
+        crops (B, C', S, S, 3) uint8, K_crop (B, C', 3, 3), view_valid (B, C'), view_index (B, C') int (which
+        camera each view is), centers_world (B, 3), grid_rotation (B, 3, 3) (voxel axes in the world),
+        keypoints_3d (B, K, 3).
+    """
+    indices = np.asarray(indices)
+    B, C = len(indices), dataset.crops.shape[1]
+    views = C if not augment or config.train_views <= 0 else min(C, config.train_views)
+    view_index = np.stack([np.sort(rng.choice(C, views, replace=False)) if views < C else np.arange(C)
+                           for _ in range(B)])
+    crops = dataset.crops[indices[:, None], view_index].copy()
+    K_crop = dataset.K_crop[indices[:, None], view_index].astype(np.float64)
     centers = dataset.centers_world[indices].astype(np.float64).copy()
+    rotation = np.repeat(np.eye(3)[None], B, axis=0)
+    S = dataset.crop_px
     if augment:
         for b, m in enumerate(indices):
-            for c in range(crops.shape[1]):
+            for v, c in enumerate(view_index[b]):
+                crop, alpha = crops[b, v], dataset.alphas[m, c]
+                if config.crop_rotation_deg > 0 or config.crop_scale > 0:
+                    A = crop_affine(S, np.deg2rad(rng.uniform(-1, 1) * config.crop_rotation_deg),
+                                    float(np.exp(rng.uniform(-1, 1) * config.crop_scale)), rng.normal(0, 0.03 * S, 2))
+                    crop = cv2.warpAffine(crop, A[:2], (S, S), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+                    alpha = cv2.warpAffine(alpha, A[:2], (S, S), flags=cv2.INTER_LINEAR,
+                                           borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+                    K_crop[b, v] = A @ K_crop[b, v]
                 if dataset.has_alpha[m] and rng.random() < config.cut_paste_prob:
-                    crops[b, c] = cut_and_paste(crops[b, c], dataset.alphas[m, c], rng)
-                crops[b, c] = color_jitter(crops[b, c], config.color_jitter, rng)
+                    crop = cut_and_paste(crop, alpha, rng, config.recolor)
+                crops[b, v] = color_jitter(crop, config.color_jitter, rng)
+            if config.grid_rotation:
+                rotation[b] = random_rotation(rng)
         centers += rng.normal(0, config.center_jitter_m, centers.shape) if config.center_jitter_m > 0 else 0
-    return {"crops": crops, "K_crop": dataset.K_crop[indices], "view_valid": dataset.view_valid[indices],
-            "centers_world": centers.astype(np.float32), "keypoints_3d": dataset.keypoints_3d[indices]}
+    return {"crops": crops, "K_crop": K_crop.astype(np.float32),
+            "view_valid": dataset.view_valid[indices[:, None], view_index], "view_index": view_index,
+            "centers_world": centers.astype(np.float32), "grid_rotation": rotation.astype(np.float32),
+            "keypoints_3d": dataset.keypoints_3d[indices]}
 
 
 # --- HandSegNet dataset ------------------------------------------------------------------------------------
@@ -374,7 +516,7 @@ def sample_handseg_batch(dataset: HandSegDataset, config: HandSegNetConfig, rng:
             radius = config.crop_radius_m * rng.uniform(0.85, 1.15)
         else:
             radius = float(np.exp(rng.uniform(lo, hi)))
-        center = dataset.centers_world[m] + (rng.normal(0, 0.1 * radius, 3) if augment else 0)
+        center = dataset.centers_world[m] + (rng.normal(0, config.center_jitter * radius, 3) if augment else 0)
         A, ok = crop_transform(cam, center, S, radius)
         if not ok:
             continue
@@ -383,7 +525,7 @@ def sample_handseg_batch(dataset: HandSegDataset, config: HandSegNetConfig, rng:
         alpha = dataset.alphas[m]
         if augment:
             if alpha is not None and rng.random() < config.cut_paste_prob:
-                image = cut_and_paste(image, warp_crop(alpha.astype(np.uint8) * 255, A, S), rng)
+                image = cut_and_paste(image, warp_crop(alpha.astype(np.uint8) * 255, A, S), rng, config.recolor)
             image = color_jitter(image, config.color_jitter, rng)
             if rng.random() < 0.5:
                 image, target = image[:, ::-1], target[:, ::-1]

@@ -16,15 +16,22 @@ import torch
 
 
 def world_to_grid(points_world: torch.Tensor, center_world: torch.Tensor, grid_size: int,
-                  side_m: float) -> torch.Tensor:
-    """points (B, K, 3) metres, world frame; centres (B, 3) -> (B, K, 3) continuous voxel indices."""
-    return (points_world - center_world[:, None, :]) / (side_m / grid_size) + (grid_size - 1) / 2
+                  side_m: float, rotation: torch.Tensor | None = None) -> torch.Tensor:
+    """points (B, K, 3) metres, world frame; centres (B, 3); optional grid orientation (B, 3, 3) (columns =
+    world directions of the voxel axes) -> (B, K, 3) continuous voxel indices."""
+    offsets = points_world - center_world[:, None, :]
+    if rotation is not None:
+        offsets = torch.einsum("bxy,bkx->bky", rotation, offsets)  # R^T (p - c)
+    return offsets / (side_m / grid_size) + (grid_size - 1) / 2
 
 
 def grid_to_world(points_grid: torch.Tensor, center_world: torch.Tensor, grid_size: int,
-                  side_m: float) -> torch.Tensor:
+                  side_m: float, rotation: torch.Tensor | None = None) -> torch.Tensor:
     """Inverse of `world_to_grid`: (B, K, 3) voxel indices -> (B, K, 3) metres, world frame."""
-    return (points_grid - (grid_size - 1) / 2) * (side_m / grid_size) + center_world[:, None, :]
+    offsets = (points_grid - (grid_size - 1) / 2) * (side_m / grid_size)
+    if rotation is not None:
+        offsets = torch.einsum("bxy,bky->bkx", rotation, offsets)
+    return offsets + center_world[:, None, :]
 
 
 def gaussian_targets(keypoints_grid: torch.Tensor, grid_size: int, sigma_voxels: float) -> torch.Tensor:
@@ -113,3 +120,36 @@ def refined_argmax(scores: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         offset = torch.where(denom < -1e-9, 0.5 * (lm - lp) / denom.clamp(max=-1e-9), torch.zeros_like(denom))
         out[..., axis] = out[..., axis] + torch.where(ok, offset.clamp(-0.5, 0.5), torch.zeros_like(offset))
     return out, confidence
+
+
+def gaussian_targets_2d(keypoints_px: torch.Tensor, size: int, sigma_px: float) -> torch.Tensor:
+    """Peak-normalised 2D Gaussians: keypoints (..., K, 2) (u, v) in pixels of a (size x size) map ->
+    (..., K, size, size) indexed [v, u]."""
+    axis = torch.arange(size, device=keypoints_px.device, dtype=keypoints_px.dtype)
+    du = (axis - keypoints_px[..., 0, None]) ** 2  # (..., K, size)
+    dv = (axis - keypoints_px[..., 1, None]) ** 2
+    return torch.exp(-(dv[..., :, None] + du[..., None, :]) / (2 * sigma_px**2))
+
+
+def heatmap_2d_loss(maps: torch.Tensor, keypoints_px: torch.Tensor, weights: torch.Tensor,
+                    sigma_px: float) -> torch.Tensor:
+    """Auxiliary per-view loss of the 2D keypoint head: cross-entropy between softmax(map) over the pixels
+    and a normalised Gaussian at the projected keypoint, averaged over the weighted (view, keypoint) pairs.
+    (Cross-entropy gives every pixel a gradient from the first step; an L2 loss to sparse 2D peaks stalled
+    at all-zero maps for hundreds of steps in our runs.)
+
+    Args:
+        maps: (B, C, K, h, h) logits; keypoints_px: (B, C, K, 2) (u, v) in pixels of the map;
+        weights: (B, C, K) 1 for a labelled keypoint inside a valid view, else 0.
+    """
+    target = gaussian_targets_2d(keypoints_px, maps.shape[-1], sigma_px).flatten(3)
+    target = target / target.sum(-1, keepdim=True).clamp(min=1e-8)
+    per = -(target * torch.log_softmax(maps.flatten(3), dim=-1)).sum(-1)  # (B, C, K)
+    return (per * weights).sum() / weights.sum().clamp(min=1)
+
+
+def peak_normalised(maps: torch.Tensor) -> torch.Tensor:
+    """2D logits (..., h, w) -> softmax over the pixels divided by its maximum: (..., h, w) in (0, 1], 1 at
+    the most likely pixel."""
+    flat = maps.flatten(-2)
+    return torch.exp(flat - flat.amax(-1, keepdim=True)).reshape(maps.shape)

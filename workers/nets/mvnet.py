@@ -8,10 +8,12 @@ The module only holds parameters; the steps are `encode_views`, `unproject_featu
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as nnf
 from torch import nn
 
 from workers.handmodel.keypoints import NUM_KEYPOINTS
 from workers.nets.configs import MVNetConfig
+from workers.nets.losses import peak_normalised
 from workers.nets.unproject import unproject_features
 
 # Per-channel normalisation of uint8 RGB input (ImageNet statistics, a neutral choice).
@@ -19,46 +21,80 @@ RGB_MEAN = (0.485, 0.456, 0.406)
 RGB_STD = (0.229, 0.224, 0.225)
 
 
+def _autocast(x: torch.Tensor, enabled: bool) -> torch.autocast:
+    """bfloat16 autocast on x's device when enabled (convolutions 2-3x faster on CPUs with AMX / AVX512-BF16;
+    normalisation, losses and the unprojection stay float32)."""
+    return torch.autocast(device_type=x.device.type, dtype=torch.bfloat16, enabled=enabled)
+
+
 def _groups(channels: int) -> int:
     return max(1, min(8, channels // 4))
 
 
-def conv_block(cin: int, cout: int, dims: int) -> nn.Sequential:
-    """3x3(x3) convolution, group norm, ReLU."""
+def conv_block(cin: int, cout: int, dims: int, stride: int = 1, norm: str = "group") -> nn.Sequential:
+    """3x3(x3) convolution, normalisation ("group" or "batch"), ReLU."""
     conv = nn.Conv2d if dims == 2 else nn.Conv3d
-    return nn.Sequential(conv(cin, cout, 3, padding=1, bias=False), nn.GroupNorm(_groups(cout), cout),
-                         nn.ReLU(inplace=True))
+    if norm == "batch":
+        layer: nn.Module = nn.BatchNorm2d(cout) if dims == 2 else nn.BatchNorm3d(cout)
+    elif norm == "group":
+        layer = nn.GroupNorm(_groups(cout), cout)
+    else:
+        raise ValueError(f"norm must be 'group' or 'batch', got {norm!r}")
+    return nn.Sequential(conv(cin, cout, 3, stride=stride, padding=1, bias=False), layer, nn.ReLU(inplace=True))
 
 
 class FeatureEncoder2d(nn.Module):
-    """Crops (M, 3, S, S) float -> features (M, F, S / 2^(L-1), S / 2^(L-1)); L = len(widths)."""
+    """Crops (M, 3, S, S) float -> features (M, F, S / 2^(L-1-D), same); L = len(widths), D = decoder_levels.
 
-    def __init__(self, widths: tuple[int, ...], convs_per_stage: int, out_channels: int) -> None:
+    Stages of `convs_per_stage` 3x3 convolutions with a 2x max-pool between stages; with D > 0 the deepest
+    stage is upsampled D times (transposed convolution, skip connection from the encoder, one 3x3
+    convolution), so a small map at the output still sees the whole hand (the receptive field of the
+    deepest stage) without paying for deep stages at full resolution.
+    """
+
+    def __init__(self, widths: tuple[int, ...], convs_per_stage: int, out_channels: int,
+                 decoder_levels: int = 0, stem_stride: int = 1, norm: str = "group") -> None:
         super().__init__()
-        layers: list[nn.Module] = []
+        if not 0 <= decoder_levels < len(widths):
+            raise ValueError(f"decoder_levels must be in 0..{len(widths) - 1}, got {decoder_levels}")
+        self.stages = nn.ModuleList()
         cin = 3
         for level, width in enumerate(widths):
-            if level:
-                layers.append(nn.MaxPool2d(2))
-            for _ in range(convs_per_stage):
-                layers.append(conv_block(cin, width, 2))
+            convs = []
+            for k in range(convs_per_stage):
+                stride = stem_stride if level == 0 and k == 0 else 1
+                convs.append(conv_block(cin, width, 2, stride, norm))
                 cin = width
-        layers.append(nn.Conv2d(cin, out_channels, 1))
-        self.body = nn.Sequential(*layers)
+            self.stages.append(nn.Sequential(*convs))
+        self.up = nn.ModuleList()
+        self.merge = nn.ModuleList()
+        for level in range(len(widths) - 2, len(widths) - 2 - decoder_levels, -1):
+            self.up.append(nn.ConvTranspose2d(cin, widths[level], 2, stride=2))
+            self.merge.append(conv_block(2 * widths[level], widths[level], 2, norm=norm))
+            cin = widths[level]
+        self.out = nn.Conv2d(cin, out_channels, 1)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.body(x)
+        skips = []
+        for level, stage in enumerate(self.stages):
+            if level:
+                x = nnf.max_pool2d(x, 2)
+            x = stage(x)
+            skips.append(x)
+        for up, merge, skip in zip(self.up, self.merge, reversed(skips[:-1]), strict=False):
+            x = merge(torch.cat([up(x), skip], dim=1))
+        return self.out(x)
 
 
 class UNet3d(nn.Module):
     """(B, F, N, N, N) -> (B, out, N, N, N): encoder-decoder with skip connections (Ronneberger et al.)."""
 
-    def __init__(self, in_channels: int, widths: tuple[int, ...], out_channels: int) -> None:
+    def __init__(self, in_channels: int, widths: tuple[int, ...], out_channels: int, norm: str = "group") -> None:
         super().__init__()
         self.down = nn.ModuleList()
         cin = in_channels
         for level, width in enumerate(widths):
-            convs = [conv_block(cin, width, 3)] + ([conv_block(width, width, 3)] if level else [])
+            convs = [conv_block(cin, width, 3, norm=norm)] + ([conv_block(width, width, 3, norm=norm)] if level else [])
             self.down.append(nn.Sequential(*convs))
             cin = width
         self.pool = nn.MaxPool3d(2)
@@ -66,10 +102,16 @@ class UNet3d(nn.Module):
         self.merge = nn.ModuleList()
         for level in range(len(widths) - 2, -1, -1):
             self.up.append(nn.ConvTranspose3d(widths[level + 1], widths[level], 2, stride=2))
-            self.merge.append(conv_block(2 * widths[level], widths[level], 3))
+            self.merge.append(conv_block(2 * widths[level], widths[level], 3, norm=norm))
         self.head = nn.Conv3d(widths[0], out_channels, 1)
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
+    def forward(self, x: torch.Tensor, bf16: bool = False) -> torch.Tensor:
+        """x (B, F, N, N, N) float32 -> (B, out, N, N, N) float32 (bf16 = convolutions in bfloat16)."""
+        x = x.contiguous(memory_format=torch.channels_last_3d)
+        with _autocast(x, bf16):
+            return self._forward(x).float().contiguous()
+
+    def _forward(self, x: torch.Tensor) -> torch.Tensor:
         skips = []
         for level, block in enumerate(self.down):
             if level:
@@ -87,8 +129,11 @@ class MVNet(nn.Module):
     def __init__(self, config: MVNetConfig, num_keypoints: int = NUM_KEYPOINTS) -> None:
         super().__init__()
         self.config = config
-        self.encoder = FeatureEncoder2d(config.backbone_widths, config.convs_per_stage, config.feature_channels)
-        self.unet = UNet3d(config.feature_channels, config.unet_widths, num_keypoints)
+        self.encoder = FeatureEncoder2d(config.backbone_widths, config.convs_per_stage, config.feature_channels,
+                                        config.decoder_levels, config.stem_stride, config.norm)
+        # Optional 2D keypoint heads on the shared features (deep supervision, see losses.heatmap_2d_loss).
+        self.head_2d = nn.Conv2d(config.feature_channels, num_keypoints, 1) if config.aux_2d_weight > 0 else None
+        self.unet = UNet3d(config.feature_channels, config.unet_widths, num_keypoints, config.norm)
         self.register_buffer("rgb_mean", torch.tensor(RGB_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("rgb_std", torch.tensor(RGB_STD).view(1, 3, 1, 1), persistent=False)
 
@@ -98,26 +143,55 @@ class MVNet(nn.Module):
         if crops.shape[2:] != (self.config.crop_px, self.config.crop_px, 3):
             raise ValueError(f"crops must be (B, C, {self.config.crop_px}, {self.config.crop_px}, 3) for this "
                              f"configuration, got {tuple(crops.shape)}")
-        x = crops.reshape(B * C, S, S, 3).permute(0, 3, 1, 2)
+        x = crops.reshape(B * C, S, S, 3).permute(0, 3, 1, 2)  # a channels-last view: what oneDNN prefers
         x = x.float() / 255.0 if crops.dtype == torch.uint8 else x.float()
-        features = self.encoder((x - self.rgb_mean) / self.rgb_std)
+        x = ((x - self.rgb_mean) / self.rgb_std).contiguous(memory_format=torch.channels_last)
+        with _autocast(x, self.config.bf16):
+            features = self.encoder(x)
+        features = features.float().contiguous()
         return features.reshape(B, C, *features.shape[1:])
 
+    def heatmaps_2d(self, features: torch.Tensor) -> torch.Tensor:
+        """features (B, C, F, h, h) -> 2D keypoint score maps (B, C, K, h, h) of the auxiliary head."""
+        if self.head_2d is None:
+            raise ValueError("this configuration has no 2D keypoint head (aux_2d_weight = 0)")
+        B, C = features.shape[:2]
+        maps = self.head_2d(features.flatten(0, 1))
+        return maps.reshape(B, C, *maps.shape[1:])
+
     def forward(self, crops: torch.Tensor, K_crop: torch.Tensor, dist: torch.Tensor, R: torch.Tensor,
-                t: torch.Tensor, center_world: torch.Tensor, view_valid: torch.Tensor | None = None) -> torch.Tensor:
+                t: torch.Tensor, center_world: torch.Tensor, view_valid: torch.Tensor | None = None,
+                return_features: bool = False, grid_rotation: torch.Tensor | None = None
+                ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
         """Score volumes of one batch of frames.
 
         Args:
             crops: (B, C, S, S, 3) hand crops, uint8 RGB (or float in [0, 1]).
             K_crop: (B, C, 3, 3) crop intrinsics, pixels of the crop.
-            dist: (C, 5); R: (C, 3, 3); t: (C, 3) the rig, world -> camera, metres.
+            dist: (C, 5); R: (C, 3, 3); t: (C, 3) the rig, world -> camera, metres (or (B, C, ...) when
+                each frame brings its own subset of the cameras).
             center_world: (B, 3) grid centres, metres, world frame.
             view_valid: (B, C) bool, views to use (default all).
+            return_features: also return the 2D features (B, C, F, h, h) (for the auxiliary 2D loss).
+            grid_rotation: (B, 3, 3) orientation of the grid (training augmentation); default world axes.
         Returns:
-            (B, K, N, N, N) score volumes, index (i, j, l) along world (x, y, z).
+            (B, K, N, N, N) score volumes, index (i, j, l) along the grid axes (world x, y, z) [, features].
         """
         cfg = self.config
         features = self.encode_views(crops)
-        volume = unproject_features(features, K_crop, dist, R, t, center_world, cfg.grid_size, cfg.grid_side_m,
-                                    cfg.crop_px, view_valid)
-        return self.unet(volume)
+        if cfg.heatmap_residual:
+            maps = peak_normalised(self.heatmaps_2d(features))
+            volume, count = unproject_features(torch.cat([features, maps], dim=2), K_crop, dist, R, t, center_world,
+                                               cfg.grid_size, cfg.grid_side_m, cfg.crop_px, view_valid,
+                                               grid_rotation, return_count=True)
+            F = features.shape[2]
+            views = view_valid.sum(dim=1).clamp(min=1).to(volume.dtype) if view_valid is not None else \
+                torch.full((crops.shape[0],), float(crops.shape[1]), device=volume.device)
+            # Voxels seen by few views would otherwise carry one view's full heat along its ray.
+            seen = (count / views[:, None, None, None])[:, None]
+            scores = self.unet(volume[:, :F], cfg.bf16) + volume[:, F:] * seen
+        else:
+            volume = unproject_features(features, K_crop, dist, R, t, center_world, cfg.grid_size, cfg.grid_side_m,
+                                        cfg.crop_px, view_valid, grid_rotation)
+            scores = self.unet(volume, cfg.bf16)
+        return (scores, features) if return_features else scores

@@ -163,12 +163,15 @@ class MaskPrediction:
     location: HandLocation | None
 
 
-def predict_masks(model: HandSegNet, views: Views, cameras: Sequence[Camera]) -> MaskPrediction:
+def predict_masks(model: HandSegNet, views: Views, cameras: Sequence[Camera], refine_passes: int = 2
+                  ) -> MaskPrediction:
     """Hand masks of one multi-view frame.
 
-    A coarse pass over each whole image localises the hand (box centres triangulated); a fine pass on the
-    crop around the centre gives the probabilities, warped back into the image (zero outside the crop);
-    the final location is triangulated from the fine masks.
+    A coarse pass over each whole image localises the hand (blob centroids triangulated, see
+    localisation.py), a pass on crops of an intermediate radius refines it; a fine pass on the crop around
+    that centre gives the probabilities, warped back into the image (zero outside the crop); the location
+    is triangulated again from the fine masks and, when it moved by more than 1 cm, the fine pass is
+    repeated on crops around it (at most `refine_passes` times).
 
     Args:
         model: a trained HandSegNet.
@@ -188,25 +191,69 @@ def predict_masks(model: HandSegNet, views: Views, cameras: Sequence[Camera]) ->
         coarse_cams.append(small)
         coarse_images.append(cv2.resize(image, (small.width, small.height), interpolation=cv2.INTER_AREA))
     coarse = segment(model, coarse_images)
+    medium_radius_m = float(np.sqrt(cfg.crop_radius_m * cfg.coarse_radius_m))
     try:
         location = localise_hand([p > cfg.threshold for p in coarse], coarse_cams, min_area_px=4)
     except LocalisationError as exc:
-        log.info("no hand found: %s", exc)
-        return MaskPrediction([np.zeros((c.height, c.width), np.float32) for c in cameras], None)
-    crops, K_crop, valid, _ = crop_views(images, cameras, location.center_world, cfg.crop_px, cfg.crop_radius_m)
+        # At the coarse scale a low-contrast hand (pale skin on grey texture) can vanish; look again at the
+        # intermediate scale around the point the cameras look at.
+        log.info("coarse pass found no hand (%s); searching around the rig's centre", exc)
+        try:
+            medium = _fine_pass(model, images, cameras, rig_center(cameras), medium_radius_m)
+            location = localise_hand([p > cfg.threshold / 2 for p in medium], cameras)  # a weak hand is better
+        except LocalisationError as exc2:
+            log.info("no hand found: %s", exc2)
+            return MaskPrediction([np.zeros((c.height, c.width), np.float32) for c in cameras], None)
+    else:
+        # An intermediate scale next: at the coarse scale the hand is ~20 px and the wrist cut is blurred.
+        with contextlib.suppress(LocalisationError):
+            medium = _fine_pass(model, images, cameras, location.center_world, medium_radius_m)
+            location = localise_hand([p > cfg.threshold for p in medium], cameras)
+    probabilities = _fine_pass(model, images, cameras, location.center_world)
+    for attempt in range(refine_passes + 1):
+        try:
+            refined = localise_hand([p > cfg.threshold for p in probabilities], cameras)
+        except LocalisationError:
+            break  # keep the previous location
+        moved_m = float(np.linalg.norm(refined.center_world - location.center_world))
+        location = refined
+        if moved_m < 0.01 or attempt == refine_passes:
+            break
+        probabilities = _fine_pass(model, images, cameras, location.center_world)  # re-centred crops
+    return MaskPrediction(probabilities, location)
+
+
+def rig_center(cameras: Sequence[Camera]) -> np.ndarray:
+    """The point closest (least squares) to all cameras' optical axes, (3,) metres, world frame: where a
+    rig looks, the centre of its capture volume."""
+    A, b = np.zeros((3, 3)), np.zeros(3)
+    for cam in cameras:
+        R = np.asarray(cam.R, float)
+        center = -R.T @ np.asarray(cam.t, float)
+        axis = R[2] / np.linalg.norm(R[2])  # the optical axis (camera z) in world coordinates
+        P = np.eye(3) - np.outer(axis, axis)  # projector onto the plane normal to the axis
+        A += P
+        b += P @ center
+    return np.linalg.lstsq(A, b, rcond=None)[0]
+
+
+def _fine_pass(model: HandSegNet, images: list[np.ndarray], cameras: Sequence[Camera],
+               center_world: np.ndarray, radius_m: float | None = None) -> list[np.ndarray]:
+    """HandSegNet on the crops of half side `radius_m` (default: the fine radius) around `center_world`,
+    warped back into each image (zero outside the crop)."""
+    cfg = model.config
+    crops, K_crop, valid, _ = crop_views(images, cameras, center_world, cfg.crop_px, radius_m or cfg.crop_radius_m)
     fine = segment(model, list(crops))
     probabilities = []
     for c, cam in enumerate(cameras):
-        A = K_crop[c] @ np.linalg.inv(cam.K)
         if not valid[c]:
             probabilities.append(np.zeros((cam.height, cam.width), np.float32))
             continue
+        A = K_crop[c] @ np.linalg.inv(cam.K)
         probabilities.append(cv2.warpAffine(fine[c], A[:2], (cam.width, cam.height),
                                             flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                                             borderMode=cv2.BORDER_CONSTANT, borderValue=0))
-    with contextlib.suppress(LocalisationError):  # else keep the coarse location
-        location = localise_hand([p > cfg.threshold for p in probabilities], cameras)
-    return MaskPrediction(probabilities, location)
+    return probabilities
 
 
 @dataclass(frozen=True)

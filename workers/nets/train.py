@@ -33,8 +33,15 @@ from workers.nets.checkpoints import (
 from workers.nets.configs import HandSegNetConfig, MVNetConfig, NetsConfig
 from workers.nets.data import HandSegDataset, MVNetDataset, augment_mvnet_batch, sample_handseg_batch
 from workers.nets.handsegnet import HandSegNet
-from workers.nets.losses import gaussian_targets, scorevolume_loss, softargmax_loss, world_to_grid
+from workers.nets.losses import (
+    gaussian_targets,
+    heatmap_2d_loss,
+    scorevolume_loss,
+    softargmax_loss,
+    world_to_grid,
+)
 from workers.nets.mvnet import MVNet
+from workers.nets.unproject import project_batched
 
 log = logging.getLogger(__name__)
 
@@ -74,9 +81,10 @@ def _cosine_lr(base: float, fraction: float) -> float:
 
 
 def _train_loop(kind: NetKind, model: torch.nn.Module, config: MVNetConfig | HandSegNetConfig, config_name: str,
-                step_fn: Callable[[np.random.Generator], torch.Tensor], sample_ids: tuple[str, ...], budget_s: float,
-                checkpoint_dir: Path | str, resume: bool, progress: Callable[[TrainProgress], None] | None,
-                seed: int, max_steps: int | None, checkpoint_every_s: float, extra: dict[str, Any] | None
+                step_fn: Callable[[np.random.Generator, float], torch.Tensor], sample_ids: tuple[str, ...],
+                budget_s: float, checkpoint_dir: Path | str, resume: bool,
+                progress: Callable[[TrainProgress], None] | None, seed: int, max_steps: int | None,
+                checkpoint_every_s: float, extra: dict[str, Any] | None
                 ) -> TrainResult:
     if budget_s <= 0:
         raise ValueError(f"budget_s must be positive, got {budget_s}")
@@ -112,7 +120,7 @@ def _train_loop(kind: NetKind, model: torch.nn.Module, config: MVNetConfig | Han
         fraction = max(spent / budget_s, step / max_steps if max_steps else 0.0)
         for group in optimizer.param_groups:
             group["lr"] = _cosine_lr(config.lr, fraction)
-        loss = step_fn(rng)
+        loss = step_fn(rng, fraction)
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()
@@ -133,18 +141,44 @@ def _train_loop(kind: NetKind, model: torch.nn.Module, config: MVNetConfig | Han
 
 
 def mvnet_loss(model: MVNet, batch: dict[str, np.ndarray], cams: dict[str, torch.Tensor],
-               device: torch.device) -> torch.Tensor:
-    """The configured loss of one batch from `augment_mvnet_batch` (unlabelled = NaN keypoints ignored)."""
+               device: torch.device, only_2d: bool = False) -> torch.Tensor:
+    """The configured loss of one batch from `augment_mvnet_batch` (unlabelled = NaN keypoints ignored):
+    score-volume (or soft-argmax) loss, plus the auxiliary 2D keypoint loss when configured; `only_2d`:
+    the auxiliary loss alone (the 2D warm-up, no unprojection or 3D network)."""
     cfg = model.config
+    if only_2d and cfg.aux_2d_weight <= 0:
+        raise ValueError("only_2d needs the 2D keypoint head (aux_2d_weight > 0)")
     centers = torch.as_tensor(batch["centers_world"], device=device)
-    scores = model(torch.as_tensor(batch["crops"], device=device), torch.as_tensor(batch["K_crop"], device=device),
-                   cams["dist"], cams["R"], cams["t"], centers, torch.as_tensor(batch["view_valid"], device=device))
+    K_crop = torch.as_tensor(batch["K_crop"], device=device)
+    view_valid = torch.as_tensor(batch["view_valid"], device=device)
+    rotation = torch.as_tensor(batch["grid_rotation"], device=device) if "grid_rotation" in batch else None
+    dist, R, t = cams["dist"], cams["R"], cams["t"]
+    if "view_index" in batch and batch["view_index"].shape[1] != R.shape[0]:  # a subset of the views per frame
+        index = torch.as_tensor(batch["view_index"], device=device)
+        dist, R, t = dist[index], R[index], t[index]
+    crops = torch.as_tensor(batch["crops"], device=device)
     keypoints = torch.as_tensor(batch["keypoints_3d"], device=device)
     weights = torch.isfinite(keypoints).all(-1).float()
-    grid = world_to_grid(torch.nan_to_num(keypoints), centers, cfg.grid_size, cfg.grid_side_m)
-    if cfg.loss == "softargmax":
-        return softargmax_loss(scores, grid, weights)
-    return scorevolume_loss(scores, gaussian_targets(grid, cfg.grid_size, cfg.sigma_voxels), weights)
+    keypoints = torch.nan_to_num(keypoints)
+    if only_2d:
+        features, loss = model.encode_views(crops), torch.zeros((), device=device)
+    else:
+        scores, features = model(crops, K_crop, dist, R, t, centers, view_valid, return_features=True,
+                                 grid_rotation=rotation)
+        grid = world_to_grid(keypoints, centers, cfg.grid_size, cfg.grid_side_m, rotation)
+        if cfg.loss == "softargmax":
+            loss = softargmax_loss(scores, grid, weights)
+        else:
+            loss = scorevolume_loss(scores, gaussian_targets(grid, cfg.grid_size, cfg.sigma_voxels), weights)
+    if cfg.aux_2d_weight > 0:
+        pixels, depth = project_batched(keypoints, K_crop, dist, R, t)  # (B, C, K, 2) crop pixels
+        h = features.shape[-1]
+        pixels_map = (pixels + 0.5) * (h / cfg.crop_px) - 0.5  # crop pixels -> feature-map pixels
+        inside = ((pixels_map > -0.5) & (pixels_map < h - 0.5)).all(-1) & (depth > 1e-3)
+        w2d = weights[:, None, :] * view_valid[:, :, None].float() * inside.float()
+        loss = loss + cfg.aux_2d_weight * heatmap_2d_loss(model.heatmaps_2d(features), pixels_map, w2d,
+                                                          cfg.aux_2d_sigma_px)
+    return loss
 
 
 def train_mvnet(dataset: MVNetDataset, config: NetsConfig | MVNetConfig, budget_s: float,
@@ -178,9 +212,10 @@ def train_mvnet(dataset: MVNetDataset, config: NetsConfig | MVNetConfig, budget_
     cams = stack_cameras(list(dataset.cameras), device=device)
     batch_size = min(cfg.batch_frames, len(dataset))
 
-    def step(rng: np.random.Generator) -> torch.Tensor:
+    def step(rng: np.random.Generator, fraction: float) -> torch.Tensor:
         indices = rng.choice(len(dataset), size=batch_size, replace=False)
-        return mvnet_loss(model, augment_mvnet_batch(dataset, indices, cfg, rng), cams, device)
+        return mvnet_loss(model, augment_mvnet_batch(dataset, indices, cfg, rng), cams, device,
+                          only_2d=fraction < cfg.warmup_2d_fraction)
 
     return _train_loop("mvnet", model, cfg, name, step, dataset.sample_ids, budget_s, checkpoint_dir, resume,
                        progress, seed, max_steps, checkpoint_every_s, extra_metadata)
@@ -211,7 +246,7 @@ def train_handsegnet(dataset: HandSegDataset, config: NetsConfig | HandSegNetCon
     torch.manual_seed(seed)
     model = HandSegNet(cfg).to(device)
 
-    def step(rng: np.random.Generator) -> torch.Tensor:
+    def step(rng: np.random.Generator, fraction: float) -> torch.Tensor:
         images, targets = sample_handseg_batch(dataset, cfg, rng)
         logits = model(torch.as_tensor(np.ascontiguousarray(images), device=device))
         return handseg_loss(logits, torch.as_tensor(np.ascontiguousarray(targets), device=device))

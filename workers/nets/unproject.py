@@ -25,10 +25,27 @@ def voxel_offsets(grid_size: int, side_m: float, device: torch.device | str = "c
     return torch.stack([gx, gy, gz], dim=-1)
 
 
-def voxel_centers(center_world: torch.Tensor, grid_size: int, side_m: float) -> torch.Tensor:
-    """center_world (B, 3) metres, world frame -> (B, N, N, N, 3) voxel centres, metres, world frame."""
+def voxel_centers(center_world: torch.Tensor, grid_size: int, side_m: float,
+                  rotation: torch.Tensor | None = None) -> torch.Tensor:
+    """Voxel centres (B, N, N, N, 3), metres, world frame, of grids centred on center_world (B, 3).
+
+    rotation: optional (B, 3, 3) orientation of the grid: its columns are the world directions of the voxel
+    axes i, j, l (default: the world axes; training augmentation turns the grid).
+    """
     offsets = voxel_offsets(grid_size, side_m, center_world.device, center_world.dtype)
-    return center_world[:, None, None, None, :] + offsets[None]
+    if rotation is None:
+        return center_world[:, None, None, None, :] + offsets[None]
+    return center_world[:, None, None, None, :] + torch.einsum("bxy,ijky->bijkx", rotation, offsets)
+
+
+def _distort_per_frame(xy: torch.Tensor, dist: torch.Tensor) -> torch.Tensor:
+    """`distort_normalized` with per-frame coefficients: xy (B, C, P, 2), dist (B, C, 5)."""
+    k1, k2, p1, p2, k3 = (dist[..., i, None] for i in range(5))  # each (B, C, 1)
+    x, y = xy[..., 0], xy[..., 1]
+    r2 = x * x + y * y
+    radial = 1 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2
+    return torch.stack([x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x),
+                        y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y], dim=-1)
 
 
 def project_batched(points_world: torch.Tensor, K: torch.Tensor, dist: torch.Tensor, R: torch.Tensor,
@@ -38,14 +55,18 @@ def project_batched(points_world: torch.Tensor, K: torch.Tensor, dist: torch.Ten
     Args:
         points_world: (B, P, 3) metres, world frame.
         K: (B, C, 3, 3) pixel intrinsics of each frame's views (e.g. crop intrinsics).
-        dist: (C, 5) OpenCV distortion; R: (C, 3, 3), t: (C, 3) world -> camera (shared by the batch).
+        dist: (C, 5) OpenCV distortion; R: (C, 3, 3), t: (C, 3) world -> camera (shared by the batch), or
+            (B, C, 5), (B, C, 3, 3), (B, C, 3) when each frame has its own cameras.
     Returns:
         pixels (B, C, P, 2) in the image K refers to; depth_m (B, C, P).
     """
-    points_cam = torch.einsum("cij,bpj->bcpi", R, points_world) + t[None, :, None, :]
+    if R.ndim == 4:  # per-frame camera subsets
+        points_cam = torch.einsum("bcij,bpj->bcpi", R, points_world) + t[:, :, None, :]
+    else:
+        points_cam = torch.einsum("cij,bpj->bcpi", R, points_world) + t[None, :, None, :]
     depth = points_cam[..., 2]
     xy = points_cam[..., :2] / depth.clamp(min=1e-4)[..., None]
-    xy = distort_normalized(xy, dist)  # (B, C, P, 2)
+    xy = distort_normalized(xy, dist) if dist.ndim == 2 else _distort_per_frame(xy, dist)  # (B, C, P, 2)
     ones = torch.ones_like(xy[..., :1])
     uv = torch.einsum("bcij,bcpj->bcpi", K, torch.cat([xy, ones], dim=-1))
     return uv[..., :2], depth
@@ -53,27 +74,32 @@ def project_batched(points_world: torch.Tensor, K: torch.Tensor, dist: torch.Ten
 
 def unproject_features(features: torch.Tensor, K: torch.Tensor, dist: torch.Tensor, R: torch.Tensor,
                        t: torch.Tensor, center_world: torch.Tensor, grid_size: int, side_m: float,
-                       image_px: int, view_valid: torch.Tensor | None = None) -> torch.Tensor:
+                       image_px: int, view_valid: torch.Tensor | None = None,
+                       grid_rotation: torch.Tensor | None = None, return_count: bool = False
+                       ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
     """Average the views' features over a voxel grid.
 
     Args:
         features: (B, C, F, h, w) feature maps of square crops of side `image_px` (any h = w: the map
             spans the whole crop).
         K: (B, C, 3, 3) intrinsics of the crops, pixels of the crop (pixel (0, 0) = centre of the top-left).
-        dist: (C, 5); R: (C, 3, 3); t: (C, 3) world -> camera.
+        dist: (C, 5); R: (C, 3, 3); t: (C, 3) world -> camera (or (B, C, ...) when each frame uses its
+            own subset of the rig's cameras).
         center_world: (B, 3) grid centres, metres, world frame.
         grid_size: N; side_m: grid side, metres; image_px: crop side, pixels.
         view_valid: (B, C) bool, views to use (default all).
+        grid_rotation: (B, 3, 3) grid orientation (see `voxel_centers`); default world-aligned.
+        return_count: also return how many views see each voxel, (B, N, N, N).
     Returns:
-        (B, F, N, N, N) averaged features, index (i, j, l) along world (x, y, z); zero where no view sees
-        the voxel.
+        (B, F, N, N, N) averaged features, index (i, j, l) along the grid axes (world x, y, z unless
+        rotated); zero where no view sees the voxel [, count].
     """
     B, C, F, h, w = features.shape
     if K.shape != (B, C, 3, 3) or center_world.shape != (B, 3):
         raise ValueError(f"K must be (B={B}, C={C}, 3, 3) and center_world (B, 3); got {tuple(K.shape)}, "
                          f"{tuple(center_world.shape)}")
     N = grid_size
-    points = voxel_centers(center_world, N, side_m).reshape(B, N**3, 3)
+    points = voxel_centers(center_world, N, side_m, grid_rotation).reshape(B, N**3, 3)
     pixels, depth = project_batched(points, K, dist, R, t)  # (B, C, P, 2), (B, C, P)
     grid = (2 * pixels + 1) / image_px - 1  # align_corners=False: -1 is the crop's left edge
     inside = (depth > 1e-3) & (grid.abs() <= 1).all(dim=-1)  # (B, C, P)
@@ -82,6 +108,6 @@ def unproject_features(features: torch.Tensor, K: torch.Tensor, dist: torch.Tens
     sampled = nnf.grid_sample(features.reshape(B * C, F, h, w), grid.reshape(B * C, 1, N**3, 2),
                               mode="bilinear", padding_mode="zeros", align_corners=False)  # (B*C, F, 1, P)
     sampled = sampled.reshape(B, C, F, N**3) * inside[:, :, None, :].to(features.dtype)
-    count = inside.sum(dim=1).clamp(min=1).to(features.dtype)  # (B, P)
-    volume = sampled.sum(dim=1) / count[:, None, :]
-    return volume.reshape(B, F, N, N, N)
+    count = inside.sum(dim=1).to(features.dtype)  # (B, P)
+    volume = (sampled.sum(dim=1) / count.clamp(min=1)[:, None, :]).reshape(B, F, N, N, N)
+    return (volume, count.reshape(B, N, N, N)) if return_count else volume

@@ -54,3 +54,18 @@ def test_sparsification_of_a_perfect_confidence_matches_the_oracle():
     assert np.all(np.diff(perfect.oracle) <= 1e-12)  # the oracle only goes down
     with pytest.raises(ValueError):
         sparsification(errors, errors[:5])
+
+
+def test_localise_hand_ignores_larger_false_blobs_that_do_not_triangulate():
+    """A skin-coloured patch of the background can be larger than the hand in some views; it sits at a
+    different place in each view's background, so the views do not agree on it."""
+    cameras = default_rig(128)
+    center = np.array([-0.02, 0.04, 0.01])
+    masks = _disc_masks(cameras, center, radius_px=5)
+    rng = np.random.default_rng(0)
+    for c in (0, 3, 6):  # big distractors in three views
+        y, x = rng.integers(15, 80, 2)
+        masks[c][y:y + 14, x:x + 14] = True
+    location = localise_hand(masks, cameras)
+    assert np.linalg.norm(location.center_world - center) < 0.005
+    assert location.views_used.sum() == 8

@@ -19,8 +19,8 @@ from workers.nets.predict import predict_frames, predict_from_crops, predict_key
 from workers.nets.train import train_handsegnet, train_mvnet
 
 # cpu-small's architecture without augmentation: the network must memorise two frames.
-OVERFIT = replace(get_config("cpu-small").mvnet, lr=3e-3, center_jitter_m=0.0, cut_paste_prob=0.0, color_jitter=0.0,
-                  batch_frames=2)
+OVERFIT = replace(get_config("cpu-small").mvnet, center_jitter_m=0.0, cut_paste_prob=0.0, color_jitter=0.0,
+                  crop_rotation_deg=0.0, crop_scale=0.0, train_views=0, batch_frames=2)
 
 
 @pytest.fixture(scope="module")
@@ -102,7 +102,8 @@ def test_bad_inputs_fail_clearly(overfit, tiny_capture, tiny_frames):
     with pytest.raises(ValueError, match="crops must be"):
         result.model.encode_views(torch.zeros(1, 8, 16, 16, 3, dtype=torch.uint8))
     with pytest.raises(ValueError, match="do not match the configuration"):
-        train_mvnet(dataset, replace(OVERFIT, crop_px=64), budget_s=1, checkpoint_dir="/nonexistent")
+        train_mvnet(dataset, replace(OVERFIT, crop_px=OVERFIT.crop_px // 2), budget_s=1,
+                    checkpoint_dir="/nonexistent")
 
 
 def test_handsegnet_learns_and_predicts_masks(tiny_capture, tiny_frames, tmp_path):

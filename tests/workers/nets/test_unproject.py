@@ -76,3 +76,44 @@ def test_crop_intrinsics_map_projections_into_the_crop():
         A = K_crop[c] @ np.linalg.inv(cam.K)
         expected = (A[:2, :2] @ full[c].T).T + A[:2, 2]
         np.testing.assert_allclose(uv[0, c].numpy(), expected, atol=1e-6)
+
+
+def test_feature_lands_at_the_points_voxel_in_a_rotated_grid():
+    from workers.nets.data import random_rotation
+    from workers.nets.losses import world_to_grid
+
+    cameras = default_rig(96)
+    center = np.array([0.01, -0.02, 0.03])
+    N, side = 16, 0.4
+    rotation = torch.as_tensor(random_rotation(np.random.default_rng(4))[None], dtype=torch.float32)
+    voxels = voxel_centers(torch.as_tensor(center[None], dtype=torch.float32), N, side, rotation)[0].numpy()
+    target = (10, 5, 6)
+    point = voxels[target].astype(np.float64)
+    # The voxel's index is what world_to_grid gives for its centre.
+    grid = world_to_grid(torch.as_tensor(point[None, None], dtype=torch.float32),
+                         torch.as_tensor(center[None], dtype=torch.float32), N, side, rotation)
+    np.testing.assert_allclose(grid[0, 0].numpy(), target, atol=1e-3)
+    features, K_crop, _ = _delta_features(cameras, point, center)
+    cams = stack_cameras(cameras)
+    volume = unproject_features(features, K_crop, cams["dist"], cams["R"], cams["t"],
+                                torch.as_tensor(center[None], dtype=torch.float32), N, side, image_px=32,
+                                grid_rotation=rotation)
+    v = volume[0, 0]
+    assert np.unravel_index(int(v.argmax()), v.shape) == target
+
+
+def test_per_frame_camera_subsets_match_the_full_rig():
+    """Training feeds each frame a random subset of the views: indexing the rig per frame must give the
+    same volume as passing those cameras alone."""
+    cameras = default_rig(96)
+    center = np.array([0.0, 0.01, -0.02])
+    point = center + np.array([0.03, -0.02, 0.01])
+    features, K_crop, _ = _delta_features(cameras, point, center)
+    cams = stack_cameras(cameras)
+    subset = torch.tensor([[0, 2, 5, 7]])
+    a = unproject_features(features[:, subset[0]], K_crop[:, subset[0]], cams["dist"][subset], cams["R"][subset],
+                           cams["t"][subset], torch.as_tensor(center[None], dtype=torch.float32), 16, 0.4, 32)
+    sub_cams = stack_cameras([cameras[i] for i in subset[0].tolist()])
+    b = unproject_features(features[:, subset[0]], K_crop[:, subset[0]], sub_cams["dist"], sub_cams["R"],
+                           sub_cams["t"], torch.as_tensor(center[None], dtype=torch.float32), 16, 0.4, 32)
+    torch.testing.assert_close(a, b)

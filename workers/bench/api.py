@@ -1,11 +1,17 @@
 """`handloop bench api`: simulated annotators against a real server on PostgreSQL.
 
 A fresh database is created and migrated, seeded with samples (rows only, no images) and annotator
-accounts; uvicorn (uvloop, httptools) serves the app on 127.0.0.1. N simulated annotators, coroutines in
-this one process with one keep-alive HTTP/1.1 connection each (so at most N requests in flight), loop
-next -> submit until the time is up. Afterwards the database is checked: every acknowledged submission
-must be there with all its clicks (lost_submissions) and no sample may have been handed to two
-annotators (duplicate_assignments).
+accounts; uvicorn (uvloop, httptools) serves the app on 127.0.0.1, with the scale-out broker (Redis, under a
+key prefix of its own, removed afterwards) receiving the fit jobs that submissions queue. N simulated
+annotators, coroutines in this one process with one keep-alive HTTP/1.1 connection each (so at most N
+requests in flight), loop next -> submit until the time is up:
+- paced (`rate` > 0, the default 200 submissions/s): each annotator starts a cycle every N / rate seconds
+  on a fixed schedule (staggered), so the server is offered the target load and the latencies are those at
+  that load; an annotator behind schedule starts at once, and how far behind is reported (schedule lag);
+- saturated (`rate` = 0): every annotator starts its next cycle as soon as the last one ends, so
+  throughput is the server's capacity and latency is queueing (p50 ~ N / (2 x submits/s), Little's law).
+Afterwards the database is checked: every acknowledged submission must be there with all its clicks
+(lost_submissions) and no sample may have been handed to two annotators (duplicate_assignments).
 """
 
 from __future__ import annotations
@@ -40,6 +46,7 @@ class AnnotatorLog:
     acknowledged: list[tuple[str, int, int]] = field(default_factory=list)  # client id, sample id, clicks
     errors: dict[str, int] = field(default_factory=lambda: defaultdict(int))
     queue_empty: bool = False
+    lag_ms: list[float] = field(default_factory=list)  # paced runs: how late each cycle started
 
 
 def _free_port() -> int:
@@ -94,12 +101,15 @@ def _verify(url: str, logs: list[AnnotatorLog]) -> tuple[int, int]:
     return duplicates, lost
 
 
-def run(annotators: int = 50, seconds: float = 30.0, *, samples: int | None = None, cameras: int = 8,
-        server_workers: int = 2, pg_admin_url: str = "postgresql+psycopg://postgres@127.0.0.1:5432/postgres",
-        width: int = 320) -> dict[str, Any]:
+def run(annotators: int = 50, seconds: float = 30.0, *, rate: float = 200.0, samples: int | None = None,
+        cameras: int = 8, server_workers: int = 2,
+        pg_admin_url: str = "postgresql+psycopg://postgres@127.0.0.1:5432/postgres",
+        broker_url: str = "redis://127.0.0.1:6379/15", width: int = 320, warmup_s: float = 3.0) -> dict[str, Any]:
+    """One measured run; `rate` offered submissions/s in total (0: saturate)."""
     from sqlalchemy import create_engine, text
 
-    samples = samples or max(2000, int(400 * seconds))
+    samples = samples or max(2000, int(400 * (seconds + warmup_s)))
+    prefix = f"handloop-bench-{uuid.uuid4().hex[:8]}:"
     db_name = f"handloop_bench_{uuid.uuid4().hex[:8]}"
     admin = create_engine(pg_admin_url, isolation_level="AUTOCOMMIT")
     with admin.connect() as conn:
@@ -115,7 +125,8 @@ def run(annotators: int = 50, seconds: float = 30.0, *, samples: int | None = No
         pool = max(5, annotators // server_workers + 5)
         env = {**os.environ, "HANDLOOP_DATABASE_URL": url, "HANDLOOP_SECRET_KEY": SECRET,
                "HANDLOOP_ENVIRONMENT": "production", "HANDLOOP_DB_POOL_SIZE": str(pool),
-               "HANDLOOP_DB_MAX_OVERFLOW": "5", "HANDLOOP_DATA_DIR": tempfile.mkdtemp(prefix="handloop-bench-")}
+               "HANDLOOP_DB_MAX_OVERFLOW": "5", "HANDLOOP_DATA_DIR": tempfile.mkdtemp(prefix="handloop-bench-"),
+               "HANDLOOP_BROKER_URL": broker_url, "HANDLOOP_BROKER_PREFIX": prefix}
         server = subprocess.Popen(
             [sys.executable, "-m", "uvicorn", "backend.app:create_app", "--factory", "--host", "127.0.0.1",
              "--port", str(port), "--workers", str(server_workers), "--loop", "uvloop", "--http", "httptools",
@@ -125,10 +136,11 @@ def run(annotators: int = 50, seconds: float = 30.0, *, samples: int | None = No
         base = f"http://127.0.0.1:{port}"
         _wait_ready(base, server)
         logs = [AnnotatorLog() for _ in range(annotators)]
+        warmup_logs = [AnnotatorLog() for _ in range(annotators)]
         load_before = os.getloadavg()[0]
-        elapsed = _drive(port, logs, seconds)
+        elapsed = _drive(port, logs, seconds, rate, warmup_logs, warmup_s)
         load_after = os.getloadavg()[0]
-        duplicates, lost = _verify(url, logs)
+        duplicates, lost = _verify(url, warmup_logs + logs)
     finally:
         if server is not None:
             server.terminate()
@@ -139,6 +151,7 @@ def run(annotators: int = 50, seconds: float = 30.0, *, samples: int | None = No
         with admin.connect() as conn:
             conn.execute(text(f'DROP DATABASE IF EXISTS "{db_name}" WITH (FORCE)'))
         admin.dispose()
+        fit_messages = _drop_broker_keys(broker_url, prefix)
 
     lat = {route: [x for log in logs for x in log.latencies_ms[route]] for route in ("next", "submit")}
     submits = sum(len(log.acknowledged) for log in logs)
@@ -146,13 +159,17 @@ def run(annotators: int = 50, seconds: float = 30.0, *, samples: int | None = No
     for log in logs:
         for key, n in log.errors.items():
             errors[key] += n
+    lag = [x for log in logs for x in log.lag_ms]
     return {
+        "mode": f"paced, {rate:g} submissions/s offered" if rate > 0 else "saturated",
         "p50_ms_next": _percentile(lat["next"], 50), "p99_ms_next": _percentile(lat["next"], 99),
         "p50_ms_submit": _percentile(lat["submit"], 50), "p99_ms_submit": _percentile(lat["submit"], 99),
         "submits_per_s": round(submits / elapsed, 1), "requests_per_s": round(sum(map(len, lat.values())) / elapsed, 1),
         "submits": submits, "duplicate_assignments": duplicates, "lost_submissions": lost,
         "errors": dict(errors), "queue_exhausted": any(log.queue_empty for log in logs),
-        "measured_s": round(elapsed, 2), "clicks_per_submit": cameras * 6,
+        "measured_s": round(elapsed, 2), "warmup_s": warmup_s, "clicks_per_submit": cameras * 6,
+        "p99_ms_schedule_lag": _percentile(lag, 99) if rate > 0 else None,
+        "fit_messages_queued": fit_messages,
         "load_average_1min": {"before": round(load_before, 2), "after": round(load_after, 2)},
         "client": f"{annotators} asyncio coroutines in one process, one HTTP/1.1 keep-alive connection each",
         "server": f"uvicorn --workers {server_workers} --loop uvloop --http httptools --timeout-keep-alive 120, "
@@ -191,7 +208,25 @@ class _Http:
             await self.writer.wait_closed()
 
 
-def _drive(port: int, logs: list[AnnotatorLog], seconds: float) -> float:
+def _drop_broker_keys(broker_url: str, prefix: str) -> int | None:
+    """Remove the run's Redis keys (no worker consumes the fit jobs here); returns the fit messages queued."""
+    try:
+        import redis
+
+        client = redis.Redis.from_url(broker_url)
+        queued = int(client.llen(f"{prefix}cpu"))
+        keys = list(client.scan_iter(match=f"{prefix}*"))
+        if keys:
+            client.delete(*keys)
+        client.close()
+        return queued
+    except Exception as exc:  # the figures stand without this count
+        logger.warning("could not clean the broker keys %s*: %s", prefix, exc)
+        return None
+
+
+def _drive(port: int, logs: list[AnnotatorLog], seconds: float, rate: float, warmup_logs: list[AnnotatorLog],
+           warmup_s: float) -> float:
     """Run the simulated annotators as coroutines in this process (uvloop when installed); returns the
     measured seconds. Logins (Argon2) happen first, 4 at a time; the clock starts when all are in."""
     try:
@@ -199,10 +234,11 @@ def _drive(port: int, logs: list[AnnotatorLog], seconds: float) -> float:
         runner: Any = uvloop.run
     except ImportError:
         runner = asyncio.run
-    return runner(_drive_async(port, logs, seconds))
+    return runner(_drive_async(port, logs, seconds, rate, warmup_logs, warmup_s))
 
 
-async def _drive_async(port: int, logs: list[AnnotatorLog], seconds: float) -> float:
+async def _drive_async(port: int, logs: list[AnnotatorLog], seconds: float, rate: float,
+                       warmup_logs: list[AnnotatorLog], warmup_s: float) -> float:
     clients = [_Http(port) for _ in logs]
     gate = asyncio.Semaphore(4)
 
@@ -216,18 +252,37 @@ async def _drive_async(port: int, logs: list[AnnotatorLog], seconds: float) -> f
             clients[i].auth = b"Authorization: Bearer %s\r\n" % json.loads(body)["access_token"].encode()
 
     await asyncio.gather(*(login(i) for i in range(len(logs))))
-    start = time.perf_counter()
-    deadline = start + seconds
-    await asyncio.gather(*(_annotator(clients[i], i, deadline, logs[i]) for i in range(len(logs))))
-    elapsed = time.perf_counter() - start
+    cycle_s = len(logs) / rate if rate > 0 else 0.0
+
+    async def phase(phase_logs: list[AnnotatorLog], duration_s: float) -> float:
+        start = time.perf_counter()
+        await asyncio.gather(*(_annotator(clients[i], i, start + duration_s, phase_logs[i],
+                                          start + cycle_s * i / len(logs), cycle_s) for i in range(len(logs))))
+        return time.perf_counter() - start
+
+    # Warm-up, not measured (its assignments and submissions are verified with the rest): the server's
+    # connection pools fill and PostgreSQL prepares the statements, as in a server that has been running.
+    await phase(warmup_logs, warmup_s)
+    elapsed = await phase(logs, seconds)
     for client in clients:
         await client.close()
     return elapsed
 
 
-async def _annotator(client: _Http, index: int, deadline: float, log: AnnotatorLog) -> None:
-    """One simulated annotator: next -> submit until the deadline (one request in flight at a time)."""
+async def _annotator(client: _Http, index: int, deadline: float, log: AnnotatorLog, first_s: float,
+                     cycle_s: float) -> None:
+    """One simulated annotator: next -> submit until the deadline (one request in flight at a time); with
+    `cycle_s` > 0 a cycle starts every `cycle_s` seconds from `first_s`, at once when behind schedule."""
+    scheduled = first_s
     while time.perf_counter() < deadline:
+        if cycle_s > 0:
+            if scheduled >= deadline:
+                return
+            wait = scheduled - time.perf_counter()
+            if wait > 0:
+                await asyncio.sleep(wait)
+            log.lag_ms.append(max(0.0, -wait) * 1000)
+            scheduled += cycle_s
         t0 = time.perf_counter()
         status, body = await client.request("POST", "/api/annotate/next")
         log.latencies_ms["next"].append((time.perf_counter() - t0) * 1000)

@@ -65,9 +65,14 @@ class FitConfig:
         silhouette_vertices: vertices sampled (farthest-point) for the silhouette term.
         boundary_points: mask boundary points sampled per view for the coverage term.
         silhouette_cap_px: scale (reference pixels) of the robust penalty of the "model outside the mask"
-            term: masks of the visible hand lack what an object or the forearm hides, and masks have errors.
-        coverage_cap_px: the same for the "mask not covered" term, smaller: chroma-key masks also
+            term, for foreground masks (`masks_include_forearm`: chroma key), which hold everything in front
+            of the background, so the model lies inside them: only mask errors need the cap.
+        coverage_cap_px: the same for the "mask not covered" term with foreground masks, small: they also
             hold objects, sleeves and the forearm stump, which the model must not reach for.
+        hand_mask_silhouette_cap_px: "model outside the mask" with hand-only masks (HandSegNet, the visible
+            hand), small: they lack what an object or the forearm hides, which the model must not be
+            pushed out from behind.
+        hand_mask_coverage_cap_px: "mask not covered" with hand-only masks.
         coverage_tangent_weight: weight of the offset along the mask boundary, relative to the offset
             along its normal, in the "mask not covered" term (1: Euclidean distance). See docs/fitting.md.
         cut_forearm: cut masks at the wrist before comparing them with the model.
@@ -94,8 +99,10 @@ class FitConfig:
     nn_neighbours: int = 5
     silhouette_vertices: int = 384
     boundary_points: int = 96
-    silhouette_cap_px: float = 25.0
+    silhouette_cap_px: float = 100.0
     coverage_cap_px: float = 10.0
+    hand_mask_silhouette_cap_px: float = 25.0
+    hand_mask_coverage_cap_px: float = 20.0
     coverage_tangent_weight: float = 0.5
     cut_forearm: bool = True
     seed: int = 0
@@ -111,7 +118,8 @@ class FitConfig:
         if self.num_pca_comps > 45:
             raise ValueError(f"FitConfig.num_pca_comps must be at most 45, got {self.num_pca_comps}")
         positive = ("reference_width_px", "robust_scale_px", "learning_rate", "lm_damping", "lm_tolerance",
-                    "silhouette_cap_px", "coverage_cap_px")
+                    "silhouette_cap_px", "coverage_cap_px", "hand_mask_silhouette_cap_px",
+                    "hand_mask_coverage_cap_px")
         for name in positive:
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):

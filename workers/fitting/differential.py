@@ -127,7 +127,7 @@ def bilinear_with_gradient(images: torch.Tensor, height: int, width: int, points
     return value, torch.stack([gx, gy], -1)
 
 
-def robust_residual_with_jacobian(diff: torch.Tensor, scale: float,
+def robust_residual_with_jacobian(diff: torch.Tensor, scale: float | torch.Tensor,
                                   kind: str) -> tuple[torch.Tensor, torch.Tensor]:
     """`residuals.robust_residual` e(d) = d phi(|d|) plus de/dd: diff (..., D) -> (..., D), (..., D, D)."""
     D = diff.shape[-1]

@@ -251,7 +251,8 @@ class FittingEngine:
         return Targets(targets.clicks, targets.click_weights, targets.keypoints_3d, targets.keypoint_3d_weights,
                        outside=outside.reshape(B, C, H * W), height=H, width=W, boundary=silhouettes["boundary"],
                        boundary_normals=silhouettes["normals"], boundary_weights=silhouettes["valid"].to(self.dtype),
-                       view_weights=silhouettes["view_weights"])
+                       view_weights=silhouettes["view_weights"], outside_cap=silhouettes["outside_cap"],
+                       coverage_cap=silhouettes["coverage_cap"])
 
     # -- Adam (the paper's optimiser) ----------------------------------------------------------------
     def _fit_adam(self, frames, targets: Targets, placements, notify):
@@ -349,6 +350,11 @@ class FittingEngine:
             "valid": torch.as_tensor(valid, device=self.device),
             "view_weights": self._tensor(view_w),
             "cut_masks": cut_masks,  # type: ignore[dict-item]
+            # Robust scales by kind of mask (FitConfig): foreground masks hold occluders, hand masks lack them.
+            "outside_cap": self._tensor([cfg.silhouette_cap_px if f.masks_include_forearm
+                                         else cfg.hand_mask_silhouette_cap_px for f in frames]),
+            "coverage_cap": self._tensor([cfg.coverage_cap_px if f.masks_include_forearm
+                                          else cfg.hand_mask_coverage_cap_px for f in frames]),
         }
 
     def _forward(self, params: dict[str, torch.Tensor]):
@@ -376,9 +382,10 @@ class FittingEngine:
             verts = out.vertices[:, self.silhouette_ids]
             verts_px, _ = project_points_torch(verts, **self.cam)  # (B, C, Vs, 2)
             outside = losses.silhouette_outside_loss(verts_px, silhouettes["outside"], silhouettes["view_weights"],
-                                                     self.px_scale, cfg.silhouette_cap_px)
+                                                     self.px_scale, silhouettes["outside_cap"])
             cover = losses.silhouette_coverage_loss(verts_px, silhouettes["boundary"], silhouettes["valid"],
-                                                    silhouettes["view_weights"], self.px_scale, cfg.coverage_cap_px,
+                                                    silhouettes["view_weights"], self.px_scale,
+                                                    silhouettes["coverage_cap"],
                                                     silhouettes["normals"], cfg.coverage_tangent_weight)
             terms["seg"] = w.seg * (outside + cover)
         return terms

@@ -96,14 +96,14 @@ def _silhouette_blocks(objective: Objective, px: torch.Tensor, d_px: torch.Tenso
                        assoc: Associations) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """The silhouette residuals' per-vertex blocks (B, Vs, 3, 3), J^T r (B, Vs, 3) and cost (B,), from
     the vertices' pixels px (B, C, Vs, 2) and their Jacobians d_px (B, C, Vs, 2, 3)."""
-    cfg, w = objective.config, objective.config.weights
+    w = objective.config.weights
     B, C, Vs, _ = px.shape
     views = targets.view_weights
     scale = objective.px_scale[None, :, None]
     # Model outside the mask: e = f(dist), f the capped (Geman-McClure) residual, dist the distance field.
     value, grad = bilinear_with_gradient(targets.outside, targets.height, targets.width, px, targets.outside_rows)
     dist = value * scale
-    cap = cfg.silhouette_cap_px
+    cap = targets.outside_cap[:, None, None]
     denom = cap * cap + dist * dist
     root = (w.seg * views[..., None] / Vs).sqrt()  # (B, C, 1)
     e_out = dist * cap / denom.sqrt() * root
@@ -121,7 +121,7 @@ def _silhouette_blocks(objective: Objective, px: torch.Tensor, d_px: torch.Tenso
     share = (w.seg * views[..., None] * bw / bw.sum(-1, keepdim=True).clamp_min(1e-9)).sqrt()[..., None]
     frame = objective.boundary_frame(targets)  # (B, C, N, 2, 2)
     d = (frame @ ((near_px - targets.boundary) * scale[..., None])[..., None])[..., 0]
-    e, de = robust_residual_with_jacobian(d, cfg.coverage_cap_px, "geman_mcclure")
+    e, de = robust_residual_with_jacobian(d, targets.coverage_cap[:, None, None, None], "geman_mcclure")
     e = e * share
     rows = (de @ frame * (share * scale[..., None])[..., None]) @ near_d  # (B, C, N, 2, 3)
     blocks = (rows.transpose(-1, -2) @ rows).reshape(B, C * N, 9)

@@ -58,20 +58,20 @@ def sample_image(images: torch.Tensor, points_px: torch.Tensor) -> torch.Tensor:
 
 
 def silhouette_outside_loss(vertices_px: torch.Tensor, outside_dist_px: torch.Tensor, view_weights: torch.Tensor,
-                            px_scale: torch.Tensor, cap_px: float) -> torch.Tensor:
+                            px_scale: torch.Tensor, cap_px: float | torch.Tensor) -> torch.Tensor:
     """Model pixels far outside the mask (the EDT term of eq. 4), summed over views.
 
     Every surface point of the model projects inside its silhouette, so each projected vertex is
-    penalised by its squared distance to the mask (0 inside), capped at `cap_px`.
+    penalised by its squared distance to the mask (0 inside), capped at `cap_px` (a number, or (B,) per frame).
     vertices_px (B, C, Vs, 2); outside_dist_px (B, C, H, W); view_weights (B, C); px_scale (C,).
     """
     dist = sample_image(outside_dist_px, vertices_px) * px_scale[None, :, None]
-    penalty = robust_penalty(dist * dist, cap_px, "geman_mcclure").mean(-1)  # (B, C)
+    penalty = robust_penalty(dist * dist, _per_frame(cap_px, 3), "geman_mcclure").mean(-1)  # (B, C)
     return (penalty * view_weights).sum(1)  # summed over views, as eq. 4
 
 
 def silhouette_coverage_loss(vertices_px: torch.Tensor, boundary_px: torch.Tensor, boundary_valid: torch.Tensor,
-                             view_weights: torch.Tensor, px_scale: torch.Tensor, cap_px: float,
+                             view_weights: torch.Tensor, px_scale: torch.Tensor, cap_px: float | torch.Tensor,
                              normals: torch.Tensor | None = None, tangent_weight: float = 1.0) -> torch.Tensor:
     """Mask not covered by the model (the ||M - M~|| half of eq. 4), summed over views: each mask boundary
     sample should have a projected model vertex nearby.
@@ -95,9 +95,14 @@ def silhouette_coverage_loss(vertices_px: torch.Tensor, boundary_px: torch.Tenso
         component = frame[..., row, :] @ vertices_px.transpose(-1, -2) - along[..., row, None]  # (B, C, N, Vs)
         d2 = d2 + component * component
     nearest2 = d2.amin(-1) * px_scale[None, :, None] ** 2  # (B, C, N)
-    penalty = robust_penalty(nearest2, cap_px, "geman_mcclure")
+    penalty = robust_penalty(nearest2, _per_frame(cap_px, 3), "geman_mcclure")
     per_view = weighted_mean(penalty, boundary_valid.to(penalty.dtype), (2,))
     return (per_view * view_weights).sum(1)  # summed over views, as eq. 4
+
+
+def _per_frame(value: float | torch.Tensor, dims: int) -> float | torch.Tensor:
+    """A number as it is; a (B,) tensor shaped (B, 1, ...) to broadcast against (B, ...) of `dims` dims."""
+    return value.reshape(-1, *([1] * (dims - 1))) if torch.is_tensor(value) else value
 
 
 def shape_prior(betas: torch.Tensor) -> torch.Tensor:

@@ -42,6 +42,8 @@ class Targets:
         boundary: (B, C, N, 2) mask boundary samples, pixels; boundary_weights: (B, C, N), 1 valid, 0 padding.
         boundary_normals: (B, C, N, 2) the mask's outward unit normal at each boundary sample.
         view_weights: (B, C) 1 where the view has a mask.
+        outside_cap, coverage_cap: (B,) robust scales (reference pixels) of the two silhouette terms, per
+            frame (they depend on the kind of mask, see FitConfig).
     """
 
     clicks: torch.Tensor
@@ -56,6 +58,8 @@ class Targets:
     view_weights: torch.Tensor | None = None
     boundary_normals: torch.Tensor | None = None
     outside_rows: torch.Tensor | None = None
+    outside_cap: torch.Tensor | None = None
+    coverage_cap: torch.Tensor | None = None
 
     def repeat(self, times: int) -> Targets:
         """Each frame's targets `times` times in a row (for several starts per frame)."""
@@ -69,7 +73,8 @@ class Targets:
             rows = rows.repeat_interleave(times)
         return Targets(rep(self.clicks), rep(self.click_weights), rep(self.keypoints_3d), rep(self.keypoint_3d_weights),
                        self.outside, self.height, self.width, rep(self.boundary), rep(self.boundary_weights),
-                       rep(self.view_weights), rep(self.boundary_normals), rows)
+                       rep(self.view_weights), rep(self.boundary_normals), rows, rep(self.outside_cap),
+                       rep(self.coverage_cap))
 
     def to(self, dtype: torch.dtype) -> Targets:
         """The same targets with every float tensor in `dtype`."""
@@ -79,7 +84,8 @@ class Targets:
         return Targets(cast(self.clicks), cast(self.click_weights), cast(self.keypoints_3d),
                        cast(self.keypoint_3d_weights), cast(self.outside), self.height, self.width,
                        cast(self.boundary), cast(self.boundary_weights), cast(self.view_weights),
-                       cast(self.boundary_normals), self.outside_rows)
+                       cast(self.boundary_normals), self.outside_rows, cast(self.outside_cap),
+                       cast(self.coverage_cap))
 
 
 @dataclass
@@ -100,8 +106,9 @@ class Associations:
         return Associations(pick(self.boundary_vertex, other.boundary_vertex), pick(self.bank_poses, other.bank_poses))
 
 
-def robust_residual(diff: torch.Tensor, scale: float, kind: str) -> torch.Tensor:
-    """diff (..., D) -> (..., D) residual vectors e with |e|^2 = robust_penalty(|diff|^2) of `losses.py`."""
+def robust_residual(diff: torch.Tensor, scale: float | torch.Tensor, kind: str) -> torch.Tensor:
+    """diff (..., D) -> (..., D) residual vectors e with |e|^2 = robust_penalty(|diff|^2) of `losses.py`;
+    scale a number or a tensor broadcasting against diff."""
     if kind == "none":
         return diff
     squared = (diff * diff).sum(-1, keepdim=True)
@@ -287,14 +294,14 @@ class Objective:
         return blocks
 
     def _silhouette(self, verts_px: torch.Tensor, targets: Targets, assoc: Associations) -> torch.Tensor:
-        cfg, w = self.config, self.config.weights
+        w = self.config.weights
         B, _, Vs, _ = verts_px.shape
         views = targets.view_weights  # (B, C)
         scale = self.px_scale[None, :, None]
         # Model outside the mask: the distance field at each projected vertex, mean over vertices.
         dist = bilinear_lookup(targets.outside, targets.height, targets.width, verts_px,
                                targets.outside_rows) * scale  # (B, C, Vs)
-        cap = cfg.silhouette_cap_px
+        cap = targets.outside_cap[:, None, None]
         outside = dist * (cap / torch.sqrt(cap * cap + dist * dist)) * (w.seg * views[..., None] / Vs).sqrt()
         # Mask not covered: each boundary sample to its nearest projected vertex, mean over samples,
         # in the boundary's frame (along the normal, and alpha times along the tangent).
@@ -303,5 +310,5 @@ class Objective:
         d = (self.boundary_frame(targets) @ ((nearest - targets.boundary) * scale[..., None])[..., None])[..., 0]
         bw = targets.boundary_weights
         share = w.seg * views[..., None] * bw / bw.sum(-1, keepdim=True).clamp_min(1e-9)
-        cover = robust_residual(d, cfg.coverage_cap_px, "geman_mcclure") * share[..., None].sqrt()
+        cover = robust_residual(d, targets.coverage_cap[:, None, None, None], "geman_mcclure") * share[..., None].sqrt()
         return torch.cat([outside.reshape(B, -1), cover.reshape(B, -1)], 1)

@@ -18,8 +18,10 @@ from workers.geometry.projection import project_points_torch, stack_cameras
 
 
 def _setup(hand, rig, frames, config: FitConfig, kp3d=None):
-    """Engine, float64 targets (with silhouettes) and perturbed start vectors for the given frames."""
+    """Engine, float64 targets (with silhouettes) and perturbed start vectors for the given frames; the
+    first frame's masks are treated as foreground masks (cut at the wrist, their own caps)."""
     engine = FittingEngine(hand, rig, config)
+    frames = [dataclasses.replace(frames[0], masks_include_forearm=True), *frames[1:]]
     if kp3d is not None:
         frames = [dataclasses.replace(f, keypoints_3d=kp3d + 0.004) for f in frames]
     start = engine._start_vectors(engine._placements(frames), 1)
@@ -49,6 +51,7 @@ def test_residual_terms_equal_the_loss_functions(hand, rig, known_frames, robust
     for name, value in loss_terms.items():
         assert torch.allclose(residual_terms[name], value, rtol=1e-9, atol=1e-9), name
     assert float(residual_terms["seg"].min()) > 0 and float(residual_terms["kp2d"].min()) > 0
+    assert targets.outside_cap.tolist() == [config.silhouette_cap_px, config.hand_mask_silhouette_cap_px]
 
 
 @pytest.mark.parametrize(("robust", "coarse", "tangent_weight"),

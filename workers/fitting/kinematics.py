@@ -1,12 +1,11 @@
 """The hand model's forward pass as the fit needs it: only the points the objective reads, few operations.
 
-`HandLayer` poses every vertex and checks its inputs (which needs data-dependent control flow); a fit
-step needs far less: the 21 keypoints, the vertices sampled for the silhouette term, the articulation
-and the joints' rotation matrices (for the joint-limit prior). `FitKinematics` computes exactly those,
-with the same arithmetic as `workers.handmodel.lbs` (tests check equality with `HandLayer`), on a
-vertex subset, with the kinematic chain as three batched products, and with no checks or in-place
-writes, so that `torch.func` can push forward-mode tangents through it (the Levenberg-Marquardt
-solver's Jacobians).
+`HandLayer` poses every vertex and checks its inputs; a fit step needs far less: the 21 keypoints, the
+vertices sampled for the silhouette term, the articulation and the joints' rotation matrices (for the
+joint-limit prior). `FitKinematics` computes exactly those (tests check equality with `HandLayer`),
+with the kinematic chain as three batched products, and their derivatives (`jacobian`) for the
+Levenberg-Marquardt solver. No checks or in-place writes, so that tests can also differentiate it
+with `torch.func`.
 
 Parameter vector per frame (P = 16 + k): global rotation (3, axis-angle about the wrist joint),
 translation (3, metres), k PCA pose coefficients, 10 betas.

@@ -121,8 +121,13 @@ class Settings(BaseSettings):
     predict_batch_size: int = Field(default=16, ge=1, le=4096, description="Samples per prediction task.")
     fit_batch_size: int = Field(default=6, ge=1, le=512, description="Samples per fit task: a round's batches, "
                                 "and at most this many annotators' fits sent together.")
-    fit_global_iterations: int = Field(default=40, ge=1, le=100_000, description="Fit stage 1 iterations.")
-    fit_full_iterations: int = Field(default=160, ge=0, le=100_000, description="Fit stage 2 iterations.")
+    fit_optimizer: Literal["levenberg_marquardt", "adam"] = Field(
+        default="levenberg_marquardt", description="Levenberg-Marquardt (default; stops when converged) or the "
+        "paper's gradient descent (Adam: always runs its iterations, much slower).")
+    fit_global_iterations: int = Field(default=12, ge=1, le=100_000,
+                                       description="Fit stage 1: most solver steps (Adam: its steps).")
+    fit_full_iterations: int = Field(default=30, ge=0, le=100_000,
+                                     description="Fit stage 2: most solver steps (Adam: its steps).")
 
     @model_validator(mode="after")
     def _refuse_default_secret(self) -> Settings:

@@ -61,7 +61,8 @@ class FitSummary:
 def fit_config(ctx: WorkerContext, source: str) -> FitConfig:
     s = ctx.settings
     weights = LossWeights.later_rounds() if source == "prediction" else LossWeights()
-    return FitConfig(weights=weights, global_iterations=s.fit_global_iterations, full_iterations=s.fit_full_iterations)
+    return FitConfig(weights=weights, optimizer=s.fit_optimizer, global_iterations=s.fit_global_iterations,
+                     full_iterations=s.fit_full_iterations)
 
 
 def engine_for(ctx: WorkerContext, fi: FitInput, config: FitConfig) -> Any:

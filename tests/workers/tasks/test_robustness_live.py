@@ -33,6 +33,11 @@ def _fits_of_job(stack, job_id: int) -> int:
         return session.execute(select(func.count()).select_from(Fit).where(Fit.job_id == job_id)).scalar_one()
 
 
+# A fit long enough to be killed in the middle: Adam runs all its steps (Levenberg-Marquardt would converge
+# in a fraction of a second).
+SLOW_FIT = {"fit_optimizer": "adam", "fit_global_iterations": 100, "fit_full_iterations": 1200}
+
+
 def _submit(stack, role: str) -> tuple[dict, dict]:
     with stack.client(role) as http:
         task = http.post("/api/annotate/next")
@@ -47,8 +52,7 @@ def test_worker_killed_mid_fit_is_redelivered_and_recorded_once(live_stack):
     # Redis gives an unacknowledged task back after the visibility timeout (20 s here, above the 15 s task
     # limits); the claim takes the job over once its heartbeat is older than 12 s. A fit long enough to kill.
     stack = live_stack(frames=1, broker="redis", broker_visibility_timeout_s=20, task_time_limit_s=15,
-                       fit_task_time_limit_s=15, job_heartbeat_timeout_s=12, fit_global_iterations=100,
-                       fit_full_iterations=1200)
+                       fit_task_time_limit_s=15, job_heartbeat_timeout_s=12, **SLOW_FIT)
     task, body = _submit(stack, "annotator")
     with stack.client("annotator") as http:
         response = http.post(f"/api/annotate/samples/{task['sample_id']}/submissions", json=body)
@@ -75,7 +79,7 @@ def test_worker_killed_mid_fit_is_redelivered_and_recorded_once(live_stack):
 def test_embedded_worker_killed_mid_fit_is_resent_by_the_outbox_and_recorded_once(live_stack):
     """The filesystem broker keeps no unacknowledged messages: the API's outbox re-sends the job once its
     heartbeat is older than twice JOB_HEARTBEAT_TIMEOUT_S, and the new worker takes it over."""
-    stack = live_stack(frames=1, job_heartbeat_timeout_s=3, fit_global_iterations=100, fit_full_iterations=1200)
+    stack = live_stack(frames=1, job_heartbeat_timeout_s=3, **SLOW_FIT)
     task, body = _submit(stack, "annotator")
     with stack.client("annotator") as http:
         response = http.post(f"/api/annotate/samples/{task['sample_id']}/submissions", json=body)

@@ -8,31 +8,19 @@ queue (submitted or decided), and it returns to the queue by itself if it expire
 
 from __future__ import annotations
 
-import secrets
 from datetime import datetime, timedelta
 
-from sqlalchemy import func, or_, select, update
+from sqlalchemy import func, select, update
 from sqlalchemy.orm import Session
 
 from backend.db.base import utcnow
 from backend.models.capture import Sample
 from backend.models.enums import LeaseKind
-from backend.services import audit
-from backend.services.queues import QUEUE_STATE, Lease, SampleHead
+from backend.services.queues import HEAD_COLUMNS, QUEUE_STATE, Lease, SampleHead, take_free
 from backend.services.users import Actor
 
 MAX_HELD = 2
 _SAMPLES = Sample.__table__
-_HEAD = (_SAMPLES.c.id, _SAMPLES.c.sequence_id, _SAMPLES.c.frame_index, _SAMPLES.c.time_s, _SAMPLES.c.state,
-         _SAMPLES.c.current_fit_id)
-
-
-def _queue_order(kind: LeaseKind) -> tuple:
-    """The queue's own order (services.queues): most confident first for review, capture order else."""
-    c = _SAMPLES.c
-    if kind is LeaseKind.review:
-        return (c.confidence.desc().nulls_last(), c.id)
-    return (c.id,)
 
 
 def acquire_ahead(session: Session, user: Actor, kind: LeaseKind, lease_seconds: int, current_sample_id: int,
@@ -51,30 +39,11 @@ def acquire_ahead(session: Session, user: Actor, kind: LeaseKind, lease_seconds:
         .where(c.id == select(c.id).where(*mine, c.id != current_sample_id).order_by(c.id).limit(1)
                .scalar_subquery(), *mine)
         .values(lease_expires_at=expires)
-        .returning(*_HEAD, c.lease_token)
+        .returning(*HEAD_COLUMNS, c.lease_token)
     ).first()
     if other is not None:
         return Lease(other.id, other.lease_token, expires, kind, SampleHead(*other[:6]))
     held = conn.execute(select(func.count()).select_from(_SAMPLES).where(*mine)).scalar_one()
     if held >= MAX_HELD:
         return None
-    free = (
-        select(c.id)
-        .where(c.state == state, c.id != current_sample_id,
-               or_(c.lease_expires_at.is_(None), c.lease_expires_at <= now))
-        .order_by(*_queue_order(kind))
-        .limit(1)
-        .with_for_update(skip_locked=True)
-        .scalar_subquery()
-    )
-    token = secrets.token_urlsafe(16)
-    taken = conn.execute(
-        update(_SAMPLES)
-        .where(c.id == free)
-        .values(leased_by_id=user.id, lease_kind=kind.value, lease_token=token, lease_expires_at=expires)
-        .returning(*_HEAD)
-    ).first()
-    if taken is None:
-        return None
-    audit.write_rows(session, [audit.row(user.id, "lease.prefetch", "sample", taken.id, at=now, kind=kind.value)])
-    return Lease(taken.id, token, expires, kind, SampleHead(*taken))
+    return take_free(session, user, kind, expires, now, action="lease.prefetch", exclude_sample_id=current_sample_id)

@@ -62,8 +62,8 @@ def _order(kind: LeaseKind) -> tuple:
     return (_SAMPLES.c.id,)
 
 
-_HEAD = (_SAMPLES.c.id, _SAMPLES.c.sequence_id, _SAMPLES.c.frame_index, _SAMPLES.c.time_s, _SAMPLES.c.state,
-         _SAMPLES.c.current_fit_id)
+HEAD_COLUMNS = (_SAMPLES.c.id, _SAMPLES.c.sequence_id, _SAMPLES.c.frame_index, _SAMPLES.c.time_s,
+                _SAMPLES.c.state, _SAMPLES.c.current_fit_id)  # SampleHead's fields, in order
 
 
 def acquire(session: Session, user: Actor, kind: LeaseKind, lease_seconds: int,
@@ -85,28 +85,32 @@ def acquire(session: Session, user: Actor, kind: LeaseKind, lease_seconds: int,
         update(_SAMPLES)
         .where(c.id == select(c.id).where(*mine).limit(1).scalar_subquery(), *mine)
         .values(lease_expires_at=expires)
-        .returning(*_HEAD, c.lease_token)
+        .returning(*HEAD_COLUMNS, c.lease_token)
     ).first()
     if own is not None:
         return Lease(own.id, own.lease_token, expires, kind, SampleHead(*own[:6]))
-    free = (
-        select(c.id)
-        .where(c.state == state.value, or_(c.lease_expires_at.is_(None), c.lease_expires_at <= now))
-        .order_by(*_order(kind))
-        .limit(1)
-        .with_for_update(skip_locked=True)
-        .scalar_subquery()
-    )
+    return take_free(session, user, kind, expires, now)
+
+
+def take_free(session: Session, user: Actor, kind: LeaseKind, expires: datetime, now: datetime, *,
+              action: str = "lease.acquire", exclude_sample_id: int | None = None) -> Lease | None:
+    """Lease the first free sample of the queue (in the queue's order, skipping rows other transactions
+    hold) until `expires`, with its audit row; None when no sample is free."""
+    c = _SAMPLES.c
+    conditions = [c.state == QUEUE_STATE[kind].value, or_(c.lease_expires_at.is_(None), c.lease_expires_at <= now)]
+    if exclude_sample_id is not None:
+        conditions.append(c.id != exclude_sample_id)
+    free = select(c.id).where(*conditions).order_by(*_order(kind)).limit(1).with_for_update(skip_locked=True)
     token = secrets.token_urlsafe(16)
-    taken = conn.execute(
+    taken = session.connection().execute(
         update(_SAMPLES)
-        .where(c.id == free)
+        .where(c.id == free.scalar_subquery())
         .values(leased_by_id=user.id, lease_kind=kind.value, lease_token=token, lease_expires_at=expires)
-        .returning(*_HEAD)
+        .returning(*HEAD_COLUMNS)
     ).first()
     if taken is None:
         return None
-    audit.write_rows(session, [audit.row(user.id, "lease.acquire", "sample", taken.id, at=now, kind=kind.value)])
+    audit.write_rows(session, [audit.row(user.id, action, "sample", taken.id, at=now, kind=kind.value)])
     return Lease(taken.id, token, expires, kind, SampleHead(*taken))
 
 

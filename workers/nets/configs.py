@@ -27,7 +27,8 @@ class MVNetConfig:
         convs_per_stage: 3x3 convolutions per 2D stage.
         stem_stride: stride of the first 2D convolution (2 halves the cost of a larger crop).
         norm: "group" or "batch" normalisation in both CNNs (batch: faster on CPU, and learned faster here).
-        bf16: run the convolutions in bfloat16 (autocast; weights, losses and unprojection stay float32).
+        bf16: run the convolutions in bfloat16 where the device does so natively (autocast; weights, losses and
+            unprojection stay float32; float32 on CPUs without AVX512-BF16 / AMX, see mvnet.native_bf16).
         decoder_levels: upsampling steps (with skip connections) after the deepest 2D stage; the feature map
             has side crop_px / 2^(len(backbone_widths) - 1 - decoder_levels).
         feature_channels: channels of the 2D feature map f_i (last 1x1 convolution).
@@ -129,7 +130,7 @@ class HandSegNetConfig:
         stem_stride: stride of the first convolution; 2 runs the U-Net at half resolution and adds a light
             full-resolution head that sees the image (cheap, edge-accurate masks).
         norm: "group" or "batch" normalisation.
-        bf16: run the convolutions in bfloat16 (autocast).
+        bf16: run the convolutions in bfloat16 where native (autocast; see mvnet.native_bf16).
         crop_px: side of the network's square input, pixels.
         crop_radius_m: half side of the fine crop at the hand's depth, metres.
         coarse_radius_m: half side that `crop_px` pixels cover in the coarse pass, metres.

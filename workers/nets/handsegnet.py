@@ -12,7 +12,7 @@ import torch.nn.functional as nnf
 from torch import nn
 
 from workers.nets.configs import HandSegNetConfig
-from workers.nets.mvnet import RGB_MEAN, RGB_STD, _autocast, conv_block
+from workers.nets.mvnet import RGB_MEAN, RGB_STD, autocast_bf16, conv_block
 
 
 class HandSegNet(nn.Module):
@@ -68,7 +68,7 @@ class HandSegNet(nn.Module):
         if pad_h or pad_w:
             x = nnf.pad(x, (0, pad_w, 0, pad_h), mode="replicate")
         rgb = x.contiguous(memory_format=torch.channels_last)
-        with _autocast(rgb, self.config.bf16):
+        with autocast_bf16(rgb, self.config.bf16):
             logits = self._forward(rgb)
         return logits.float()[:, 0, :H, :W]
 

@@ -106,6 +106,27 @@ def check_compatible(metadata: dict[str, Any], kind: NetKind, config: MVNetConfi
             f"{config_digest(config)}); train a new one or load it with its own configuration")
 
 
+def previous_checkpoint(root: Path | str, kind: NetKind, config: MVNetConfig | HandSegNetConfig,
+                        before_round: int) -> Path | None:
+    """The final checkpoint of `kind` from the latest round before `before_round` under `root` whose
+    architecture fits `config` (read from the JSON sidecars, without torch), or None. Checkpoints of another
+    architecture or unreadable sidecars are skipped (a warm start must not fail a round)."""
+    root = Path(root)
+    if not root.is_dir():
+        return None
+    digest = config_digest(config)
+    indexed = [(int(p.name[6:]), p) for p in root.glob("round-*") if p.name[6:].isdigit()]
+    for _, folder in sorted((i, p) for i, p in indexed if i < before_round)[::-1]:
+        path = checkpoint_path(folder, kind)
+        try:
+            meta = json.loads(path.with_suffix(".json").read_text())
+        except (OSError, ValueError):
+            continue
+        if path.is_file() and meta.get("kind") == kind and meta.get("config_digest") == digest:
+            return path
+    return None
+
+
 def load_model(path: Path | str, kind: NetKind, config: MVNetConfig | HandSegNetConfig | None = None,
                device: torch.device | str = "cpu") -> tuple[torch.nn.Module, dict[str, Any]]:
     """Load a network and its metadata.

@@ -12,7 +12,7 @@
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -107,15 +107,32 @@ def crop_views(images: Sequence[np.ndarray], cameras: Sequence[Camera], center_w
 # --- backgrounds for cut-and-paste ---------------------------------------------------------------------------
 
 
+def scene_photo_paths() -> tuple[Path, ...]:
+    """Photographs of real scenes that installed packages ship (no download): viser's environment maps
+    (a forest slope, a park, a warehouse, interiors, streets at 1024 x 512) and matplotlib's sample photo.
+    None of them is a synthetic evaluation background; missing files are skipped."""
+    import importlib.util
+
+    paths: list[Path] = []
+    spec = importlib.util.find_spec("viser")
+    if spec is not None and spec.origin:
+        paths += sorted((Path(spec.origin).parent / "_assets" / "hdri").glob("*.jpg"))
+    spec = importlib.util.find_spec("matplotlib")
+    if spec is not None and spec.origin:
+        paths += sorted((Path(spec.origin).parent / "mpl-data" / "sample_data").glob("grace_hopper.jpg"))
+    return tuple(paths)
+
+
 @lru_cache(maxsize=1)
 def augmentation_backgrounds() -> tuple[np.ndarray, ...]:
-    """The background pool: (H, W, 3) uint8 RGB images (bundled photos not used for evaluation)."""
+    """The background pool: (H, W, 3) uint8 RGB images: bundled scikit-image photos not used for evaluation
+    and the installed packages' scene photographs (`scene_photo_paths`)."""
     import skimage.data
 
     root = Path(skimage.data.__file__).parent
     out = []
-    for name in AUGMENTATION_PHOTOS:
-        image = cv2.imread(str(root / name), cv2.IMREAD_COLOR)
+    for path in [root / name for name in AUGMENTATION_PHOTOS] + list(scene_photo_paths()):
+        image = cv2.imread(str(path), cv2.IMREAD_COLOR)
         if image is None:
             continue
         out.append(cv2.cvtColor(image, cv2.COLOR_BGR2RGB))
@@ -182,7 +199,7 @@ def _fresh_background(height: int, width: int, rng: np.random.Generator) -> np.n
     return procedural_background(height, width, rng)
 
 
-BANK_SIDE_PX = 128
+BANK_SIDE_PX = 192
 BANK_SIZE = 512
 
 
@@ -312,6 +329,7 @@ def hand_center_from_labels(masks: Sequence[np.ndarray] | None, keypoints_3d: np
 
 def build_mvnet_dataset(capture: Capture, frames: Sequence[FrameRef], config: MVNetConfig, *,
                         keypoints_3d: np.ndarray | None = None,
+                        hand_masks: Sequence[Mapping[str, np.ndarray] | None] | None = None,
                         progress: Callable[[int], None] | None = None) -> MVNetDataset:
     """Crops and labels of `frames`.
 
@@ -320,10 +338,18 @@ def build_mvnet_dataset(capture: Capture, frames: Sequence[FrameRef], config: MV
         frames: the labelled frames.
         config: crop size and radius.
         keypoints_3d: (M, K, 3) labels, metres (e.g. accepted MANO fits); default: the frames' ground truth.
+        hand_masks: per frame, camera name -> (H, W) bool hand mask (e.g. the accepted fits' model masks), or
+            None; the crops are centred on their triangulated blob centroids, as prediction crops are on
+            HandSegNet's masks. Default: the ground-truth hand masks where the frames have some.
         progress: called with 1 per frame done.
     Returns:
-        MVNetDataset (crop centres from the ground-truth hand masks where there are some).
+        MVNetDataset (crop centres from the hand masks; the mean keypoint where a frame has none or they
+        cannot be triangulated).
     """
+    if hand_masks is not None and len(hand_masks) != len(frames):
+        raise ValueError(f"hand_masks has {len(hand_masks)} entries for {len(frames)} frames")
+    if keypoints_3d is not None and len(keypoints_3d) != len(frames):
+        raise ValueError(f"keypoints_3d has {len(keypoints_3d)} entries for {len(frames)} frames")
     cameras = capture.cameras
     M, C, S = len(frames), len(cameras), config.crop_px
     crops = np.zeros((M, C, S, S, 3), np.uint8)
@@ -342,8 +368,15 @@ def build_mvnet_dataset(capture: Capture, frames: Sequence[FrameRef], config: MV
             labels[m] = gt.keypoints_3d
         else:
             raise ValueError(f"frame {frame_id(frame)} has no ground truth; pass keypoints_3d")
-        hand_masks = [gt.hand_masks[c.name] for c in cameras] if gt is not None and gt.hand_masks else None
-        centers[m] = hand_center_from_labels(hand_masks, labels[m], cameras)
+        if hand_masks is not None:
+            given = hand_masks[m]
+            if given is not None and any(c.name not in given for c in cameras):
+                raise ValueError(f"hand_masks of frame {frame_id(frame)} lack camera(s) "
+                                 f"{[c.name for c in cameras if c.name not in given]}")
+            masks_m = [np.asarray(given[c.name], bool) for c in cameras] if given is not None else None
+        else:
+            masks_m = [gt.hand_masks[c.name] for c in cameras] if gt is not None and gt.hand_masks else None
+        centers[m] = hand_center_from_labels(masks_m, labels[m], cameras)
         chroma = load_frame_masks(frame)
         masks = [chroma.get(c.name) for c in cameras] if chroma else None
         has_alpha[m] = bool(chroma)

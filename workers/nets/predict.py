@@ -163,8 +163,15 @@ class MaskPrediction:
     location: HandLocation | None
 
 
-def predict_masks(model: HandSegNet, views: Views, cameras: Sequence[Camera], refine_passes: int = 2
-                  ) -> MaskPrediction:
+def _gate(probabilities: list[np.ndarray], foreground: list[np.ndarray] | None) -> list[np.ndarray]:
+    """Hand probabilities limited to the (dilated) foreground masks, when there are some."""
+    if foreground is None:
+        return probabilities
+    return [p * f for p, f in zip(probabilities, foreground, strict=True)]
+
+
+def predict_masks(model: HandSegNet, views: Views, cameras: Sequence[Camera], refine_passes: int = 2,
+                  foreground: Views | None = None) -> MaskPrediction:
     """Hand masks of one multi-view frame.
 
     A coarse pass over each whole image localises the hand (blob centroids triangulated, see
@@ -177,20 +184,30 @@ def predict_masks(model: HandSegNet, views: Views, cameras: Sequence[Camera], re
         model: a trained HandSegNet.
         views: C images (H_c, W_c, 3) uint8 RGB, camera order or by camera name.
         cameras: the rig.
+        foreground: optional C (H_c, W_c) foreground masks (chroma key of a green-screen frame: hand, forearm
+            and held object); the hand probabilities are limited to them (dilated by 2 px), so nothing of the
+            background can pass for the hand.
     Returns:
         MaskPrediction (all-zero probabilities and no location when the coarse pass finds no hand).
     """
     cfg = model.config
     images = ordered_views(views, cameras)
-    coarse_cams, coarse_images = [], []
-    for image, cam in zip(images, cameras, strict=True):
+    gate = None
+    if foreground is not None:
+        kernel = np.ones((5, 5), np.uint8)
+        gate = [cv2.dilate((np.asarray(f) > 0.5).astype(np.uint8), kernel).astype(np.float32)
+                for f in ordered_views(foreground, cameras, "foreground mask")]
+    coarse_cams, coarse_images, coarse_gate = [], [], []
+    for c, (image, cam) in enumerate(zip(images, cameras, strict=True)):
         depth0 = abs(float(cam.t[2]))  # depth of the world origin (the rig's centre)
         scale = cfg.crop_px / (2 * cfg.coarse_radius_m) * depth0 / float(cam.K[0, 0])
         width = max(16, round(cam.width * scale))
         small = cam.scaled(width)
         coarse_cams.append(small)
         coarse_images.append(cv2.resize(image, (small.width, small.height), interpolation=cv2.INTER_AREA))
-    coarse = segment(model, coarse_images)
+        if gate is not None:
+            coarse_gate.append(cv2.resize(gate[c], (small.width, small.height), interpolation=cv2.INTER_AREA))
+    coarse = _gate(segment(model, coarse_images), coarse_gate if gate is not None else None)
     medium_radius_m = float(np.sqrt(cfg.crop_radius_m * cfg.coarse_radius_m))
     try:
         location = localise_hand([p > cfg.threshold for p in coarse], coarse_cams, min_area_px=4)
@@ -199,7 +216,7 @@ def predict_masks(model: HandSegNet, views: Views, cameras: Sequence[Camera], re
         # intermediate scale around the point the cameras look at.
         log.info("coarse pass found no hand (%s); searching around the rig's centre", exc)
         try:
-            medium = _fine_pass(model, images, cameras, rig_center(cameras), medium_radius_m)
+            medium = _gate(_fine_pass(model, images, cameras, rig_center(cameras), medium_radius_m), gate)
             location = localise_hand([p > cfg.threshold / 2 for p in medium], cameras)  # a weak hand is better
         except LocalisationError as exc2:
             log.info("no hand found: %s", exc2)
@@ -207,9 +224,9 @@ def predict_masks(model: HandSegNet, views: Views, cameras: Sequence[Camera], re
     else:
         # An intermediate scale next: at the coarse scale the hand is ~20 px and the wrist cut is blurred.
         with contextlib.suppress(LocalisationError):
-            medium = _fine_pass(model, images, cameras, location.center_world, medium_radius_m)
+            medium = _gate(_fine_pass(model, images, cameras, location.center_world, medium_radius_m), gate)
             location = localise_hand([p > cfg.threshold for p in medium], cameras)
-    probabilities = _fine_pass(model, images, cameras, location.center_world)
+    probabilities = _gate(_fine_pass(model, images, cameras, location.center_world), gate)
     for attempt in range(refine_passes + 1):
         try:
             refined = localise_hand([p > cfg.threshold for p in probabilities], cameras)
@@ -219,7 +236,7 @@ def predict_masks(model: HandSegNet, views: Views, cameras: Sequence[Camera], re
         location = refined
         if moved_m < 0.01 or attempt == refine_passes:
             break
-        probabilities = _fine_pass(model, images, cameras, location.center_world)  # re-centred crops
+        probabilities = _gate(_fine_pass(model, images, cameras, location.center_world), gate)  # re-centred
     return MaskPrediction(probabilities, location)
 
 
@@ -270,14 +287,19 @@ def predict_frames(mvnet: MVNet, frames: Sequence[FrameRef], cameras: Sequence[C
                    handsegnet: HandSegNet | None = None, batch_frames: int = 4) -> FramePrediction:
     """The worker's path: images -> masks (HandSegNet, else the chroma-key masks) -> hand centre -> MVNet.
 
-    Frames whose hand cannot be localised get NaN keypoints and zero confidence.
+    HandSegNet's masks of a green-screen frame are limited to its chroma-key foreground (the hand is part
+    of it; nothing outside can be hand). Frames whose hand cannot be localised get NaN keypoints and zero
+    confidence.
     """
     views_all, masks_all, locations = [], [], []
     for frame in frames:
         views = ordered_views(load_frame_images(frame, cameras), cameras)
         location: HandLocation | None
         if handsegnet is not None:
-            prediction = predict_masks(handsegnet, views, cameras)
+            chroma = load_frame_masks(frame) if frame.mask_paths else {}
+            foreground = [chroma[c.name] for c in cameras] if chroma and all(c.name in chroma for c in cameras) \
+                else None
+            prediction = predict_masks(handsegnet, views, cameras, foreground=foreground)
             masks, location = prediction.probabilities, prediction.location
         else:
             chroma = load_frame_masks(frame)

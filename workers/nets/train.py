@@ -84,13 +84,15 @@ def _train_loop(kind: NetKind, model: torch.nn.Module, config: MVNetConfig | Han
                 step_fn: Callable[[np.random.Generator, float], torch.Tensor], sample_ids: tuple[str, ...],
                 budget_s: float, checkpoint_dir: Path | str, resume: bool,
                 progress: Callable[[TrainProgress], None] | None, seed: int, max_steps: int | None,
-                checkpoint_every_s: float, extra: dict[str, Any] | None
+                checkpoint_every_s: float, extra: dict[str, Any] | None, warm_start: dict[str, Any] | None = None
                 ) -> TrainResult:
     if budget_s <= 0:
         raise ValueError(f"budget_s must be positive, got {budget_s}")
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
     step, spent_before = 0, 0.0
     partial = checkpoint_path(checkpoint_dir, kind, partial=True)
+    if warm_start is not None:
+        extra = {**(extra or {}), "init_from": warm_start}
     if resume and partial.is_file():
         state = read_checkpoint(partial)
         check_compatible(state["metadata"], kind, config, partial)
@@ -101,6 +103,8 @@ def _train_loop(kind: NetKind, model: torch.nn.Module, config: MVNetConfig | Han
             raise CheckpointError(f"{partial}: no optimiser state to resume from")
         optimizer.load_state_dict(state["optimizer"])
         step, spent_before = int(state["metadata"]["steps"]), float(state["metadata"]["train_seconds"])
+        if "init_from" in state["metadata"]:  # the interrupted run's warm start, whatever this call asked for
+            extra = {**(extra or {}), "init_from": state["metadata"]["init_from"]}
         log.info("resuming %s from %s: step %d, %.0f s trained", kind, partial, step, spent_before)
     torch.manual_seed(seed + step)
     rng = np.random.default_rng([seed, step])
@@ -138,6 +142,33 @@ def _train_loop(kind: NetKind, model: torch.nn.Module, config: MVNetConfig | Han
     final = save_checkpoint(checkpoint_path(checkpoint_dir, kind), model, metadata)
     log.info("%s trained: %d steps in %.0f s, loss %.4f -> %s", kind, step, seconds, smoothed, final)
     return TrainResult(model.eval(), final, metadata)
+
+
+def warm_start_weights(model: torch.nn.Module, kind: NetKind, config: MVNetConfig | HandSegNetConfig,
+                       init_from: Path | str) -> dict[str, Any]:
+    """Load the weights of a final checkpoint of the same architecture (an earlier round's network) into
+    `model`; returns what the new checkpoint's metadata records about it ("init_from").
+
+    Raises:
+        CheckpointError: missing, unreadable, of another kind or another architecture.
+    """
+    path = Path(init_from)
+    state = read_checkpoint(path)
+    check_compatible(state["metadata"], kind, config, path)
+    try:
+        model.load_state_dict(state["model"])
+    except RuntimeError as exc:
+        raise CheckpointError(f"{path}: weights do not fit the configuration ({exc})") from None
+    meta = state["metadata"]
+    previous = meta.get("init_from") or {}
+    return {"path": str(path), "steps": int(meta.get("steps", 0)),
+            "train_seconds": float(meta.get("train_seconds", 0.0)),
+            "num_training_samples": int(meta.get("num_training_samples", 0)),
+            "round_index": meta.get("round_index"),
+            # total optimisation behind these weights, over every earlier warm-started round
+            "cumulative_steps": int(meta.get("steps", 0)) + int(previous.get("cumulative_steps", 0)),
+            "cumulative_train_seconds": round(float(meta.get("train_seconds", 0.0))
+                                              + float(previous.get("cumulative_train_seconds", 0.0)), 3)}
 
 
 def mvnet_loss(model: MVNet, batch: dict[str, np.ndarray], cams: dict[str, torch.Tensor],
@@ -185,7 +216,7 @@ def train_mvnet(dataset: MVNetDataset, config: NetsConfig | MVNetConfig, budget_
                 checkpoint_dir: Path | str, *, resume: bool = True,
                 progress: Callable[[TrainProgress], None] | None = None, seed: int = 0, max_steps: int | None = None,
                 device: torch.device | str | None = None, checkpoint_every_s: float = 60.0,
-                extra_metadata: dict[str, Any] | None = None) -> TrainResult:
+                extra_metadata: dict[str, Any] | None = None, init_from: Path | str | None = None) -> TrainResult:
     """Train MVNet on `dataset` for `budget_s` seconds of training (cumulative over resumes).
 
     Args:
@@ -197,8 +228,14 @@ def train_mvnet(dataset: MVNetDataset, config: NetsConfig | MVNetConfig, budget_
         progress: called after every step with TrainProgress.
         seed: seeds the initialisation, batches and augmentation.
         device: default CUDA when available, else CPU.
+        init_from: a final mvnet.pt of the same architecture (an earlier round's) to start from instead of a
+            random initialisation (warm start: training accumulates over rounds); recorded in the metadata as
+            "init_from". The 2D-only warm-up is skipped then (the 3D network already has features to work
+            on). A partial checkpoint to resume from takes precedence.
     Returns:
         TrainResult with the model in eval mode.
+    Raises:
+        CheckpointError: init_from is missing or of another architecture.
     """
     cfg, name = _resolve(config, "mvnet")
     if dataset.crop_px != cfg.crop_px or not math.isclose(dataset.crop_radius_m, cfg.crop_radius_m):
@@ -208,17 +245,20 @@ def train_mvnet(dataset: MVNetDataset, config: NetsConfig | MVNetConfig, budget_
         raise ValueError("empty training set")
     device = torch.device(device) if device is not None else default_device()
     torch.manual_seed(seed)
-    model = MVNet(cfg).to(device)
+    model = MVNet(cfg)
+    warm = warm_start_weights(model, "mvnet", cfg, init_from) if init_from is not None else None
+    model = model.to(device)
     cams = stack_cameras(list(dataset.cameras), device=device)
     batch_size = min(cfg.batch_frames, len(dataset))
+    warmup = 0.0 if warm is not None else cfg.warmup_2d_fraction
 
     def step(rng: np.random.Generator, fraction: float) -> torch.Tensor:
         indices = rng.choice(len(dataset), size=batch_size, replace=False)
         return mvnet_loss(model, augment_mvnet_batch(dataset, indices, cfg, rng), cams, device,
-                          only_2d=fraction < cfg.warmup_2d_fraction)
+                          only_2d=fraction < warmup)
 
     return _train_loop("mvnet", model, cfg, name, step, dataset.sample_ids, budget_s, checkpoint_dir, resume,
-                       progress, seed, max_steps, checkpoint_every_s, extra_metadata)
+                       progress, seed, max_steps, checkpoint_every_s, extra_metadata, warm)
 
 
 def handseg_loss(logits: torch.Tensor, targets: torch.Tensor) -> torch.Tensor:
@@ -234,17 +274,21 @@ def train_handsegnet(dataset: HandSegDataset, config: NetsConfig | HandSegNetCon
                      checkpoint_dir: Path | str, *, resume: bool = True,
                      progress: Callable[[TrainProgress], None] | None = None, seed: int = 0,
                      max_steps: int | None = None, device: torch.device | str | None = None,
-                     checkpoint_every_s: float = 60.0, extra_metadata: dict[str, Any] | None = None) -> TrainResult:
+                     checkpoint_every_s: float = 60.0, extra_metadata: dict[str, Any] | None = None,
+                     init_from: Path | str | None = None) -> TrainResult:
     """Train HandSegNet on random patches of `dataset` for `budget_s` training seconds.
 
-    Arguments as `train_mvnet`; files handsegnet.pt / .json / .partial.pt in `checkpoint_dir`.
+    Arguments as `train_mvnet` (init_from: a final handsegnet.pt of the same architecture); files
+    handsegnet.pt / .json / .partial.pt in `checkpoint_dir`.
     """
     cfg, name = _resolve(config, "handsegnet")
     if len(dataset) == 0:
         raise ValueError("empty training set")
     device = torch.device(device) if device is not None else default_device()
     torch.manual_seed(seed)
-    model = HandSegNet(cfg).to(device)
+    model = HandSegNet(cfg)
+    warm = warm_start_weights(model, "handsegnet", cfg, init_from) if init_from is not None else None
+    model = model.to(device)
 
     def step(rng: np.random.Generator, fraction: float) -> torch.Tensor:
         images, targets = sample_handseg_batch(dataset, cfg, rng)
@@ -252,4 +296,4 @@ def train_handsegnet(dataset: HandSegDataset, config: NetsConfig | HandSegNetCon
         return handseg_loss(logits, torch.as_tensor(np.ascontiguousarray(targets), device=device))
 
     return _train_loop("handsegnet", model, cfg, name, step, dataset.sample_ids, budget_s, checkpoint_dir, resume,
-                       progress, seed, max_steps, checkpoint_every_s, extra_metadata)
+                       progress, seed, max_steps, checkpoint_every_s, extra_metadata, warm)

@@ -91,23 +91,49 @@ def unproject_features(features: torch.Tensor, K: torch.Tensor, dist: torch.Tens
         grid_rotation: (B, 3, 3) grid orientation (see `voxel_centers`); default world-aligned.
         return_count: also return how many views see each voxel, (B, N, N, N).
     Returns:
-        (B, F, N, N, N) averaged features, index (i, j, l) along the grid axes (world x, y, z unless
-        rotated); zero where no view sees the voxel [, count].
+        (B, F, N, N, N) averaged features (memory in channels-last-3d order, what the 3D convolutions
+        prefer), index (i, j, l) along the grid axes (world x, y, z unless rotated); zero where no view
+        sees the voxel [, count].
+
+    Bilinear sampling (as grid_sample with align_corners=False and zero padding) and the average over
+    views are one weighted sum of 4 C feature-map pixels per voxel, computed by `embedding_bag`: its
+    backward accumulates into the few feature pixels directly, about twice as fast on the CPU as
+    grid_sample's backward followed by a separate average (which this replaced).
     """
     B, C, F, h, w = features.shape
     if K.shape != (B, C, 3, 3) or center_world.shape != (B, 3):
         raise ValueError(f"K must be (B={B}, C={C}, 3, 3) and center_world (B, 3); got {tuple(K.shape)}, "
                          f"{tuple(center_world.shape)}")
     N = grid_size
-    points = voxel_centers(center_world, N, side_m, grid_rotation).reshape(B, N**3, 3)
-    pixels, depth = project_batched(points, K, dist, R, t)  # (B, C, P, 2), (B, C, P)
-    grid = (2 * pixels + 1) / image_px - 1  # align_corners=False: -1 is the crop's left edge
-    inside = (depth > 1e-3) & (grid.abs() <= 1).all(dim=-1)  # (B, C, P)
-    if view_valid is not None:
-        inside = inside & view_valid[:, :, None]
-    sampled = nnf.grid_sample(features.reshape(B * C, F, h, w), grid.reshape(B * C, 1, N**3, 2),
-                              mode="bilinear", padding_mode="zeros", align_corners=False)  # (B*C, F, 1, P)
-    sampled = sampled.reshape(B, C, F, N**3) * inside[:, :, None, :].to(features.dtype)
-    count = inside.sum(dim=1).to(features.dtype)  # (B, P)
-    volume = (sampled.sum(dim=1) / count.clamp(min=1)[:, None, :]).reshape(B, F, N, N, N)
+    P = N**3
+    with torch.no_grad():  # geometry: no gradient needed
+        points = voxel_centers(center_world, N, side_m, grid_rotation).reshape(B, P, 3)
+        pixels, depth = project_batched(points, K, dist, R, t)  # (B, C, P, 2), (B, C, P)
+        inside = (depth > 1e-3) & (pixels >= -0.5).all(dim=-1) & (pixels <= image_px - 0.5).all(dim=-1)
+        if view_valid is not None:
+            inside = inside & view_valid[:, :, None]
+        count = inside.sum(dim=1).to(features.dtype)  # (B, P)
+        # crop pixel -> feature-map pixel (pixel centres at integers), 4 neighbours and their weights
+        pixels = torch.where(inside[..., None], pixels, torch.zeros_like(pixels))  # no inf / NaN below
+        x = (pixels[..., 0] + 0.5) * (w / image_px) - 0.5
+        y = (pixels[..., 1] + 0.5) * (h / image_px) - 0.5
+        x0, y0 = torch.floor(x), torch.floor(y)
+        fx, fy = x - x0, y - y0
+        x0, y0 = x0.long(), y0.long()
+        scale = inside.to(features.dtype) / count.clamp(min=1)[:, None, :]  # (B, C, P): the view average
+        base = (torch.arange(B, device=features.device)[:, None] * C
+                + torch.arange(C, device=features.device)[None, :]) * (h * w)  # (B, C) first row of each map
+        indices, weights = [], []
+        for dy, wy in ((0, 1 - fy), (1, fy)):
+            for dx, wx in ((0, 1 - fx), (1, fx)):
+                xi, yi = x0 + dx, y0 + dy
+                ok = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h)
+                indices.append(base[:, :, None] + yi.clamp(0, h - 1) * w + xi.clamp(0, w - 1))
+                weights.append(wy * wx * scale * ok.to(features.dtype))
+        # (B, C, P, 4) -> one bag of 4 C entries per voxel: (B P, 4 C)
+        indices_t = torch.stack(indices, dim=-1).permute(0, 2, 1, 3).reshape(B * P, C * 4)
+        weights_t = torch.stack(weights, dim=-1).permute(0, 2, 1, 3).reshape(B * P, C * 4)
+    table = features.permute(0, 1, 3, 4, 2).reshape(B * C * h * w, F)
+    sampled = nnf.embedding_bag(indices_t, table, per_sample_weights=weights_t, mode="sum")  # (B P, F)
+    volume = sampled.reshape(B, N, N, N, F).permute(0, 4, 1, 2, 3)
     return (volume, count.reshape(B, N, N, N)) if return_count else volume

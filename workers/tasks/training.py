@@ -3,7 +3,9 @@
 Labels come from the accepted samples' fits, never from ground truth: MVNet learns the fits' 3D keypoints,
 HandSegNet the fitted model's masks (stored with each fit; rendered from its parameters when missing).
 Checkpoints go to <data_dir>/checkpoints/round-NNN/ (workers/nets/checkpoints.py), versioned
-"round-NNN/<net>"; training resumes from its partial checkpoint when the job is taken over.
+"round-NNN/<net>"; training resumes from its partial checkpoint when the job is taken over, and starts from
+the latest earlier round's checkpoint of the same architecture (warm start, recorded as "init_from" in the
+checkpoint's metadata), so the networks accumulate training over the rounds.
 """
 
 from __future__ import annotations
@@ -160,7 +162,9 @@ def run_training_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
             if len(tset) < ctx.settings.round_min_training_samples:
                 raise InputError(f"{len(tset)} accepted samples in rounds up to {up_to}; a round needs at least "
                                  f"{ctx.settings.round_min_training_samples} (HANDLOOP_ROUND_MIN_TRAINING_SAMPLES)")
-            labels_masks = model_masks(ctx, session, tset) if net == "handsegnet" else None
+            # HandSegNet learns the masks; MVNet's training crops are centred on them (as prediction crops are
+            # on HandSegNet's masks), not on the mean keypoint.
+            labels_masks = model_masks(ctx, session, tset)
             round_index = round_.index
         config = get_config(ctx.settings.nets_config)
         folder = ctx.settings.checkpoints_dir.resolve() / f"round-{round_index:03d}"
@@ -175,7 +179,8 @@ def run_training_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
         outcome = {"job_id": job_id, "net": net, "version": version, "samples": len(tset),
                    "left_out_other_rigs": tset.left_out, "steps": result.metadata.get("steps"),
                    "train_seconds": result.metadata.get("train_seconds"),
-                   "train_loss": result.metadata.get("metrics", {}).get("train_loss")}
+                   "train_loss": result.metadata.get("metrics", {}).get("train_loss"),
+                   "init_from": (result.metadata.get("init_from") or {}).get("path")}
         with ctx.session_factory.begin() as session:
             round_row = session.get(Round, session.get(Job, job_id).round_id)
             setattr(round_row, f"{net}_version", version)
@@ -193,6 +198,15 @@ def run_training_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
         return {"job_id": job_id, "failed": message}
 
 
+def warm_start_of(ctx: WorkerContext, net: str, config: Any, round_index: int) -> Path | None:
+    """The final checkpoint of `net` from the latest earlier round with the same architecture (training then
+    continues from it, so the networks accumulate over rounds), or None (round 1, another configuration)."""
+    from workers.nets.checkpoints import previous_checkpoint
+
+    sub = config.mvnet if net == "mvnet" else config.handsegnet
+    return previous_checkpoint(ctx.settings.checkpoints_dir.resolve(), net, sub, round_index)  # type: ignore[arg-type]
+
+
 def _train(ctx: WorkerContext, net: str, tset: TrainingSet, masks: list[dict[str, np.ndarray]] | None, config: Any,
            budget: float, folder: Path, reporter: ProgressReporter, seed: int, extra: dict[str, Any]) -> Any:
     from workers.nets.data import build_handseg_dataset, build_mvnet_dataset
@@ -205,12 +219,15 @@ def _train(ctx: WorkerContext, net: str, tset: TrainingSet, masks: list[dict[str
         reporter(min(1.0, p.seconds / budget), f"training {net}: step {p.step}, {p.seconds:.0f}/{budget:.0f} s, "
                  f"loss {p.loss:.4f}")
 
+    init_from = warm_start_of(ctx, net, config, int(extra["round_index"]))
+    if init_from is not None:
+        log.info("%s of round %s starts from %s", net, extra["round_index"], init_from)
     common = {"resume": True, "progress": progress, "seed": seed, "max_steps": ctx.settings.round_max_train_steps,
-              "extra_metadata": extra, "checkpoint_every_s": 30.0}
+              "extra_metadata": extra, "checkpoint_every_s": 30.0, "init_from": init_from}
     if net == "handsegnet":
         dataset = build_handseg_dataset(capture, frames, hand_masks=masks)
         return train_handsegnet(dataset, config, budget, folder, **common)
-    dataset = build_mvnet_dataset(capture, frames, config.mvnet, keypoints_3d=tset.keypoints_3d)
+    dataset = build_mvnet_dataset(capture, frames, config.mvnet, keypoints_3d=tset.keypoints_3d, hand_masks=masks)
     return train_mvnet(dataset, config, budget, folder, **common)
 
 

@@ -117,3 +117,48 @@ def test_per_frame_camera_subsets_match_the_full_rig():
     b = unproject_features(features[:, subset[0]], K_crop[:, subset[0]], sub_cams["dist"], sub_cams["R"],
                            sub_cams["t"], torch.as_tensor(center[None], dtype=torch.float32), 16, 0.4, 32)
     torch.testing.assert_close(a, b)
+
+
+def _grid_sample_reference(features, K, dist, R, t, center, N, side, image_px, view_valid=None):
+    """The straightforward unprojection: grid_sample per view (align_corners=False, zero padding), then the
+    average over the views that see each voxel."""
+    import torch.nn.functional as nnf
+
+    from workers.nets.unproject import project_batched
+
+    B, C, F, h, w = features.shape
+    points = voxel_centers(center, N, side).reshape(B, N**3, 3)
+    pixels, depth = project_batched(points, K, dist, R, t)
+    grid = (2 * pixels + 1) / image_px - 1
+    inside = (depth > 1e-3) & (grid.abs() <= 1).all(dim=-1)
+    if view_valid is not None:
+        inside = inside & view_valid[:, :, None]
+    sampled = nnf.grid_sample(features.reshape(B * C, F, h, w), grid.reshape(B * C, 1, N**3, 2), mode="bilinear",
+                              padding_mode="zeros", align_corners=False).reshape(B, C, F, N**3)
+    sampled = sampled * inside[:, :, None, :].to(features.dtype)
+    count = inside.sum(dim=1).to(features.dtype)
+    return (sampled.sum(dim=1) / count.clamp(min=1)[:, None, :]).reshape(B, F, N, N, N)
+
+
+def test_unprojection_equals_grid_sample_and_its_gradient():
+    """The embedding-bag unprojection is bilinear sampling plus the view average, values and gradients."""
+    cameras = default_rig(96)
+    cams = stack_cameras(cameras)
+    rng = np.random.default_rng(0)
+    centers = rng.normal(0, 0.03, (2, 3))
+    K = np.stack([crop_views([np.zeros((c.height, c.width, 3), np.uint8) for c in cameras], cameras, ctr, 32,
+                             0.12)[1] for ctr in centers])
+    K = torch.as_tensor(K, dtype=torch.float32)
+    center = torch.as_tensor(centers, dtype=torch.float32)
+    valid = torch.ones(2, len(cameras), dtype=torch.bool)
+    valid[1, 3] = False
+    features = torch.randn(2, len(cameras), 5, 8, 8, requires_grad=True)
+    args = (K, cams["dist"], cams["R"], cams["t"], center, 12, 0.4, 32)
+    ours = unproject_features(features, *args, view_valid=valid)
+    reference = _grid_sample_reference(features, *args, view_valid=valid)
+    torch.testing.assert_close(ours, reference, atol=1e-5, rtol=1e-5)
+    weights = torch.randn_like(reference)
+    (grad_ours,) = torch.autograd.grad((ours * weights).sum(), features)
+    (grad_ref,) = torch.autograd.grad((reference * weights).sum(), features)
+    torch.testing.assert_close(grad_ours, grad_ref, atol=1e-5, rtol=1e-5)
+    assert float(grad_ours[1, 3].abs().max()) == 0.0  # the invalid view gets no gradient

@@ -37,19 +37,26 @@ def _fits_of_job(stack, job_id: int) -> int:
 SLOW_FIT = {"fit_optimizer": "adam", "fit_global_iterations": 50, "fit_full_iterations": 500}
 
 
-def _kill_inside_the_fit(stack, job_id: int) -> None:
-    """Kill the worker once the fit has reported progress (it is then in the solver, not yet recorded)."""
-    wait_until(lambda: _job(stack, job_id).state == "running" and (_job(stack, job_id).progress or 0) > 0.02, 120,
-               "fit running", stack)
-    stack.stack.kill_worker()
-
-
 def _submit(stack, role: str) -> tuple[dict, dict]:
     with stack.client(role) as http:
         task = http.post("/api/annotate/next")
         assert task.status_code == 200, task.text
         task = task.json()
         return task, clicks_body(stack, task)
+
+
+def _submit_and_kill_inside_the_fit(stack) -> int:
+    """Submit clicks, then kill the worker once their fit has reported progress (it is then in the solver,
+    not yet recorded); returns the fit's job id."""
+    task, body = _submit(stack, "annotator")
+    with stack.client("annotator") as http:
+        response = http.post(f"/api/annotate/samples/{task['sample_id']}/submissions", json=body)
+    assert response.status_code == 201, response.text
+    job_id = response.json()["fit_job_id"]
+    wait_until(lambda: _job(stack, job_id).state == "running" and (_job(stack, job_id).progress or 0) > 0.02, 120,
+               "fit running", stack)
+    stack.stack.kill_worker()
+    return job_id
 
 
 @pytest.mark.redis
@@ -61,12 +68,7 @@ def test_worker_killed_mid_fit_is_redelivered_and_recorded_once(live_stack):
     # kept out of the way so that the redelivery is what gets tested.
     stack = live_stack(frames=1, broker="redis", broker_visibility_timeout_s=35, task_time_limit_s=30,
                        fit_task_time_limit_s=30, job_heartbeat_timeout_s=12, outbox_poll_s=3600, **SLOW_FIT)
-    task, body = _submit(stack, "annotator")
-    with stack.client("annotator") as http:
-        response = http.post(f"/api/annotate/samples/{task['sample_id']}/submissions", json=body)
-    assert response.status_code == 201, response.text
-    job_id = response.json()["fit_job_id"]
-    _kill_inside_the_fit(stack, job_id)
+    job_id = _submit_and_kill_inside_the_fit(stack)
     killed = _job(stack, job_id)
     assert killed.state == "running" and killed.attempts == 1 and _fits_of_job(stack, job_id) == 0
     stack.stack.start_worker()
@@ -86,12 +88,7 @@ def test_embedded_worker_killed_mid_fit_is_resent_by_the_outbox_and_recorded_onc
     """The filesystem broker keeps no unacknowledged messages: the API's outbox re-sends the job once its
     heartbeat is older than twice JOB_HEARTBEAT_TIMEOUT_S, and the new worker takes it over."""
     stack = live_stack(frames=1, job_heartbeat_timeout_s=3, **SLOW_FIT)
-    task, body = _submit(stack, "annotator")
-    with stack.client("annotator") as http:
-        response = http.post(f"/api/annotate/samples/{task['sample_id']}/submissions", json=body)
-    assert response.status_code == 201, response.text
-    job_id = response.json()["fit_job_id"]
-    _kill_inside_the_fit(stack, job_id)
+    job_id = _submit_and_kill_inside_the_fit(stack)
     assert _fits_of_job(stack, job_id) == 0
     stack.stack.start_worker()
     done = stack.wait_for_job(job_id, timeout_s=180)

@@ -2,7 +2,8 @@
 workers, task names, and `CeleryJobQueue`, which sends committed jobs to the broker by task name.
 
 Two brokers, one code path (docs/deployment.md):
-- embedded (HANDLOOP_BROKER_URL unset): kombu's filesystem transport under <data_dir>/broker, no server;
+- embedded (HANDLOOP_BROKER_URL unset): kombu's filesystem transport under <data_dir>/broker, no server, with
+  whole-file writes (services.embedded_broker);
 - distributed: Redis (HANDLOOP_BROKER_URL=redis://...), with a visibility timeout above the longest task so
   that a task whose worker died is delivered again.
 Job state and progress live in the database (services.jobs); Celery's result backend only serves chords.
@@ -23,6 +24,7 @@ from kombu import Exchange, Queue
 from sqlalchemy import update
 
 from backend.models.jobs import Job
+from backend.services import embedded_broker
 from backend.services.errors import ServiceUnavailableError
 from backend.settings import Settings
 
@@ -71,7 +73,8 @@ def is_embedded(settings: Settings) -> bool:
 
 def embedded_folders(settings: Settings) -> dict[str, Path]:
     root = settings.broker_dir.resolve()
-    return {"messages": root / "messages", "control": root / "control", "results": root / "results"}
+    return {"messages": root / "messages", "claimed": root / "claimed", "rejected": root / "rejected",
+            "control": root / "control", "results": root / "results"}
 
 
 def broker_url(settings: Settings) -> str:
@@ -83,14 +86,15 @@ def result_backend_url(settings: Settings) -> str:
         return settings.result_backend_url
     if settings.broker_url and settings.broker_url.startswith(("redis://", "rediss://")):
         return settings.broker_url
-    return "file://" + str(embedded_folders(settings)["results"])
+    return f"{embedded_broker.RESULT_BACKEND}+file://{embedded_folders(settings)['results']}"
 
 
 def broker_transport_options(settings: Settings) -> dict[str, Any]:
     if is_embedded(settings):
         folders = embedded_folders(settings)
         return {"data_folder_in": str(folders["messages"]), "data_folder_out": str(folders["messages"]),
-                "control_folder": str(folders["control"]), "store_processed": False,
+                "claimed_folder": str(folders["claimed"]), "rejected_folder": str(folders["rejected"]),
+                "control_folder": str(folders["control"]),
                 # The filesystem transport polls; a short interval keeps a fit's queueing delay small.
                 "polling_interval": 0.1}
     options: dict[str, Any] = {
@@ -118,6 +122,8 @@ def celery_config(settings: Settings) -> dict[str, Any]:
     soft = max(1, int(settings.task_time_limit_s * 0.9))
     config: dict[str, Any] = {
         "broker_url": broker_url(settings),
+        # Embedded: kombu's filesystem transport with whole-file writes (services.embedded_broker).
+        "broker_transport": embedded_broker.TRANSPORT if is_embedded(settings) else None,
         "result_backend": result_backend_url(settings),
         "broker_transport_options": options,
         "result_backend_transport_options": {k: v for k, v in options.items()

@@ -1,0 +1,194 @@
+"""The embedded broker: kombu's filesystem transport and Celery's file result backend, made safe for readers
+that poll while writers write.
+
+Why our own subclasses: upstream (kombu 5.x `kombu.transport.filesystem`, `celery.backends.filesystem`) writes
+each file in place: open (create, truncate), then write. A process polling the folder can open the file in
+between and read it empty or cut. In the worker that is a `JSONDecodeError` in the consumer loop, which Celery
+treats as unrecoverable: the embedded worker died mid-test in CI this way, and it could in the demo. The same
+holds for the exchange tables (created, then locked) and the result files chords poll.
+tests/backend/services/test_embedded_broker.py reproduces all three against upstream.
+
+Here:
+- every file is written under a temporary name that no reader lists, then renamed into place (atomic within a
+  filesystem), so a reader sees a whole file or none (`write_whole`);
+- a consumer claims a message by renaming it into `claimed/` beside the message folder, on the same filesystem
+  (upstream moves it to the system temp folder: a copy when that is another filesystem, which two consumers
+  can both make), reads it, then deletes it;
+- a message file that does not parse all the same (another program's, a disk fault) is moved to `rejected/`
+  with an error in the log, and the consumer goes on with the next one;
+- writers of an exchange table take an exclusive lock on a lock file of their own, never on the table itself
+  (a replaced file's lock would protect nothing); readers need no lock.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import itertools
+import logging
+import os
+import uuid
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from queue import Empty
+from time import monotonic_ns
+from typing import Any
+
+from celery.backends.filesystem import FilesystemBackend
+from kombu.exceptions import ChannelError
+from kombu.transport import filesystem, virtual
+from kombu.utils.encoding import bytes_to_str, str_to_bytes
+from kombu.utils.json import dumps, loads
+from kombu.utils.objects import cached_property
+
+logger = logging.getLogger(__name__)
+
+# Temporary files start with a dot: not `<stamp>_<uuid>.<queue>.msg` (the transport's pattern), not a result
+# key's `celery-task-meta-` prefix.
+TEMP_PREFIX = ".tmp-"
+_SEQUENCE = itertools.count()
+
+
+def write_whole(path: Path, data: bytes) -> None:
+    """Write `data` to `path` so that a concurrent reader sees either no file or all of it.
+
+    The bytes go to a temporary file in the same folder, which `os.replace` then renames onto `path`.
+    Raises OSError (nothing left behind) when the folder cannot be written.
+    """
+    temp = path.with_name(f"{TEMP_PREFIX}{uuid.uuid4().hex}-{path.name}")
+    try:
+        with open(temp, "wb") as f:
+            f.write(data)
+        os.replace(temp, path)
+    except BaseException:
+        temp.unlink(missing_ok=True)
+        raise
+
+
+@contextlib.contextmanager
+def exclusive_lock(path: Path) -> Iterator[None]:
+    """Hold an exclusive advisory lock (flock) on the file `path`, created if absent, for the block."""
+    with open(path, "a+b") as f:
+        fcntl.flock(f.fileno(), fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f.fileno(), fcntl.LOCK_UN)
+
+
+class Channel(filesystem.Channel):
+    """kombu's filesystem channel with whole-file writes and same-filesystem claims (module docstring).
+
+    Transport options, besides upstream's `data_folder_in`, `data_folder_out` and `control_folder`:
+    `claimed_folder` and `rejected_folder` (default: `claimed` and `rejected` beside `data_folder_in`).
+    Upstream's `store_processed` is not supported: a consumed message is deleted.
+    """
+
+    # -- messages ------------------------------------------------------------------------------------
+    def _put(self, queue: str, payload: dict[str, Any], **kwargs: Any) -> None:
+        # Names sort in sending order: a zero-padded nanosecond stamp, then this process's sequence number for
+        # equal stamps (upstream's unpadded milliseconds, then a random uuid, misorder within a millisecond).
+        name = f"{monotonic_ns():020d}_{next(_SEQUENCE):012d}_{uuid.uuid4().hex}.{queue}.msg"
+        try:
+            write_whole(Path(self.data_folder_out) / name, str_to_bytes(dumps(payload)))
+        except OSError as exc:
+            raise ChannelError(f"cannot add message {name!r} to the broker folder {self.data_folder_out}") from exc
+
+    def _get(self, queue: str) -> dict[str, Any]:
+        wanted = f"{queue}.msg"
+        folder = Path(self.data_folder_in)
+        for name in sorted(os.listdir(folder)):
+            if name.partition(".")[2] != wanted:
+                continue
+            claimed = self.claimed_folder / name
+            try:
+                os.rename(folder / name, claimed)  # atomic: of several consumers, one wins
+            except FileNotFoundError:
+                continue  # another consumer took it
+            except OSError as exc:
+                raise ChannelError(f"cannot claim broker message {name!r} from {folder}") from exc
+            try:
+                message = loads(bytes_to_str(claimed.read_bytes()))
+            except (OSError, ValueError, TypeError) as exc:  # ValueError: JSONDecodeError, UnicodeDecodeError
+                self._reject(claimed, f"unreadable ({exc.__class__.__name__}: {exc})")
+                continue
+            if not isinstance(message, dict):
+                self._reject(claimed, f"not a message object (a JSON {type(message).__name__})")
+                continue
+            claimed.unlink(missing_ok=True)
+            return message
+        raise Empty()
+
+    def _reject(self, claimed: Path, why: str) -> None:
+        target = self.rejected_folder / claimed.name
+        try:
+            os.replace(claimed, target)
+        except OSError:
+            target = claimed  # left where it is; still out of the queue
+        logger.error("broker message %s is %s; moved to %s, the worker goes on", claimed.name, why, target)
+
+    # -- exchange tables -----------------------------------------------------------------------------
+    def get_table(self, exchange: str) -> list[filesystem.exchange_queue_t]:
+        file = self._exchange_file(exchange)
+        try:
+            return [filesystem.exchange_queue_t(*q) for q in loads(bytes_to_str(file.read_bytes()))]
+        except FileNotFoundError:
+            return []
+        except OSError as exc:
+            raise ChannelError(f"cannot read the exchange table {file}") from exc
+
+    def _queue_bind(self, exchange: str, routing_key: str, pattern: str, queue: str) -> None:
+        binding = filesystem.exchange_queue_t(routing_key or "", pattern or "", queue or "")
+        self._update_table(exchange, lambda table: table if binding in table else [binding, *table])
+
+    def _delete(self, queue: str, exchange: str, routing_key: str, pattern: str, *args: Any, **kwargs: Any) -> None:
+        virtual.Channel._delete(self, queue, exchange, routing_key, pattern, *args, **kwargs)
+        binding = filesystem.exchange_queue_t(routing_key or "", pattern or "", queue or "")
+        self._update_table(exchange, lambda table: [q for q in table if q != binding])
+
+    def _update_table(self, exchange: str, change: Callable[[list[Any]], list[Any]]) -> None:
+        file = self._exchange_file(exchange)
+        self.control_folder.mkdir(parents=True, exist_ok=True)
+        try:
+            with exclusive_lock(file.with_name(f"{file.name}.lock")):
+                table = self.get_table(exchange)
+                changed = change(table)
+                if changed != table:
+                    write_whole(file, str_to_bytes(dumps(changed)))
+        except OSError as exc:
+            raise ChannelError(f"cannot update the exchange table {file}") from exc
+
+    # -- folders -------------------------------------------------------------------------------------
+    @cached_property
+    def claimed_folder(self) -> Path:
+        return self._folder("claimed_folder", "claimed")
+
+    @cached_property
+    def rejected_folder(self) -> Path:
+        return self._folder("rejected_folder", "rejected")
+
+    def _folder(self, option: str, default: str) -> Path:
+        folder = Path(self.transport_options.get(option) or Path(self.data_folder_in).parent / default)
+        folder.mkdir(parents=True, exist_ok=True)
+        return folder
+
+
+class Transport(filesystem.Transport):
+    """kombu's filesystem transport on `Channel` above; select it with Celery's `broker_transport` setting."""
+
+    Channel = Channel
+    global_state = virtual.BrokerState()
+
+
+class ResultBackend(FilesystemBackend):
+    """Celery's file result backend with whole-file writes (chords poll these files while tasks write them).
+
+    Select it with `result_backend = "backend.services.embedded_broker:ResultBackend+file:///abs/folder"`.
+    """
+
+    def set(self, key: bytes, value: Any) -> None:
+        write_whole(Path(os.fsdecode(self._filename(key))), value if isinstance(value, bytes) else str_to_bytes(value))
+
+
+TRANSPORT = f"{__name__}:Transport"
+RESULT_BACKEND = f"{__name__}:ResultBackend"

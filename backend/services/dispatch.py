@@ -6,8 +6,9 @@ the commit (broker down, process killed in between). This pass, run every `outbo
 - queued jobs with `dispatched_at` NULL (their send failed);
 - queued jobs sent more than `job_redispatch_after_s` ago (a broker that lost its messages, e.g. a Redis
   restart without persistence);
-- running jobs whose row has not changed for twice `job_heartbeat_timeout_s` (their worker died and no
-  broker redelivers: the embedded filesystem transport keeps no unacknowledged messages).
+- running jobs whose row has not changed for twice `job_heartbeat_timeout_s` (their worker died and the
+  broker did not deliver the task again: a Redis restart without persistence, a broker folder lost, no
+  worker left to recover the embedded broker's held messages).
 Tasks claim their job row (services.jobs.claim), so a task delivered twice runs once.
 """
 

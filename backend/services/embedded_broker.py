@@ -11,9 +11,12 @@ tests/backend/services/test_embedded_broker.py reproduces all three against upst
 Here:
 - every file is written under a temporary name that no reader lists, then renamed into place (atomic within a
   filesystem), so a reader sees a whole file or none (`write_whole`);
-- a consumer claims a message by renaming it into `claimed/` beside the message folder, on the same filesystem
+- a consumer claims a message by renaming it into its own folder under `claimed/`, on the same filesystem
   (upstream moves it to the system temp folder: a copy when that is another filesystem, which two consumers
-  can both make), reads it, then deletes it;
+  can both make), and deletes it only once the message is acknowledged: Celery's `acks_late` then means
+  what it means on Redis. The messages of a consumer whose process died (killed, out of memory) go back to
+  the queue when another consumer next looks (every `recovery_interval_s`, and at its start); upstream keeps
+  unacknowledged messages in memory only, and a crash loses them;
 - a message file that does not parse all the same (another program's, a disk fault) is moved to `rejected/`
   with an error in the log, and the consumer goes on with the next one;
 - writers of an exchange table take an exclusive lock on a lock file of their own, never on the table itself
@@ -31,8 +34,8 @@ import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from queue import Empty
-from time import monotonic_ns
-from typing import Any
+from time import monotonic, monotonic_ns
+from typing import IO, Any
 
 from celery.backends.filesystem import FilesystemBackend
 from kombu.exceptions import ChannelError
@@ -77,12 +80,19 @@ def exclusive_lock(path: Path) -> Iterator[None]:
 
 
 class Channel(filesystem.Channel):
-    """kombu's filesystem channel with whole-file writes and same-filesystem claims (module docstring).
+    """kombu's filesystem channel with whole-file writes and claims held until acknowledged (module docstring).
 
     Transport options, besides upstream's `data_folder_in`, `data_folder_out` and `control_folder`:
-    `claimed_folder` and `rejected_folder` (default: `claimed` and `rejected` beside `data_folder_in`).
-    Upstream's `store_processed` is not supported: a consumed message is deleted.
+    `claimed_folder` and `rejected_folder` (default: `claimed` and `rejected` beside `data_folder_in`) and
+    `recovery_interval_s` (default 5). Upstream's `store_processed` is not supported: an acknowledged message
+    is deleted.
     """
+
+    def __init__(self, connection: Any, **kwargs: Any) -> None:
+        self._held: dict[str, Path] = {}  # delivery tag -> its file under this channel's claims folder
+        self._claims_lock: IO[bytes] | None = None
+        self._next_recovery = 0.0
+        super().__init__(connection, **kwargs)
 
     # -- messages ------------------------------------------------------------------------------------
     def _put(self, queue: str, payload: dict[str, Any], **kwargs: Any) -> None:
@@ -95,37 +105,139 @@ class Channel(filesystem.Channel):
             raise ChannelError(f"cannot add message {name!r} to the broker folder {self.data_folder_out}") from exc
 
     def _get(self, queue: str) -> dict[str, Any]:
+        if monotonic() >= self._next_recovery:
+            self._next_recovery = monotonic() + self.recovery_interval_s
+            self._recover_orphans()
         wanted = f"{queue}.msg"
         folder = Path(self.data_folder_in)
         for name in sorted(os.listdir(folder)):
             if name.partition(".")[2] != wanted:
                 continue
-            claimed = self.claimed_folder / name
+            held = self._claims / name
             try:
-                os.rename(folder / name, claimed)  # atomic: of several consumers, one wins
+                os.rename(folder / name, held)  # atomic: of several consumers, one wins
             except FileNotFoundError:
-                continue  # another consumer took it
+                self._claims.mkdir(parents=True, exist_ok=True)  # a vanished claims folder comes back
+                continue  # or another consumer took it
             except OSError as exc:
                 raise ChannelError(f"cannot claim broker message {name!r} from {folder}") from exc
             try:
-                message = loads(bytes_to_str(claimed.read_bytes()))
+                message = loads(bytes_to_str(held.read_bytes()))
             except (OSError, ValueError, TypeError) as exc:  # ValueError: JSONDecodeError, UnicodeDecodeError
-                self._reject(claimed, f"unreadable ({exc.__class__.__name__}: {exc})")
+                self._reject(held, f"unreadable ({exc.__class__.__name__}: {exc})")
                 continue
-            if not isinstance(message, dict):
-                self._reject(claimed, f"not a message object (a JSON {type(message).__name__})")
+            tag = message.get("properties", {}).get("delivery_tag") if isinstance(message, dict) else None
+            if not isinstance(tag, str):
+                self._reject(held, "not a message object (no properties.delivery_tag)")
                 continue
-            claimed.unlink(missing_ok=True)
+            self._held[tag] = held  # deleted when acknowledged, rejected or restored
             return message
         raise Empty()
 
-    def _reject(self, claimed: Path, why: str) -> None:
-        target = self.rejected_folder / claimed.name
+    def _reject(self, held: Path, why: str) -> None:
+        target = self.rejected_folder / held.name
         try:
-            os.replace(claimed, target)
+            os.replace(held, target)
         except OSError:
-            target = claimed  # left where it is; still out of the queue
-        logger.error("broker message %s is %s; moved to %s, the worker goes on", claimed.name, why, target)
+            target = held  # left where it is; still out of the queue
+        logger.error("broker message %s is %s; moved to %s, the worker goes on", held.name, why, target)
+
+    # -- acknowledgement: a delivered message stays on disk until then -------------------------------
+    def basic_get(self, queue: str, no_ack: bool = False, **kwargs: Any) -> Any:
+        message = super().basic_get(queue, no_ack=no_ack, **kwargs)
+        if message is not None and no_ack:
+            self._release(message.delivery_tag)
+        return message
+
+    def basic_consume(self, queue: str, no_ack: bool, callback: Any, consumer_tag: str, **kwargs: Any) -> Any:
+        if no_ack:  # e.g. Celery's remote-control (pidbox) queues: nothing will acknowledge these
+            deliver = callback
+
+            def callback(message: Any) -> Any:
+                self._release(message.delivery_tag)
+                return deliver(message)
+
+        return super().basic_consume(queue, no_ack, callback, consumer_tag, **kwargs)
+
+    def basic_ack(self, delivery_tag: str, multiple: bool = False) -> None:
+        super().basic_ack(delivery_tag, multiple=multiple)
+        self._release(delivery_tag)
+
+    def basic_reject(self, delivery_tag: str, requeue: bool = False) -> None:
+        super().basic_reject(delivery_tag, requeue=requeue)  # requeue: _restore puts a copy back first
+        self._release(delivery_tag)
+
+    def _restore(self, message: Any) -> None:
+        super()._restore(message)
+        self._release(message.delivery_tag)
+
+    def _release(self, delivery_tag: str) -> None:
+        held = self._held.pop(delivery_tag, None)
+        if held is not None:
+            held.unlink(missing_ok=True)
+
+    def close(self) -> None:
+        super().close()  # puts unacknowledged messages back (kombu's restore at shutdown)
+        if self._claims_lock is not None:
+            try:
+                self._claims.rmdir()  # only if empty
+                (self.claimed_folder / f"{self._claims.name}.lock").unlink(missing_ok=True)
+            except OSError:
+                pass  # messages kombu could not put back: the lock file stays, a later recovery takes them
+            self._claims_lock.close()  # releases the lock
+            self._claims_lock = None
+
+    # -- claims of consumers that died ---------------------------------------------------------------
+    @cached_property
+    def _claims(self) -> Path:
+        """This channel's folder of delivered, unacknowledged messages, `claimed/<pid>-<random>/`, beside
+        `claimed/<pid>-<random>.lock`, which this process holds locked while it lives (POSIX record locks:
+        released by the kernel when the process dies, however it dies, and not inherited by forked pool
+        processes). The lock file is locked before it gets its name, so no one sees it unlocked."""
+        owner = f"{os.getpid()}-{uuid.uuid4().hex[:12]}"
+        temp = self.claimed_folder / f"{TEMP_PREFIX}{owner}.lock"
+        lock = open(temp, "a+b")  # noqa: SIM115  (held open for the channel's life)
+        fcntl.lockf(lock.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        os.replace(temp, self.claimed_folder / f"{owner}.lock")
+        self._claims_lock = lock
+        folder = self.claimed_folder / owner
+        folder.mkdir()
+        return folder
+
+    def _recover_orphans(self) -> int:
+        """Put back into the queue the messages held by consumers whose process has ended; returns how many.
+
+        A consumer's lock is free only once its process is gone. Own-process owners are skipped: POSIX locks
+        never conflict within one process."""
+        own_pid = f"{os.getpid()}-"
+        returned = 0
+        for lock_path in sorted(self.claimed_folder.glob("*.lock")):
+            owner = lock_path.stem
+            if owner.startswith((own_pid, ".")):
+                continue
+            try:
+                fd = os.open(lock_path, os.O_RDWR)
+            except FileNotFoundError:
+                continue  # recovered by another consumer meanwhile
+            try:
+                try:
+                    fcntl.lockf(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                except OSError:
+                    continue  # its process lives
+                folder = self.claimed_folder / owner
+                for held in sorted(folder.glob("*.msg")) if folder.is_dir() else []:
+                    with contextlib.suppress(FileNotFoundError):
+                        os.rename(held, Path(self.data_folder_in) / held.name)  # its old name: the queue's front
+                        returned += 1
+                with contextlib.suppress(OSError):
+                    folder.rmdir()
+                lock_path.unlink(missing_ok=True)
+            finally:
+                os.close(fd)
+        if returned:
+            logger.warning("%d broker message(s) delivered to a consumer that ended without acknowledging them "
+                           "went back to the queue", returned)
+        return returned
 
     # -- exchange tables -----------------------------------------------------------------------------
     def get_table(self, exchange: str) -> list[filesystem.exchange_queue_t]:
@@ -160,6 +272,10 @@ class Channel(filesystem.Channel):
 
     # -- folders -------------------------------------------------------------------------------------
     @cached_property
+    def recovery_interval_s(self) -> float:
+        return float(self.transport_options.get("recovery_interval_s", 5.0))
+
+    @cached_property
     def claimed_folder(self) -> Path:
         return self._folder("claimed_folder", "claimed")
 
@@ -177,7 +293,13 @@ class Transport(filesystem.Transport):
     """kombu's filesystem transport on `Channel` above; select it with Celery's `broker_transport` setting."""
 
     Channel = Channel
-    global_state = virtual.BrokerState()
+
+    def __init__(self, client: Any, **kwargs: Any) -> None:
+        super().__init__(client, **kwargs)
+        # Upstream shares one in-memory record of declared exchanges and bindings per process, so a second
+        # broker folder in the same process (tests, benchmarks) never got its exchange tables written. The
+        # tables on disk are the state; each connection declares what it uses (idempotent).
+        self.state = virtual.BrokerState()
 
 
 class ResultBackend(FilesystemBackend):

@@ -9,7 +9,7 @@
 Backend round index r (r >= 1) collects the streams that networks trained on rounds 0 ... r-1 produce:
 D_{i+1} = D_i + D^h_i + D^m_i + D^l_i, where D^h joins as fits pass the heuristic, D^m and D^l as reviewers
 verify the queue built here. Every step re-reads the database and is safe to run again: if the round's
-canvas is lost (a worker died under a broker that keeps no unacknowledged messages), the outbox re-sends the
+canvas is lost (a worker died and the broker did not deliver its tasks again), the outbox re-sends the
 round job once its heartbeat is stale and `start_round` continues from what is done.
 """
 

@@ -39,19 +39,34 @@ def _connection(root: Path) -> Connection:
 
 def _produce(root: Path, count: int) -> None:
     with _connection(root) as conn:
+        queue = conn.SimpleQueue("cpu")
         for i in range(count):
-            conn.default_channel._put("cpu", {"i": i, "body": "x" * PAYLOAD_CHARS})
+            queue.put({"i": i, "body": "x" * PAYLOAD_CHARS})
 
 
-def _consume(root: Path, until: float, out: Any) -> None:
+def _consume(root: Path, start: Any, out: Any) -> None:
     seen: list[int] = []
     with _connection(root) as conn:
+        queue = conn.SimpleQueue("cpu")
+        start.wait(30)  # both consumers ready: they start together
+        until = time.monotonic() + 8
         while time.monotonic() < until:
             try:
-                seen.append(conn.default_channel._get("cpu")["i"])
+                message = queue.get(block=False)
             except Empty:
                 time.sleep(0.001)
+                continue
+            seen.append(message.payload["i"])
+            message.ack()
     out.put(seen)
+
+
+def _take_and_hold(root: Path, taken: Any) -> None:
+    """Take one message without acknowledging it, say so, then wait to be killed."""
+    with _connection(root) as conn:
+        message = conn.SimpleQueue("cpu").get(block=True, timeout=10)
+        taken.put(message.payload["i"])
+        time.sleep(60)
 
 
 def _bind_everywhere(root: Path, queue: str, exchanges: int) -> None:
@@ -71,26 +86,29 @@ def test_messages_written_while_a_consumer_polls_arrive_whole_and_in_order(tmp_p
     producer = FORK.Process(target=_produce, args=(tmp_path, count))
     received: list[int] = []
     with _connection(tmp_path) as conn:
+        queue = conn.SimpleQueue("cpu")
         producer.start()
         deadline = time.monotonic() + 60
         while len(received) < count and time.monotonic() < deadline:
             try:
-                message = conn.default_channel._get("cpu")  # an empty or cut file would raise here
+                message = queue.get(block=False)  # an empty or cut file would raise here
             except Empty:
                 continue
-            assert len(message["body"]) == PAYLOAD_CHARS
-            received.append(message["i"])
+            assert len(message.payload["body"]) == PAYLOAD_CHARS
+            received.append(message.payload["i"])
+            message.ack()
     producer.join(10)
     assert received == list(range(count))  # whole, once each, in sending order
     assert list(tmp_path.glob("rejected/*")) == []
-    assert [p.name for p in (tmp_path / "messages").iterdir()] == []  # no temporary file left behind
+    assert list((tmp_path / "messages").iterdir()) == []  # no temporary file left behind
+    assert list((tmp_path / "claimed").iterdir()) == []  # acknowledged: deleted; the closed channel's folder too
 
 
 def test_two_consumers_claim_each_message_exactly_once(tmp_path):
     count = 600
     _produce(tmp_path, count)
-    results = FORK.Queue()
-    consumers = [FORK.Process(target=_consume, args=(tmp_path, time.monotonic() + 8, results)) for _ in range(2)]
+    results, start = FORK.Queue(), FORK.Barrier(2)
+    consumers = [FORK.Process(target=_consume, args=(tmp_path, start, results)) for _ in range(2)]
     for consumer in consumers:
         consumer.start()
     seen = [results.get(timeout=30) for _ in consumers]
@@ -102,21 +120,79 @@ def test_two_consumers_claim_each_message_exactly_once(tmp_path):
 
 def test_a_message_file_that_does_not_parse_is_set_aside_and_the_next_one_delivered(tmp_path, caplog):
     with _connection(tmp_path) as conn:
+        queue = conn.SimpleQueue("cpu")
         messages = tmp_path / "messages"
         (messages / "000000000000001_a.cpu.msg").write_bytes(b"")  # an empty file (a writer cut short)
         (messages / "000000000000002_b.cpu.msg").write_bytes(b'{"cut": ')
         (messages / "000000000000003_c.cpu.msg").write_bytes(b"[1, 2]")  # JSON, but no message
-        (messages / "000000000000004_d.gpu.msg").write_bytes(b"")  # another queue's: left alone
-        conn.default_channel._put("cpu", {"i": 7})
+        (messages / "000000000000004_d.cpu.msg").write_bytes(b'{"body": "x"}')  # a dict, but no message either
+        (messages / "000000000000005_e.gpu.msg").write_bytes(b"")  # another queue's: left alone
+        queue.put({"i": 7})
         with caplog.at_level(logging.ERROR, logger=embedded_broker.__name__):
-            assert conn.default_channel._get("cpu") == {"i": 7}
+            message = queue.get(block=False)
+        assert message.payload == {"i": 7}
+        message.ack()
         with pytest.raises(Empty):
-            conn.default_channel._get("cpu")
+            queue.get(block=False)
     rejected = sorted(p.name for p in (tmp_path / "rejected").iterdir())
-    assert rejected == ["000000000000001_a.cpu.msg", "000000000000002_b.cpu.msg", "000000000000003_c.cpu.msg"]
-    assert [p.name for p in messages.iterdir()] == ["000000000000004_d.gpu.msg"]
+    assert rejected == [f"00000000000000{i}_{c}.cpu.msg" for i, c in zip("1234", "abcd", strict=True)]
+    assert [p.name for p in messages.iterdir()] == ["000000000000005_e.gpu.msg"]
     logged = " ".join(r.getMessage() for r in caplog.records)
     assert "000000000000002_b.cpu.msg is unreadable (JSONDecodeError" in logged and "not a message object" in logged
+
+
+def test_a_message_taken_by_a_consumer_that_was_killed_is_delivered_again(tmp_path):
+    _produce(tmp_path, 2)
+    taken = FORK.Queue()
+    holder = FORK.Process(target=_take_and_hold, args=(tmp_path, taken))
+    holder.start()
+    try:
+        assert taken.get(timeout=30) == 0
+        assert len(list(tmp_path.glob("claimed/*/*.msg"))) == 1  # held on disk, not acknowledged
+        with _connection(tmp_path) as conn:
+            queue = conn.SimpleQueue("cpu")
+            message = queue.get(block=False)
+            assert message.payload["i"] == 1  # the live holder's message is not taken from it
+            message.ack()
+            holder.kill()  # SIGKILL: nothing is acknowledged, nothing restored
+            holder.join(10)
+            conn.default_channel._next_recovery = 0.0  # the next look recovers (else: recovery_interval_s)
+            message = queue.get(block=False)
+            assert message.payload["i"] == 0  # delivered again
+            message.ack()
+            with pytest.raises(Empty):
+                queue.get(block=False)
+    finally:
+        holder.kill()
+    assert list((tmp_path / "claimed").iterdir()) == []
+
+
+def test_unacknowledged_messages_return_to_the_queue_when_a_consumer_closes(tmp_path):
+    _produce(tmp_path, 3)
+    with _connection(tmp_path) as conn:
+        queue = conn.SimpleQueue("cpu")
+        queue.get(block=False).ack()
+        queue.get(block=False).reject(requeue=True)  # back to the queue at once
+        held = queue.get(block=False)
+        assert held.payload["i"] == 2 and len(list(tmp_path.glob("claimed/*/*.msg"))) == 1
+        assert queue.get(block=False).payload["i"] == 1  # the requeued one
+        assert conn.default_channel.basic_get("cpu", no_ack=True) is None  # nothing left to take
+    # closed without acknowledging 1 (redelivered) and 2: kombu puts both back, once each
+    with _connection(tmp_path) as conn:
+        queue = conn.SimpleQueue("cpu")
+        again = sorted(queue.get(block=False).payload["i"] for _ in range(2))
+        with pytest.raises(Empty):
+            queue.get(block=False)
+        message = conn.default_channel.basic_get("cpu", no_ack=True)
+    assert again == [1, 2] and message is None
+    assert list((tmp_path / "claimed").iterdir()) == []
+
+
+def test_messages_taken_without_acknowledgement_are_not_held(tmp_path):
+    _produce(tmp_path, 1)
+    with _connection(tmp_path) as conn:
+        message = conn.default_channel.basic_get("cpu", no_ack=True)
+        assert message is not None and list(tmp_path.glob("claimed/*/*.msg")) == []
 
 
 def test_exchange_tables_created_by_several_processes_keep_every_binding_and_always_parse(tmp_path):

@@ -15,8 +15,8 @@ Here:
   (upstream moves it to the system temp folder: a copy when that is another filesystem, which two consumers
   can both make), and deletes it only once the message is acknowledged: Celery's `acks_late` then means
   what it means on Redis. The messages of a consumer whose process died (killed, out of memory) go back to
-  the queue when another consumer next looks (every `recovery_interval_s`, and at its start); upstream keeps
-  unacknowledged messages in memory only, and a crash loses them;
+  the queue when another consumer next looks (every `recovery_interval_s`, and at its start;
+  services.broker_claims); upstream keeps unacknowledged messages in memory only, and a crash loses them;
 - a message file that does not parse all the same (another program's, a disk fault) is moved to `rejected/`
   with an error in the log, and the consumer goes on with the next one;
 - writers of an exchange table take an exclusive lock on a lock file of their own, never on the table itself
@@ -35,7 +35,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from queue import Empty
 from time import monotonic, monotonic_ns
-from typing import IO, Any
+from typing import Any
 
 from celery.backends.filesystem import FilesystemBackend
 from kombu.exceptions import ChannelError
@@ -43,6 +43,8 @@ from kombu.transport import filesystem, virtual
 from kombu.utils.encoding import bytes_to_str, str_to_bytes
 from kombu.utils.json import dumps, loads
 from kombu.utils.objects import cached_property
+
+from backend.services.broker_claims import Claims, recover_orphans
 
 logger = logging.getLogger(__name__)
 
@@ -89,9 +91,10 @@ class Channel(filesystem.Channel):
     """
 
     def __init__(self, connection: Any, **kwargs: Any) -> None:
-        self._held: dict[str, Path] = {}  # delivery tag -> its file under this channel's claims folder
-        self._claims_lock: IO[bytes] | None = None
+        self._held: dict[str, Path] = {}  # delivery tag -> its file in this channel's claims folder
+        self._claims: Claims | None = None  # made when this channel first consumes (publishers never do)
         self._next_recovery = 0.0
+        self._pid = os.getpid()
         super().__init__(connection, **kwargs)
 
     # -- messages ------------------------------------------------------------------------------------
@@ -105,22 +108,25 @@ class Channel(filesystem.Channel):
             raise ChannelError(f"cannot add message {name!r} to the broker folder {self.data_folder_out}") from exc
 
     def _get(self, queue: str) -> dict[str, Any]:
-        if monotonic() >= self._next_recovery:
-            self._next_recovery = monotonic() + self.recovery_interval_s
-            self._recover_orphans()
         wanted = f"{queue}.msg"
         folder = Path(self.data_folder_in)
-        for name in sorted(os.listdir(folder)):
+        try:
+            claims = self._consumer_claims()
+            if monotonic() >= self._next_recovery:
+                self._next_recovery = monotonic() + self.recovery_interval_s
+                recover_orphans(self.claimed_folder, folder)
+            names = sorted(os.listdir(folder))
+        except OSError as exc:  # a ChannelError: Celery's consumer reconnects instead of dying
+            raise ChannelError(f"the embedded broker's folders under {folder.parent} failed: {exc}") from exc
+        for name in names:
             if name.partition(".")[2] != wanted:
                 continue
-            held = self._claims / name
             try:
-                os.rename(folder / name, held)  # atomic: of several consumers, one wins
-            except FileNotFoundError:
-                self._claims.mkdir(parents=True, exist_ok=True)  # a vanished claims folder comes back
-                continue  # or another consumer took it
+                held = claims.take(folder / name)
             except OSError as exc:
-                raise ChannelError(f"cannot claim broker message {name!r} from {folder}") from exc
+                raise ChannelError(f"cannot claim broker message {name!r} from {folder}: {exc}") from exc
+            if held is None:
+                continue  # another consumer took it
             try:
                 message = loads(bytes_to_str(held.read_bytes()))
             except (OSError, ValueError, TypeError) as exc:  # ValueError: JSONDecodeError, UnicodeDecodeError
@@ -133,6 +139,11 @@ class Channel(filesystem.Channel):
             self._held[tag] = held  # deleted when acknowledged, rejected or restored
             return message
         raise Empty()
+
+    def _consumer_claims(self) -> Claims:
+        if self._claims is None:
+            self._claims = Claims(self.claimed_folder)
+        return self._claims
 
     def _reject(self, held: Path, why: str) -> None:
         target = self.rejected_folder / held.name
@@ -164,80 +175,44 @@ class Channel(filesystem.Channel):
         self._release(delivery_tag)
 
     def basic_reject(self, delivery_tag: str, requeue: bool = False) -> None:
-        super().basic_reject(delivery_tag, requeue=requeue)  # requeue: _restore puts a copy back first
-        self._release(delivery_tag)
+        super().basic_reject(delivery_tag, requeue=requeue)
+        if not requeue:  # requeued: _restore released it (after putting the copy back, which may be taken
+            self._release(delivery_tag)  # and held under the same tag at once)
 
     def _restore(self, message: Any) -> None:
-        super()._restore(message)
-        self._release(message.delivery_tag)
-
-    def _release(self, delivery_tag: str) -> None:
-        held = self._held.pop(delivery_tag, None)
+        # Unhold before the copy goes back: the copy keeps the delivery tag, and this channel may take it
+        # and hold it again at once (an ack or reject may come from another thread than the consumer's).
+        held = self._unhold(message.delivery_tag)
+        try:
+            super()._restore(message)
+        except BaseException:
+            if held is not None:
+                self._held[message.delivery_tag] = held  # still held: a later restore or recovery takes it
+            raise
         if held is not None:
             held.unlink(missing_ok=True)
 
+    def _release(self, delivery_tag: str) -> None:
+        held = self._unhold(delivery_tag)
+        if held is not None:
+            held.unlink(missing_ok=True)
+
+    def _unhold(self, delivery_tag: str) -> Path | None:
+        # kombu may settle a message on another channel of the connection than the one that took it
+        # (Transport._reject_inbound_message uses the first channel): look in all of ours.
+        for channel in [self, *(c for c in getattr(self.connection, "channels", ()) if c is not self)]:
+            held = getattr(channel, "_held", {}).pop(delivery_tag, None)
+            if held is not None:
+                return held
+        return None
+
     def close(self) -> None:
+        if os.getpid() != self._pid:
+            self.do_restore = False  # a forked child's copy: the unacknowledged messages are the parent's
         super().close()  # puts unacknowledged messages back (kombu's restore at shutdown)
-        if self._claims_lock is not None:
-            try:
-                self._claims.rmdir()  # only if empty
-                (self.claimed_folder / f"{self._claims.name}.lock").unlink(missing_ok=True)
-            except OSError:
-                pass  # messages kombu could not put back: the lock file stays, a later recovery takes them
-            self._claims_lock.close()  # releases the lock
-            self._claims_lock = None
-
-    # -- claims of consumers that died ---------------------------------------------------------------
-    @cached_property
-    def _claims(self) -> Path:
-        """This channel's folder of delivered, unacknowledged messages, `claimed/<pid>-<random>/`, beside
-        `claimed/<pid>-<random>.lock`, which this process holds locked while it lives (POSIX record locks:
-        released by the kernel when the process dies, however it dies, and not inherited by forked pool
-        processes). The lock file is locked before it gets its name, so no one sees it unlocked."""
-        owner = f"{os.getpid()}-{uuid.uuid4().hex[:12]}"
-        temp = self.claimed_folder / f"{TEMP_PREFIX}{owner}.lock"
-        lock = open(temp, "a+b")  # noqa: SIM115  (held open for the channel's life)
-        fcntl.lockf(lock.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-        os.replace(temp, self.claimed_folder / f"{owner}.lock")
-        self._claims_lock = lock
-        folder = self.claimed_folder / owner
-        folder.mkdir()
-        return folder
-
-    def _recover_orphans(self) -> int:
-        """Put back into the queue the messages held by consumers whose process has ended; returns how many.
-
-        A consumer's lock is free only once its process is gone. Own-process owners are skipped: POSIX locks
-        never conflict within one process."""
-        own_pid = f"{os.getpid()}-"
-        returned = 0
-        for lock_path in sorted(self.claimed_folder.glob("*.lock")):
-            owner = lock_path.stem
-            if owner.startswith((own_pid, ".")):
-                continue
-            try:
-                fd = os.open(lock_path, os.O_RDWR)
-            except FileNotFoundError:
-                continue  # recovered by another consumer meanwhile
-            try:
-                try:
-                    fcntl.lockf(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                except OSError:
-                    continue  # its process lives
-                folder = self.claimed_folder / owner
-                for held in sorted(folder.glob("*.msg")) if folder.is_dir() else []:
-                    with contextlib.suppress(FileNotFoundError):
-                        os.rename(held, Path(self.data_folder_in) / held.name)  # its old name: the queue's front
-                        returned += 1
-                with contextlib.suppress(OSError):
-                    folder.rmdir()
-                lock_path.unlink(missing_ok=True)
-            finally:
-                os.close(fd)
-        if returned:
-            logger.warning("%d broker message(s) delivered to a consumer that ended without acknowledging them "
-                           "went back to the queue", returned)
-        return returned
+        if self._claims is not None:
+            self._claims.close()
+            self._claims = None
 
     # -- exchange tables -----------------------------------------------------------------------------
     def get_table(self, exchange: str) -> list[filesystem.exchange_queue_t]:

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
+import os
+import shutil
 import time
 from pathlib import Path
 from queue import Empty
@@ -18,7 +20,7 @@ import pytest
 from celery import Celery
 from kombu import Connection
 
-from backend.services import embedded_broker
+from backend.services import broker_claims, embedded_broker
 from backend.services.celery_queue import celery_config, embedded_folders, ensure_embedded_folders
 from backend.settings import Settings
 
@@ -185,6 +187,40 @@ def test_unacknowledged_messages_return_to_the_queue_when_a_consumer_closes(tmp_
             queue.get(block=False)
         message = conn.default_channel.basic_get("cpu", no_ack=True)
     assert again == [1, 2] and message is None
+    assert list((tmp_path / "claimed").iterdir()) == []
+
+
+def test_a_dead_consumer_with_this_process_id_is_recovered_too(tmp_path):
+    """A restarted worker may get a dead one's pid: owners are told apart by name, not by pid."""
+    _produce(tmp_path, 1)
+    with _connection(tmp_path) as conn:
+        queue = conn.SimpleQueue("cpu")
+        message = queue.get(block=False)
+        held = next(tmp_path.glob("claimed/*/*.msg"))
+        dead = tmp_path / "claimed" / f"{os.getpid()}-000000000000"  # as a dead process with our pid left it
+        dead.mkdir()
+        (tmp_path / "claimed" / f"{dead.name}.lock").touch()
+        shutil.copy(held, dead / held.name)
+        message.ack()
+        assert broker_claims.recover_orphans(tmp_path / "claimed", tmp_path / "messages") == 1
+        assert queue.get(block=False).payload["i"] == 0  # delivered again
+    assert not dead.exists() and not (tmp_path / "claimed" / f"{dead.name}.lock").exists()
+
+
+def test_a_forked_child_closing_its_copy_of_a_channel_leaves_the_parents_claims_alone(tmp_path):
+    _produce(tmp_path, 1)
+    with _connection(tmp_path) as conn:
+        queue = conn.SimpleQueue("cpu")
+        message = queue.get(block=False)
+        held = next(tmp_path.glob("claimed/*/*.msg"))
+        child = FORK.Process(target=conn.default_channel.close)  # as kombu's pools do after a fork
+        child.start()
+        child.join(10)
+        assert child.exitcode == 0
+        assert held.exists() and held.parent.with_suffix(".lock").exists()  # still held, still locked
+        assert list((tmp_path / "messages").iterdir()) == []  # the child put no copy back
+        assert broker_claims.recover_orphans(tmp_path / "claimed", tmp_path / "messages") == 0  # owner alive
+        message.ack()
     assert list((tmp_path / "claimed").iterdir()) == []
 
 

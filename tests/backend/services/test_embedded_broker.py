@@ -63,6 +63,13 @@ def _consume(root: Path, start: Any, out: Any) -> None:
     out.put(seen)
 
 
+def _take_one(conn: Connection, root: Path) -> tuple[Any, Any, Path]:
+    """The cpu queue, its first message (not acknowledged) and the file that holds it under claimed/."""
+    queue = conn.SimpleQueue("cpu")
+    message = queue.get(block=False)
+    return queue, message, next(root.glob("claimed/*/*.msg"))
+
+
 def _take_and_hold(root: Path, taken: Any) -> None:
     """Take one message without acknowledging it, say so, then wait to be killed."""
     with _connection(root) as conn:
@@ -194,9 +201,7 @@ def test_a_dead_consumer_with_this_process_id_is_recovered_too(tmp_path):
     """A restarted worker may get a dead one's pid: owners are told apart by name, not by pid."""
     _produce(tmp_path, 1)
     with _connection(tmp_path) as conn:
-        queue = conn.SimpleQueue("cpu")
-        message = queue.get(block=False)
-        held = next(tmp_path.glob("claimed/*/*.msg"))
+        queue, message, held = _take_one(conn, tmp_path)
         dead = tmp_path / "claimed" / f"{os.getpid()}-000000000000"  # as a dead process with our pid left it
         dead.mkdir()
         (tmp_path / "claimed" / f"{dead.name}.lock").touch()
@@ -210,9 +215,7 @@ def test_a_dead_consumer_with_this_process_id_is_recovered_too(tmp_path):
 def test_a_forked_child_closing_its_copy_of_a_channel_leaves_the_parents_claims_alone(tmp_path):
     _produce(tmp_path, 1)
     with _connection(tmp_path) as conn:
-        queue = conn.SimpleQueue("cpu")
-        message = queue.get(block=False)
-        held = next(tmp_path.glob("claimed/*/*.msg"))
+        _, message, held = _take_one(conn, tmp_path)
         child = FORK.Process(target=conn.default_channel.close)  # as kombu's pools do after a fork
         child.start()
         child.join(10)

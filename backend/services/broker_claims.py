@@ -24,7 +24,9 @@ from typing import IO
 logger = logging.getLogger(__name__)
 
 LOCK_SUFFIX = ".lock"
-_TEMP_PREFIX = ".tmp-"
+# Temporary files start with a dot: no reader lists them (not a lock file's owner, not `<stamp>_<uuid>.<queue>.msg`
+# of the transport, not a result key's `celery-task-meta-` prefix).
+TEMP_PREFIX = ".tmp-"
 _OWN_OWNERS: set[str] = set()  # owners created by this process
 os.register_at_fork(after_in_child=_OWN_OWNERS.clear)  # a child owns none of its parent's
 
@@ -39,7 +41,7 @@ class Claims:
         self.lock_path = claimed_folder / f"{self.owner}{LOCK_SUFFIX}"
         self.folder = claimed_folder / self.owner
         # Locked before it gets its name: a recoverer never sees this owner's lock file unlocked.
-        temp = claimed_folder / f"{_TEMP_PREFIX}{self.owner}{LOCK_SUFFIX}"
+        temp = claimed_folder / f"{TEMP_PREFIX}{self.owner}{LOCK_SUFFIX}"
         self._lock: IO[bytes] | None = open(temp, "a+b")  # noqa: SIM115  (held open while the consumer lives)
         try:
             fcntl.lockf(self._lock.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -83,7 +85,7 @@ def recover_orphans(claimed_folder: Path, queue_folder: Path) -> int:
     returned = 0
     for lock_path in sorted(claimed_folder.glob(f"*{LOCK_SUFFIX}")):
         owner = lock_path.name.removesuffix(LOCK_SUFFIX)
-        if owner in _OWN_OWNERS or owner.startswith("."):
+        if owner in _OWN_OWNERS or owner.startswith(TEMP_PREFIX):
             continue
         try:
             fd = os.open(lock_path, os.O_RDWR)

@@ -44,13 +44,10 @@ from kombu.utils.encoding import bytes_to_str, str_to_bytes
 from kombu.utils.json import dumps, loads
 from kombu.utils.objects import cached_property
 
-from backend.services.broker_claims import Claims, recover_orphans
+from backend.services.broker_claims import TEMP_PREFIX, Claims, recover_orphans
 
 logger = logging.getLogger(__name__)
 
-# Temporary files start with a dot: not `<stamp>_<uuid>.<queue>.msg` (the transport's pattern), not a result
-# key's `celery-task-meta-` prefix.
-TEMP_PREFIX = ".tmp-"
 _SEQUENCE = itertools.count()
 
 
@@ -132,7 +129,7 @@ class Channel(filesystem.Channel):
             except (OSError, ValueError, TypeError) as exc:  # ValueError: JSONDecodeError, UnicodeDecodeError
                 self._reject(held, f"unreadable ({exc.__class__.__name__}: {exc})")
                 continue
-            tag = message.get("properties", {}).get("delivery_tag") if isinstance(message, dict) else None
+            tag = _delivery_tag(message)
             if not isinstance(tag, str):
                 self._reject(held, "not a message object (no properties.delivery_tag)")
                 continue
@@ -229,6 +226,7 @@ class Channel(filesystem.Channel):
         self._update_table(exchange, lambda table: table if binding in table else [binding, *table])
 
     def _delete(self, queue: str, exchange: str, routing_key: str, pattern: str, *args: Any, **kwargs: Any) -> None:
+        # The virtual channel's bookkeeping, not upstream filesystem's (which rewrites the table in place).
         virtual.Channel._delete(self, queue, exchange, routing_key, pattern, *args, **kwargs)
         binding = filesystem.exchange_queue_t(routing_key or "", pattern or "", queue or "")
         self._update_table(exchange, lambda table: [q for q in table if q != binding])
@@ -262,6 +260,12 @@ class Channel(filesystem.Channel):
         folder = Path(self.transport_options.get(option) or Path(self.data_folder_in).parent / default)
         folder.mkdir(parents=True, exist_ok=True)
         return folder
+
+
+def _delivery_tag(message: Any) -> Any:
+    """`message["properties"]["delivery_tag"]`, or None where a decoded file does not have that shape."""
+    properties = message.get("properties") if isinstance(message, dict) else None
+    return properties.get("delivery_tag") if isinstance(properties, dict) else None
 
 
 class Transport(filesystem.Transport):

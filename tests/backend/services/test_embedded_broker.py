@@ -150,6 +150,15 @@ def test_a_message_file_that_does_not_parse_is_set_aside_and_the_next_one_delive
     assert "000000000000002_b.cpu.msg is unreadable (JSONDecodeError" in logged and "not a message object" in logged
 
 
+def test_a_message_whose_properties_are_not_an_object_is_set_aside(tmp_path):
+    with _connection(tmp_path) as conn:
+        queue = conn.SimpleQueue("cpu")
+        (tmp_path / "messages" / "000000000000001_a.cpu.msg").write_bytes(b'{"properties": 5}')
+        with pytest.raises(Empty):
+            queue.get(block=False)
+    assert [p.name for p in (tmp_path / "rejected").iterdir()] == ["000000000000001_a.cpu.msg"]
+
+
 def test_a_message_taken_by_a_consumer_that_was_killed_is_delivered_again(tmp_path):
     _produce(tmp_path, 2)
     taken = FORK.Queue()

@@ -15,7 +15,6 @@ _EXPORTS = {
     "HandLayer": "layer",
     "HandOutput": "layer",
     "load_hand_model": "loading",
-    "hand_model_from_settings": "loading",
     "STAND_IN_NOTICE": "loading",
     "load_mano": "mano_loader",
 }

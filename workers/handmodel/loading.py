@@ -35,9 +35,3 @@ def load_hand_model(mano_path: Path | None = None, side: str = "right") -> HandM
     log.info(STAND_IN_NOTICE)
     return build_builtin_hand(side=side)
 
-
-def hand_model_from_settings(side: str = "right") -> HandModelArrays:
-    """`load_hand_model` with HANDLOOP_MANO_PATH from the settings."""
-    from backend.settings import get_settings
-
-    return load_hand_model(get_settings().mano_path, side)

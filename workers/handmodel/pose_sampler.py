@@ -17,7 +17,6 @@ Shapes: N poses; poses (N, 45) float64 axis-angle radians in the model's rest fr
 
 from __future__ import annotations
 
-import functools
 import itertools
 from collections.abc import Sequence
 
@@ -176,28 +175,21 @@ class PoseSampler:
         return np.concatenate([canon, rest])
 
 
-@functools.lru_cache(maxsize=4)
-def _default_sampler(side: str) -> PoseSampler:
-    from workers.handmodel.builtin import build_builtin_hand
-
-    return PoseSampler(joint_frames(build_builtin_hand(side)))
+def sampler_for(arrays: HandModelArrays) -> PoseSampler:
+    """A PoseSampler for the hand model `arrays` (any model: built-in or MANO, right or left)."""
+    return PoseSampler(joint_frames(arrays))
 
 
-def sampler_for(arrays: HandModelArrays | None = None) -> PoseSampler:
-    """A PoseSampler for `arrays` (default: the built-in right hand)."""
-    return _default_sampler("right") if arrays is None else PoseSampler(joint_frames(arrays))
-
-
-def canonical_poses(arrays: HandModelArrays | None = None) -> dict[str, np.ndarray]:
-    """Named canonical poses: name -> (45,) axis-angle radians for `arrays` (default built-in right)."""
+def canonical_poses(arrays: HandModelArrays) -> dict[str, np.ndarray]:
+    """Named canonical poses: name -> (45,) axis-angle radians for `arrays`."""
     return sampler_for(arrays).canonical_poses()
 
 
-def sample(n: int, rng: np.random.Generator, arrays: HandModelArrays | None = None) -> np.ndarray:
-    """(n, 45) random plausible poses for `arrays` (default built-in right), drawn from `rng`."""
+def sample(n: int, rng: np.random.Generator, arrays: HandModelArrays) -> np.ndarray:
+    """(n, 45) random plausible poses for `arrays`, drawn from `rng`."""
     return sampler_for(arrays).sample(n, rng)
 
 
-def pose_bank(n: int, seed: int = 0, arrays: HandModelArrays | None = None) -> np.ndarray:
-    """(n, 45) pose bank: canonical poses then samples from `seed` (default built-in right)."""
+def pose_bank(n: int, seed: int = 0, *, arrays: HandModelArrays) -> np.ndarray:
+    """(n, 45) pose bank for `arrays`: canonical poses then samples from `seed`."""
     return sampler_for(arrays).pose_bank(n, seed)

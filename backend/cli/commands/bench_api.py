@@ -1,4 +1,4 @@
-"""`handloop bench api`: annotator throughput and latency against PostgreSQL (workers/bench/api.py)."""
+"""`handloop bench api`: annotator throughput and latency against PostgreSQL (backend/bench/api_capacity.py)."""
 
 from __future__ import annotations
 
@@ -28,8 +28,8 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
                                        "jobs (under a key prefix of the run's own, removed afterwards)."),
     ) -> None:
         """50 simulated annotators doing next -> submit over loopback for 30 s on PostgreSQL and Redis."""
-        from workers.bench.api import run
-        from workers.bench.common import emit
+        from backend.bench.api_capacity import run
+        from backend.bench.common import emit
 
         logging.getLogger("httpx").setLevel(logging.WARNING)  # one line per request would drown the progress
         if quick:  # the same load per annotator

@@ -16,7 +16,7 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
     ) -> None:
         """Fit synthetic frames (clicks with noise 0/2/5 px; ground-truth or chroma-key masks; with and
         without silhouettes) and report errors against ground truth and seconds per frame."""
-        from workers.bench.fit import run
+        from backend.bench.fit import run
 
         record = run(quick=quick, emit_json=json_out, frames_per_sequence=frames_per_sequence)
         if not json_out:

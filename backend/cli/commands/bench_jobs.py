@@ -19,7 +19,7 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         keys celery_overhead_pct, fits_per_s_celery, fits_per_s_direct."""
         if broker not in ("embedded", "redis"):
             raise typer.BadParameter("broker must be 'embedded' or 'redis'", param_hint="--broker")
-        from workers.bench.jobs import run
+        from backend.bench.job_overhead import run
 
         record = run(quick=quick, emit_json=json_out, broker=broker, batch_size=batch_size, repeats=repeats)
         if not json_out:

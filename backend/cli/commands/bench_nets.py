@@ -20,7 +20,7 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         threads: int = typer.Option(1, min=1, max=256, help="torch CPU threads (1 suits a shared machine)."),
     ) -> None:
         """Train on green-screen sequences, evaluate on held-out subjects in front of other backgrounds."""
-        from workers.bench.nets import run
+        from backend.bench.nets import run
 
         record = run(quick=quick, data_dir=data, out_dir=out, seed=seed, config_name=config, threads=threads,
                      emit_json=json_out)

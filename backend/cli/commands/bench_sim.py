@@ -15,7 +15,7 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         minutes, accepted labels' vertex error, auto-accept precision, labels per human hour."""
         import logging
 
-        from backend.simulation.bench import run
+        from backend.bench.sim import run
 
         logging.getLogger("httpx").setLevel(logging.WARNING)  # one line per request drowns the progress
         record = run(quick=quick, emit_json=json_out)

@@ -14,7 +14,7 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         workers: int = typer.Option(0, min=0, max=256, help="Processes (0 = one per CPU core)."),
     ) -> None:
         """Time `handloop synth` end to end (rendering, encoding and writing) into a temporary folder."""
-        from workers.bench.synth import run
+        from backend.bench.synth import run
 
         record = run(quick=quick, width_px=width, workers=workers, emit_json=json_out)
         if not json_out:

@@ -52,7 +52,7 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         chromium: str = typer.Option(CHROMIUM, help="Chromium executable."),
     ) -> None:
         """Page interactive, next sample after a decision, brush event handling: in a real browser."""
-        from workers.bench.common import emit
+        from backend.bench.common import emit
 
         if quick:
             frames, repeats, brush_events = min(frames, 7), 1, min(brush_events, 150)

@@ -112,7 +112,7 @@ def test_preview_of_a_broken_capture_names_the_file(capture, tmp_path):
 
 
 def test_bench_synth_prints_json_last(monkeypatch):
-    import workers.bench.synth as bench
+    import backend.bench.synth as bench
 
     monkeypatch.setattr(bench, "SIZES", {True: (1, 2), False: (1, 2)})
     result = runner.invoke(app, ["bench", "synth", "--json", "--quick", "--width", "64", "--workers", "1"])

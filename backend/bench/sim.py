@@ -49,10 +49,10 @@ def _capture(root: Path, sequences: int, frames: int, width: int) -> Path:
 def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = None) -> dict[str, Any]:
     from tqdm import tqdm
 
+    from backend.bench.common import emit
     from backend.settings import get_settings
     from backend.simulation.bootstrap import BootstrapConfig
     from backend.simulation.runner import ServerOptions, run_simulation
-    from workers.bench.common import emit
 
     started = time.perf_counter()
     plan = QUICK if quick else FULL

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from workers.bench.common import emit
+from backend.bench.common import emit
 
 log = logging.getLogger(__name__)
 

@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from workers.bench.common import emit
+from backend.bench.common import emit
 
 log = logging.getLogger(__name__)
 

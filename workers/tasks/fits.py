@@ -32,7 +32,9 @@ from workers.capture.schema import CaptureError
 from workers.fitting.config import FitConfig, LossWeights
 from workers.fitting.inputs import FitInputError
 from workers.tasks.context import WorkerContext
+from workers.tasks.inference import touch_round
 from workers.tasks.inputs import FitInput, InputError, fit_input, load_frames
+from workers.tasks.json_values import json_safe
 from workers.tasks.progress import JobCancelledError, ProgressReporter
 
 log = logging.getLogger(__name__)
@@ -110,8 +112,6 @@ def run_fit_jobs(ctx: WorkerContext, job_ids: list[int], *, parent: tuple[int, f
 def run_fit_jobs_batched(ctx: WorkerContext, job_ids: list[int], *, round_job_id: int | None = None
                          ) -> dict[str, Any]:
     """`run_fit_jobs` over chunks of `fit_batch_size`; in a round, its progress is updated after each chunk."""
-    from workers.tasks.inference import touch_round
-
     size = ctx.settings.fit_batch_size
     total = FitSummary()
     for start in range(0, len(job_ids), size):
@@ -246,21 +246,6 @@ def _png(mask: np.ndarray) -> bytes:
     if not ok:
         return encode_png(mask)
     return data.tobytes()
-
-
-def json_safe(value: Any) -> Any:
-    """`value` with every non-finite float as None: JSON has no NaN, and PostgreSQL refuses it."""
-    if isinstance(value, dict):
-        return {str(k): json_safe(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [json_safe(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return json_safe(value.tolist())
-    if isinstance(value, float | np.floating):
-        return float(value) if np.isfinite(value) else None
-    if isinstance(value, np.integer):
-        return int(value)
-    return value
 
 
 def _record_failure(ctx: WorkerContext, sample_id: int, job_id: int, error: str, summary: FitSummary) -> None:

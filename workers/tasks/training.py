@@ -28,8 +28,8 @@ from backend.models.review import Round, RoundMember
 from backend.services import jobs
 from backend.services.errors import DomainError
 from workers.tasks.context import WorkerContext
-from workers.tasks.fits import json_safe
 from workers.tasks.inputs import InputError, Rig, SampleFrame, capture_for, load_frames, read_mask, rig_of
+from workers.tasks.json_values import json_safe
 from workers.tasks.progress import JobCancelledError, ProgressReporter
 
 log = logging.getLogger(__name__)

@@ -19,7 +19,7 @@ from sqlalchemy.orm import Session
 from backend.db.base import utcnow
 from backend.models.enums import JobKind, JobState
 from backend.models.jobs import Job
-from backend.services import audit
+from backend.services import audit, fit_samples, queues
 from backend.services.errors import ConflictError, InvalidInputError, NotFoundError, ServiceUnavailableError
 from backend.services.transactions import after_commit
 
@@ -139,9 +139,9 @@ def claim(session: Session, job_id: int, worker: str, stale_after_s: float, now:
         error = f"gave up after {job.attempts} attempts (the last by {job.worker}); see the worker logs"
         logger.warning("job %s: %s", job_id, error)
         if job.kind == JobKind.fit and job.sample_id is not None:
-            from backend.services.records import record_fit_failure  # records imports this module
-
-            record_fit_failure(session, job.sample_id, job.id, error)
+            sample = queues.load_locked(session, job.sample_id)  # the sample before the job, as records does
+            finish(session, job.id, JobState.failed, error=error)
+            fit_samples.release_failed_fit(session, sample, error)
         else:
             finish(session, job.id, JobState.failed, error=error)
         return None
@@ -206,8 +206,6 @@ def cancel(session: Session, queue: JobQueue, job_id: int, actor_id: int | None)
     job.finished_at = utcnow()
     audit.record(session, actor_id, "job.cancel", "job", job.id)
     if job.kind == JobKind.fit and job.sample_id is not None:
-        from backend.services.records import release_cancelled_fit  # records imports this module
-
-        release_cancelled_fit(session, job.sample_id, job.id)
+        fit_samples.release_cancelled_fit(session, job.sample_id, job.id)
     after_commit(session, lambda: queue.revoke(job_id))
     return job

@@ -15,10 +15,9 @@ from sqlalchemy.orm import Session
 
 from backend.models.enums import DecisionKind, JobKind, JobState, MaskKind, SampleState, Stream
 from backend.models.fits import Fit, Prediction
-from backend.models.jobs import Job
 from backend.models.labels import Mask
 from backend.models.review import Decision
-from backend.services import audit, jobs, queues, rounds
+from backend.services import audit, fit_samples, jobs, queues, rounds
 from backend.services.errors import ConflictError, InvalidInputError
 from backend.services.masks import encode_png
 from backend.services.samples import views_of
@@ -151,22 +150,4 @@ def record_fit_failure(session: Session, sample_id: int, job_id: int | None, err
     sample = queues.load_locked(session, sample_id)
     if job_id is not None:
         jobs.finish(session, job_id, JobState.failed, error=error)
-    if sample.state == SampleState.fitting:
-        transition(session, sample, SampleState.needs_annotation, None, reason=f"fit failed: {error}")
-
-
-def release_cancelled_fit(session: Session, sample_id: int, job_id: int) -> None:
-    """A cancelled fit job lets its sample out of 'fitting': back to 'fitted' when it has an earlier fit,
-    else to the annotators (the only other way out of 'fitting'). Unless another fit of it is pending."""
-    sample = queues.load_locked(session, sample_id)
-    if sample.state != SampleState.fitting:
-        return
-    pending = session.execute(
-        select(func.count()).select_from(Job).where(Job.sample_id == sample_id, Job.kind == JobKind.fit,
-                                                    Job.id != job_id,
-                                                    Job.state.in_([JobState.queued, JobState.running]))
-    ).scalar_one()
-    if pending:
-        return
-    target = SampleState.fitted if sample.current_fit_id is not None else SampleState.needs_annotation
-    transition(session, sample, target, None, reason=f"fit job {job_id} cancelled")
+    fit_samples.release_failed_fit(session, sample, error)

@@ -10,4 +10,6 @@ if [ ! -x /usr/bin/chromium ]; then
   $SUDO apt-get update -qq && $SUDO apt-get install -y -qq chromium
 fi
 .venv/bin/ruff check .
+# The parts of docs/architecture.md and the directions imports may take ([tool.importlinter] in pyproject.toml).
+.venv/bin/lint-imports
 .venv/bin/python -m pytest "$@"

@@ -11,8 +11,9 @@ import torch
 import torch.nn.functional as nnf
 from torch import nn
 
+from workers.nets.blocks import conv_block, max_pool_2x2, unet_pass
 from workers.nets.configs import HandSegNetConfig
-from workers.nets.mvnet import RGB_MEAN, RGB_STD, autocast_bf16, conv_block
+from workers.nets.mvnet import RGB_MEAN, RGB_STD, autocast_bf16
 
 
 class HandSegNet(nn.Module):
@@ -73,15 +74,7 @@ class HandSegNet(nn.Module):
         return logits.float()[:, 0, :H, :W]
 
     def _forward(self, rgb: torch.Tensor) -> torch.Tensor:
-        x = rgb
-        skips = []
-        for level, block in enumerate(self.down):
-            if level:
-                x = nnf.max_pool2d(x, 2)
-            x = block(x)
-            skips.append(x)
-        for up, merge, skip in zip(self.up, self.merge, reversed(skips[:-1]), strict=True):
-            x = merge(torch.cat([up(x), skip], dim=1))
+        x = unet_pass(rgb, self.down, self.up, self.merge, max_pool_2x2)
         if self.full_res is not None:
             x = nnf.interpolate(x, size=rgb.shape[-2:], mode="bilinear", align_corners=False)
             logits = self.full_res(torch.cat([x, rgb], dim=1))

@@ -10,10 +10,10 @@ from __future__ import annotations
 import functools
 
 import torch
-import torch.nn.functional as nnf
 from torch import nn
 
 from workers.handmodel.keypoints import NUM_KEYPOINTS
+from workers.nets.blocks import conv_block, max_pool_2x2, unet_pass
 from workers.nets.configs import MVNetConfig
 from workers.nets.losses import peak_normalised
 from workers.nets.unproject import unproject_features
@@ -40,22 +40,6 @@ def autocast_bf16(x: torch.Tensor, enabled: bool) -> torch.autocast:
     on CPUs with AMX / AVX512-BF16); normalisation, losses and the unprojection stay float32."""
     return torch.autocast(device_type=x.device.type, dtype=torch.bfloat16,
                           enabled=enabled and native_bf16(x.device.type))
-
-
-def _groups(channels: int) -> int:
-    return max(1, min(8, channels // 4))
-
-
-def conv_block(cin: int, cout: int, dims: int, stride: int = 1, norm: str = "group") -> nn.Sequential:
-    """3x3(x3) convolution, normalisation ("group" or "batch"), ReLU."""
-    conv = nn.Conv2d if dims == 2 else nn.Conv3d
-    if norm == "batch":
-        layer: nn.Module = nn.BatchNorm2d(cout) if dims == 2 else nn.BatchNorm3d(cout)
-    elif norm == "group":
-        layer = nn.GroupNorm(_groups(cout), cout)
-    else:
-        raise ValueError(f"norm must be 'group' or 'batch', got {norm!r}")
-    return nn.Sequential(conv(cin, cout, 3, stride=stride, padding=1, bias=False), layer, nn.ReLU(inplace=True))
 
 
 class FeatureEncoder2d(nn.Module):
@@ -90,15 +74,7 @@ class FeatureEncoder2d(nn.Module):
         self.out = nn.Conv2d(cin, out_channels, 1)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        skips = []
-        for level, stage in enumerate(self.stages):
-            if level:
-                x = nnf.max_pool2d(x, 2)
-            x = stage(x)
-            skips.append(x)
-        for up, merge, skip in zip(self.up, self.merge, reversed(skips[:-1]), strict=False):
-            x = merge(torch.cat([up(x), skip], dim=1))
-        return self.out(x)
+        return self.out(unet_pass(x, self.stages, self.up, self.merge, max_pool_2x2))
 
 
 class UNet3d(nn.Module):
@@ -127,15 +103,7 @@ class UNet3d(nn.Module):
             return self._forward(x).float().contiguous()
 
     def _forward(self, x: torch.Tensor) -> torch.Tensor:
-        skips = []
-        for level, block in enumerate(self.down):
-            if level:
-                x = self.pool(x)
-            x = block(x)
-            skips.append(x)
-        for up, merge, skip in zip(self.up, self.merge, reversed(skips[:-1]), strict=True):
-            x = merge(torch.cat([up(x), skip], dim=1))
-        return self.head(x)
+        return self.head(unet_pass(x, self.down, self.up, self.merge, self.pool))
 
 
 class MVNet(nn.Module):

@@ -11,7 +11,7 @@ import numpy as np
 
 from workers.handmodel.keypoints import SKELETON_EDGES
 
-# Per finger, the same colours as the 2D overlays (frontend/js/keypoints.js): wrist, thumb .. pinky.
+# Per finger, wrist, thumb .. pinky; the 2D overlays get them through frontend/js/keypoint_table.js (generated).
 FINGER_RGB = ((120, 120, 120), (230, 57, 70), (244, 162, 97), (42, 157, 143), (69, 123, 157), (157, 78, 221))
 SKIN_RGB = (222, 170, 140)
 THUMBNAIL_WIDTH_PX = 240

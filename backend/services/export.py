@@ -100,7 +100,7 @@ def export_records(session: Session, up_to_round: int | None = None, project: st
         newest_foreground = (select(Mask.storage_key).where(Mask.view_id == View.id, Mask.kind.in_(FOREGROUND_KINDS))
                              .order_by(Mask.version.desc()).limit(1).correlate(View).scalar_subquery())
         views = [
-            ViewRecord(camera=cam.name, width=view.width, height=view.height, K=np.asarray(cam.K, np.float64),
+            ViewRecord(name=cam.name, width=view.width, height=view.height, K=np.asarray(cam.K, np.float64),
                        dist=np.asarray(cam.dist, np.float64), R=np.asarray(cam.R, np.float64),
                        t=np.asarray(cam.t, np.float64), image_key=view.image_key, foreground_mask_key=mask_key)
             for view, cam, mask_key in session.execute(

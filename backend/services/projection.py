@@ -14,24 +14,18 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from backend.models.capture import CameraCalibration, View
+from workers.geometry.camera import Camera
 
 
 @dataclass(frozen=True, eq=False)
-class ViewCamera:
-    """One view of a sample with its calibration: K (3, 3) px, dist (5,), R (3, 3) world -> camera,
-    t (3,) metres."""
+class ViewCamera(Camera):
+    """A sample's view with its camera (workers.geometry.camera.Camera: K (3, 3) px, dist (5,), R (3, 3) world
+    -> camera, t (3,) metres) and the view's id."""
 
-    view_id: int
-    camera: str
-    width: int
-    height: int
-    K: np.ndarray
-    dist: np.ndarray
-    R: np.ndarray
-    t: np.ndarray
+    view_id: int = 0
 
     def to_public(self) -> dict:
-        return {"view_id": self.view_id, "camera": self.camera, "width": self.width, "height": self.height,
+        return {"view_id": self.view_id, "camera": self.name, "width": self.width, "height": self.height,
                 "K": self.K.tolist(), "dist": self.dist.tolist(), "R": self.R.tolist(), "t": self.t.tolist()}
 
 
@@ -43,7 +37,7 @@ def view_cameras(session: Session, sample_id: int) -> list[ViewCamera]:
         .join(CameraCalibration, CameraCalibration.id == View.camera_id)
         .where(View.sample_id == sample_id).order_by(View.id)
     ).all()
-    return [ViewCamera(r[0], r[1], r[2], r[3], *(np.asarray(a, dtype=np.float64) for a in r[4:])) for r in rows]
+    return [ViewCamera(r[1], r[2], r[3], *(np.asarray(a, dtype=np.float64) for a in r[4:]), view_id=r[0]) for r in rows]
 
 
 def project(points_world: np.ndarray, camera: ViewCamera) -> np.ndarray:

@@ -83,7 +83,7 @@ def scene_bytes(session: Session, storage: Storage, fit: Fit, mano_path: Path | 
     end_reads(session)
     arrays = load_arrays(fit.model_file, mano_path)
     mesh = posed_mesh(arrays, np.asarray(fit.params)) if arrays is not None else None
-    cameras = [scene_camera(c.camera, c.width, c.height, c.K, c.R, c.t, thumbnail(storage.get_bytes(keys[c.view_id])))
+    cameras = [scene_camera(c.name, c.width, c.height, c.K, c.R, c.t, thumbnail(storage.get_bytes(keys[c.view_id])))
                for c in views]
     content = SampleScene(vertices=None if mesh is None else mesh.vertices, faces=None if mesh is None else mesh.faces,
                           keypoints=np.asarray(fit.keypoints_m, float),

@@ -46,6 +46,7 @@ from scipy.spatial.transform import Rotation
 from workers.evaluation.freihand_files import EvaluationInputError, _point_array, load_json
 from workers.export.meshes import MESH_FORMATS, write_mesh
 from workers.export.records import SampleRecord, ViewRecord
+from workers.geometry.camera import Camera
 from workers.handmodel.arrays import HandModelArrays
 
 log = logging.getLogger(__name__)
@@ -171,7 +172,7 @@ def freihand_theta(theta: np.ndarray, view: ViewRecord, xyz_cam: np.ndarray, arr
     articulation = theta[10:55] - arrays.hands_mean
     root = xyz_cam[ROOT_KEYPOINT]
     if root[2] <= 0:
-        raise ExportError(f"camera {view.camera}: the hand's root keypoint is behind the camera")
+        raise ExportError(f"camera {view.name}: the hand's root keypoint is behind the camera")
     uv = (view.K @ root)[:2] / root[2]
     focal, _ = focal_and_principal_point(view.K)
     return np.concatenate([global_cam, articulation, theta[:10], uv, [focal / root[2]]])
@@ -207,10 +208,9 @@ def cut_and_paste(image_rgb: np.ndarray, foreground: np.ndarray, rng: np.random.
     return np.clip(image_rgb.astype(np.float32) * alpha + background * (1 - alpha), 0, 255).astype(np.uint8)
 
 
-def _pinhole(view: ViewRecord):
-    from workers.geometry.camera import Camera
-
-    return Camera(view.camera, view.width, view.height, view.K, np.zeros(5), view.R, view.t)
+def _pinhole(view: ViewRecord) -> Camera:
+    """The view's camera without distortion (the export's images are undistorted)."""
+    return Camera(view.name, view.width, view.height, view.K, np.zeros(5), view.R, view.t)
 
 
 # --- writing -----------------------------------------------------------------------------------------------
@@ -294,7 +294,7 @@ def write_freihand(samples: Sequence[SampleRecord], out_dir: Path, read_bytes: C
                 label["xyz"].append(xyz.tolist())
                 label["scale"].append(float(np.linalg.norm(xyz[REFERENCE_BONE[0]] - xyz[REFERENCE_BONE[1]])))
                 label["verts"].append(verts.tolist())
-                where = f"sample {record.sample_id} camera {view.camera}"
+                where = f"sample {record.sample_id} camera {view.name}"
                 image = _undistort(_decode(read_bytes(view.image_key), cv2.IMREAD_COLOR, f"{where} image"), view)
                 if image.shape[:2] != (view.height, view.width):
                     raise ExportError(f"{where}: image is {image.shape[1]}x{image.shape[0]}, the camera "
@@ -318,7 +318,7 @@ def write_freihand(samples: Sequence[SampleRecord], out_dir: Path, read_bytes: C
                         composited += 1
                 index[set_name].append({
                     "index": i, "sample_id": record.sample_id, "fit_id": record.fit_id, "sequence": record.sequence,
-                    "frame_index": record.frame_index, "camera": view.camera, "round": record.round_index,
+                    "frame_index": record.frame_index, "camera": view.name, "round": record.round_index,
                     "stream": record.stream, "R": view.R.tolist(), "t": view.t.tolist(),
                     "dist": view.dist.tolist(), "composites": composited, "meshes": mesh_files,
                 })

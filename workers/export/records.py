@@ -7,31 +7,24 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from workers.geometry.camera import Camera
+
 NUM_PARAMS = 61  # theta: shape 10, articulation 45 (flat-hand axis-angle), global rotation 3, translation 3
 
 
 @dataclass(frozen=True, eq=False)
-class ViewRecord:
-    """One camera's image of the sample.
+class ViewRecord(Camera):
+    """One camera's image of the sample: the camera (workers.geometry.camera.Camera: name, width and height in
+    pixels, K (3, 3) pixels, dist (5,) OpenCV k1 k2 p1 p2 k3, R (3, 3) and t (3,) metres world -> camera) and
+    where its files are.
 
     Attributes:
-        camera: camera name, e.g. "cam3".
-        width, height: image size, pixels.
-        K: (3, 3) intrinsics, pixels.  dist: (5,) OpenCV distortion k1 k2 p1 p2 k3.
-        R: (3, 3) rotation world -> camera.  t: (3,) translation world -> camera, metres.
         image_key: storage key of the image.
         foreground_mask_key: storage key of the newest foreground mask (chroma key or an annotator's
             correction: hand, forearm and held object), or None; the alpha for Cut&Paste.
     """
 
-    camera: str
-    width: int
-    height: int
-    K: np.ndarray
-    dist: np.ndarray
-    R: np.ndarray
-    t: np.ndarray
-    image_key: str
+    image_key: str = ""
     foreground_mask_key: str | None = None
 
 

@@ -39,7 +39,7 @@ def records_of(capture, model_file: str = "handloop-builtin v1") -> list[SampleR
     for seq in capture.sequences:
         for frame in seq.frames:
             gt = load_ground_truth(frame)
-            views = tuple(ViewRecord(camera=c.name, width=c.width, height=c.height, K=c.K, dist=c.dist, R=c.R, t=c.t,
+            views = tuple(ViewRecord(name=c.name, width=c.width, height=c.height, K=c.K, dist=c.dist, R=c.R, t=c.t,
                                      image_key=str(frame.image_paths[c.name]),
                                      foreground_mask_key=str(frame.mask_paths[c.name])) for c in capture.cameras)
             out.append(SampleRecord(

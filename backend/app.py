@@ -37,7 +37,7 @@ def create_app(settings: Settings | None = None, *, job_queue: JobQueue | None =
     app.state.auth_cache = AuthCache(settings.auth_cache_seconds)
     watch_user_changes(app.state.session_factory, app.state.auth_cache)
     if job_queue is None:
-        from backend.services.celery_queue import CeleryJobQueue  # celery + kombu, no torch
+        from backend.broker.celery_queue import CeleryJobQueue  # celery + kombu, no torch
 
         job_queue = CeleryJobQueue(settings)
     app.state.job_queue = job_queue

@@ -11,8 +11,8 @@ from pathlib import Path
 import yaml
 from typer.testing import CliRunner
 
+from backend.broker.celery_queue import QUEUES
 from backend.cli.main import app
-from backend.services.celery_queue import QUEUES
 from backend.settings import Settings
 
 ROOT = Path(__file__).resolve().parents[1]

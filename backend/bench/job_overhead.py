@@ -136,7 +136,7 @@ def _through_celery(client: Any, factory: Any, job_ids: list[int], batch: int
     """Seconds from sending `job_ids` as fit_batch tasks until every job row is final, their states, the
     seconds the worker's fit service reported (claim, load, fit, record; without delivery) and the part of
     those inside FittingEngine.fit."""
-    from backend.services.celery_queue import TASK_FIT_BATCH
+    from backend.broker.celery_queue import TASK_FIT_BATCH
 
     t0 = time.time()  # wall clock, as the rows' finished_at
     sent = [client.send_task(TASK_FIT_BATCH, args=[job_ids[start:start + batch]], queue="cpu")
@@ -149,11 +149,11 @@ def _through_celery(client: Any, factory: Any, job_ids: list[int], batch: int
 
 def run(*, quick: bool = False, emit_json: bool = False, broker: str = "embedded", batch_size: int | None = None,
         repeats: int | None = None) -> dict[str, Any]:
+    from backend.broker.celery_queue import TASK_FIT_BATCH, make_client_app
     from backend.db.migrate import upgrade
     from backend.db.session import create_engine_from_url, make_session_factory
     from backend.models.enums import Role
     from backend.runtime import start_stack
-    from backend.services.celery_queue import TASK_FIT_BATCH, make_client_app
     from backend.services.importer import import_capture
     from backend.services.jobs import InMemoryJobQueue
     from backend.services.storage import LocalDiskStorage

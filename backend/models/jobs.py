@@ -34,7 +34,7 @@ class Job(Base):
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
     updated_at: Mapped[datetime] = mapped_column(default=utcnow, onupdate=utcnow)
     finished_at: Mapped[datetime | None]
-    # Hand-off to the workers (backend.services.dispatch): when the task was sent to the broker (NULL: not
+    # Hand-off to the workers (backend.broker.outbox): when the task was sent to the broker (NULL: not
     # yet, or the send failed and the outbox re-sends it), how many times a worker started it, and which one.
     dispatched_at: Mapped[datetime | None]
     attempts: Mapped[int] = mapped_column(default=0, server_default="0")

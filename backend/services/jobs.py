@@ -1,10 +1,10 @@
 """Job rows (state, progress) and the hand-off to whatever runs them.
 
-`JobQueue` is the seam to the workers (backend.services.celery_queue.CeleryJobQueue in production). Jobs
+`JobQueue` is the seam to the workers (backend.broker.celery_queue.CeleryJobQueue in production). Jobs
 are handed over only after the transaction that created them commits (a worker must find the row); the
 queue's availability is checked before anything is written, so an unreachable broker answers 503 and
 writes nothing, and a hand-off that still fails after the commit leaves `dispatched_at` NULL for the
-outbox to re-send (backend.services.dispatch).
+outbox to re-send (backend.broker.outbox).
 """
 
 from __future__ import annotations

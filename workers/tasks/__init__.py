@@ -7,5 +7,5 @@
 - `rounds`: the bootstrap round, orchestrated as a Celery canvas of the above (docs/deployment.md).
 
 Services take ids, re-load rows from the database and files from storage, and record results through
-backend.services; they are testable without a broker. Task names and queues: backend.services.celery_queue.
+backend.services; they are testable without a broker. Task names and queues: backend.broker.celery_queue.
 """

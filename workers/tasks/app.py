@@ -1,6 +1,6 @@
 """The workers' Celery app: `celery -A workers.tasks.app worker -Q cpu,gpu` or `handloop worker`.
 
-Configuration comes from backend.services.celery_queue (shared with the API's client app) and the
+Configuration comes from backend.broker.celery_queue (shared with the API's client app) and the
 settings in the environment (HANDLOOP_*). Each pool process sets its torch threads and warms the
 fitting code up before its first task; a ready file (HANDLOOP_WORKER_READY_FILE) tells a supervisor
 (backend.runtime) that the worker consumes.
@@ -16,7 +16,7 @@ from typing import Any
 from celery import Celery
 from celery.signals import worker_process_init, worker_ready, worker_shutdown
 
-from backend.services.celery_queue import celery_config, ensure_embedded_folders
+from backend.broker.celery_queue import celery_config, ensure_embedded_folders
 from backend.settings import Settings, get_settings
 
 log = logging.getLogger(__name__)

@@ -67,7 +67,7 @@ _CONTEXT_LOCK = threading.Lock()
 def build_context(settings: Settings, job_queue: Any | None = None) -> WorkerContext:
     engine = create_engine_from_url(settings.resolved_database_url, pool_size=2, max_overflow=4)
     if job_queue is None:
-        from backend.services.celery_queue import CeleryJobQueue
+        from backend.broker.celery_queue import CeleryJobQueue
 
         job_queue = CeleryJobQueue(settings)
     return WorkerContext(settings, make_session_factory(engine), LocalDiskStorage(settings.storage_dir), job_queue)

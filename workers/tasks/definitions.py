@@ -13,7 +13,7 @@ from typing import Any
 
 from celery import chain, chord
 
-from backend.services.celery_queue import (
+from backend.broker.celery_queue import (
     TASK_FIT,
     TASK_FIT_BATCH,
     TASK_HEURISTIC,

@@ -1,7 +1,7 @@
 """Progress of running jobs, written to their rows (the UI reads it there) at most every few seconds.
 
 Each write is also the job's heartbeat (its `updated_at`): a job whose row stops changing belongs to a
-dead worker (services.jobs.claim, services.dispatch). A job cancelled meanwhile makes the write fail
+dead worker (services.jobs.claim, broker.outbox). A job cancelled meanwhile makes the write fail
 with ConflictError; the reporter then drops it, and raises `JobCancelledError` once every job it reports for
 is gone, so the work stops.
 """

@@ -17,7 +17,7 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         loglevel: str = typer.Option("info", "--loglevel", "-l", help="debug, info, warning or error."),
     ) -> None:
         """Run a worker process (prefork pool; one task at a time per process, acknowledged when done)."""
-        from backend.services.celery_queue import QUEUES
+        from backend.broker.celery_queue import QUEUES
         from backend.settings import get_settings
 
         names = [q.strip() for q in queues.split(",") if q.strip()]

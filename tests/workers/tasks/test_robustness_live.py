@@ -86,7 +86,7 @@ def test_worker_killed_mid_fit_is_redelivered_and_recorded_once(live_stack):
 
 def test_embedded_worker_killed_mid_fit_is_redelivered_and_recorded_once(live_stack):
     """The embedded broker keeps a delivered message on disk until it is acknowledged: the restarted worker
-    takes the killed one's message back (services.embedded_broker) and takes the job over once its heartbeat
+    takes the killed one's message back (broker.embedded) and takes the job over once its heartbeat
     is older than 3 s. The outbox, the other way back, is kept out of the way."""
     stack = live_stack(frames=1, job_heartbeat_timeout_s=3, outbox_poll_s=3600, **SLOW_FIT)
     job_id = _submit_and_kill_inside_the_fit(stack)

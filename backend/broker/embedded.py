@@ -6,7 +6,7 @@ each file in place: open (create, truncate), then write. A process polling the f
 between and read it empty or cut. In the worker that is a `JSONDecodeError` in the consumer loop, which Celery
 treats as unrecoverable: the embedded worker died mid-test in CI this way, and it could in the demo. The same
 holds for the exchange tables (created, then locked) and the result files chords poll.
-tests/backend/services/test_embedded_broker.py reproduces all three against upstream.
+tests/backend/broker/test_embedded.py reproduces all three against upstream.
 
 Here:
 - every file is written under a temporary name that no reader lists, then renamed into place (atomic within a
@@ -16,7 +16,7 @@ Here:
   can both make), and deletes it only once the message is acknowledged: Celery's `acks_late` then means
   what it means on Redis. The messages of a consumer whose process died (killed, out of memory) go back to
   the queue when another consumer next looks (every `recovery_interval_s`, and at its start;
-  services.broker_claims); upstream keeps unacknowledged messages in memory only, and a crash loses them;
+  broker.claims); upstream keeps unacknowledged messages in memory only, and a crash loses them;
 - a message file that does not parse all the same (another program's, a disk fault) is moved to `rejected/`
   with an error in the log, and the consumer goes on with the next one;
 - writers of an exchange table take an exclusive lock on a lock file of their own, never on the table itself
@@ -44,7 +44,7 @@ from kombu.utils.encoding import bytes_to_str, str_to_bytes
 from kombu.utils.json import dumps, loads
 from kombu.utils.objects import cached_property
 
-from backend.services.broker_claims import TEMP_PREFIX, Claims, recover_orphans
+from backend.broker.claims import TEMP_PREFIX, Claims, recover_orphans
 
 logger = logging.getLogger(__name__)
 
@@ -284,7 +284,7 @@ class Transport(filesystem.Transport):
 class ResultBackend(FilesystemBackend):
     """Celery's file result backend with whole-file writes (chords poll these files while tasks write them).
 
-    Select it with `result_backend = "backend.services.embedded_broker:ResultBackend+file:///abs/folder"`.
+    Select it with `result_backend = "backend.broker.embedded:ResultBackend+file:///abs/folder"`.
     """
 
     def set(self, key: bytes, value: Any) -> None:

@@ -1,5 +1,5 @@
 """Claims of the embedded broker: where a consumer keeps the messages it was given until they are acknowledged,
-and how the messages of a consumer that died go back to the queue (used by services.embedded_broker).
+and how the messages of a consumer that died go back to the queue (used by broker.embedded).
 
 Layout under the broker's `claimed/` folder, one pair per consumer (a kombu channel that consumed):
 - `<pid>-<random>/`: its delivered, unacknowledged message files;

@@ -3,7 +3,7 @@ workers, task names, and `CeleryJobQueue`, which sends committed jobs to the bro
 
 Two brokers, one code path (docs/deployment.md):
 - embedded (HANDLOOP_BROKER_URL unset): kombu's filesystem transport under <data_dir>/broker, no server, with
-  whole-file writes (services.embedded_broker);
+  whole-file writes (broker.embedded);
 - distributed: Redis (HANDLOOP_BROKER_URL=redis://...), with a visibility timeout above the longest task so
   that a task whose worker died is delivered again.
 Job state and progress live in the database (services.jobs); Celery's result backend only serves chords.
@@ -23,8 +23,8 @@ from celery import Celery
 from kombu import Exchange, Queue
 from sqlalchemy import update
 
+from backend.broker import embedded
 from backend.models.jobs import Job
-from backend.services import embedded_broker
 from backend.services.errors import ServiceUnavailableError
 from backend.settings import Settings
 
@@ -86,7 +86,7 @@ def result_backend_url(settings: Settings) -> str:
         return settings.result_backend_url
     if settings.broker_url and settings.broker_url.startswith(("redis://", "rediss://")):
         return settings.broker_url
-    return f"{embedded_broker.RESULT_BACKEND}+file://{embedded_folders(settings)['results']}"
+    return f"{embedded.RESULT_BACKEND}+file://{embedded_folders(settings)['results']}"
 
 
 def broker_transport_options(settings: Settings) -> dict[str, Any]:
@@ -122,8 +122,8 @@ def celery_config(settings: Settings) -> dict[str, Any]:
     soft = max(1, int(settings.task_time_limit_s * 0.9))
     config: dict[str, Any] = {
         "broker_url": broker_url(settings),
-        # Embedded: kombu's filesystem transport with whole-file writes (services.embedded_broker).
-        "broker_transport": embedded_broker.TRANSPORT if is_embedded(settings) else None,
+        # Embedded: kombu's filesystem transport with whole-file writes (broker.embedded).
+        "broker_transport": embedded.TRANSPORT if is_embedded(settings) else None,
         "result_backend": result_backend_url(settings),
         "broker_transport_options": options,
         "result_backend_transport_options": {k: v for k, v in options.items()
@@ -277,7 +277,7 @@ class CeleryJobQueue:
             self._outbox = None
 
     def _run_outbox(self) -> None:
-        from backend.services.dispatch import redispatch
+        from backend.broker.outbox import redispatch
 
         while not self._stop.wait(self.settings.outbox_poll_s):
             try:

@@ -11,11 +11,12 @@ from datetime import timedelta
 import pytest
 from sqlalchemy import text
 
+from backend.broker import outbox as dispatch
+from backend.broker.celery_queue import BatchingSender, CeleryJobQueue, task_for_job
 from backend.db.base import utcnow
 from backend.models.enums import JobKind, JobState, Role
 from backend.models.jobs import Job
-from backend.services import dispatch, jobs
-from backend.services.celery_queue import BatchingSender, CeleryJobQueue, task_for_job
+from backend.services import jobs
 from backend.services.errors import ServiceUnavailableError
 from backend.services.jobs import InMemoryJobQueue
 from backend.settings import Settings

@@ -1,4 +1,4 @@
-"""The embedded broker's files (services.embedded_broker): a reader never sees a file half-written, a consumer
+"""The embedded broker's files (broker.embedded): a reader never sees a file half-written, a consumer
 claims each message once, and a message that does not parse is set aside instead of killing the worker.
 
 The concurrency tests write from other processes while this one reads, as the API and the worker do. Against
@@ -20,8 +20,9 @@ import pytest
 from celery import Celery
 from kombu import Connection
 
-from backend.services import broker_claims, embedded_broker
-from backend.services.celery_queue import celery_config, embedded_folders, ensure_embedded_folders
+from backend.broker import claims as broker_claims
+from backend.broker import embedded as embedded_broker
+from backend.broker.celery_queue import celery_config, embedded_folders, ensure_embedded_folders
 from backend.settings import Settings
 
 # fork: the children only touch files and kombu, and need no importable test module (importlib import mode).

@@ -23,9 +23,9 @@ from backend.models.labels import Click, Submission
 from backend.models.review import Decision
 from backend.services import queues, scene_tickets
 from backend.services.errors import ConflictError, NotFoundError
-from backend.services.projection import ViewCamera, pixels_or_none, project, view_cameras
 from backend.services.samples import get_sample
 from backend.services.users import Actor
+from backend.services.view_geometry import ViewCamera, pixels_or_none, project, view_cameras
 from workers.handmodel.keypoints import SKELETON_EDGES, SPARSE_KEYPOINTS
 
 logger = logging.getLogger(__name__)

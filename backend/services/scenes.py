@@ -17,9 +17,9 @@ from backend.models.fits import Fit, Prediction
 from backend.services import scene_tickets
 from backend.services.errors import AuthError, NotFoundError, PermissionDeniedError
 from backend.services.overlays import end_reads
-from backend.services.projection import view_cameras
 from backend.services.storage import Storage
 from backend.services.users import load_principal
+from backend.services.view_geometry import view_cameras
 
 CACHE_ENTRIES = 32
 SCENE_VERSION = 1  # bump when the scene's content changes, so browsers drop cached recordings

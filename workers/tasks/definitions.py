@@ -82,7 +82,7 @@ def predict_batch(job_id: int) -> dict[str, Any]:
 @celery_app.task(name=TASK_HEURISTIC)
 def heuristic(round_job_id: int) -> dict[str, Any] | None:
     """Summarise (and apply where missing) the heuristic verification of the round's fits."""
-    from workers.tasks.rounds import run_heuristic
+    from workers.tasks.round_steps import run_heuristic
 
     return run_heuristic(get_context(), int(round_job_id))
 
@@ -90,7 +90,7 @@ def heuristic(round_job_id: int) -> dict[str, Any] | None:
 @celery_app.task(name=TASK_REVIEW_QUEUE)
 def build_review_queue(round_job_id: int) -> dict[str, Any] | None:
     """Queue fitted samples the heuristic did not accept for reviewers, by the paper's policy."""
-    from workers.tasks.rounds import build_review_queue as build
+    from workers.tasks.round_steps import build_review_queue as build
 
     return build(get_context(), int(round_job_id))
 
@@ -98,7 +98,7 @@ def build_review_queue(round_job_id: int) -> dict[str, Any] | None:
 @celery_app.task(name=TASK_ROUND_FINISH)
 def round_finish(round_job_id: int) -> dict[str, Any] | None:
     """Record the round's counts per stream and model versions; finish its job."""
-    from workers.tasks.rounds import finish_round
+    from workers.tasks.round_steps import finish_round
 
     return finish_round(get_context(), int(round_job_id))
 
@@ -106,7 +106,7 @@ def round_finish(round_job_id: int) -> dict[str, Any] | None:
 @celery_app.task(name=TASK_ROUND_INFERENCE, ignore_result=True)
 def round_inference(round_job_id: int) -> None:
     """After training: predict + fit every batch (a chord), then heuristic -> review queue -> finish."""
-    from workers.tasks.rounds import plan_inference
+    from workers.tasks.round_steps import plan_inference
 
     plan = plan_inference(get_context(), int(round_job_id))
     if plan is None:
@@ -124,7 +124,7 @@ def round_inference(round_job_id: int) -> None:
 @celery_app.task(name=TASK_ROUND, ignore_result=True)
 def bootstrap_round(round_job_id: int) -> None:
     """A bootstrap round: train both networks (a chord), then `round_inference`."""
-    from workers.tasks.rounds import start_round
+    from workers.tasks.round_steps import start_round
 
     train_job_ids = start_round(get_context(), int(round_job_id))
     if train_job_ids is None:

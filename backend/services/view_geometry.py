@@ -1,4 +1,5 @@
-"""World points into the views of a sample, for the UI's payloads (numpy + OpenCV, no torch).
+"""World points into the views of a sample, for the UI's payloads (numpy + OpenCV, no torch;
+workers/geometry/projection.py is the torch side).
 
 The conventions are docs/conventions.md's: OpenCV pinhole with (k1, k2, p1, p2, k3), X_c = R X_w + t,
 pixel (0, 0) the centre of the top-left pixel; `cv2.projectPoints` is the reference the workers'

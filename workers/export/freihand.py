@@ -41,6 +41,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+import torch
 from scipy.spatial.transform import Rotation
 
 from workers.evaluation.freihand_files import EvaluationInputError, _point_array, load_json
@@ -48,6 +49,10 @@ from workers.export.meshes import MESH_FORMATS, write_mesh
 from workers.export.records import SampleRecord, ViewRecord
 from workers.geometry.camera import Camera
 from workers.handmodel.arrays import HandModelArrays
+from workers.handmodel.layer import HandLayer
+from workers.handmodel.loading import STAND_IN_NOTICE
+from workers.nets.data import random_background
+from workers.rendering.rasterizer import model_mask
 
 log = logging.getLogger(__name__)
 
@@ -114,8 +119,6 @@ def model_matches(model_file: str, arrays: HandModelArrays) -> bool:
 
 
 def hand_model_notice(arrays: HandModelArrays) -> str:
-    from workers.handmodel.loading import STAND_IN_NOTICE
-
     if arrays.is_mano:
         return f"Labels made with the MANO model ({arrays.name})."
     return f"Labels made with {arrays.name}, not MANO. {STAND_IN_NOTICE}"
@@ -125,19 +128,14 @@ class _Poser:
     """The hand model posed from theta (world frame), float64."""
 
     def __init__(self, arrays: HandModelArrays) -> None:
-        import torch
-
-        from workers.handmodel.layer import HandLayer
-
-        self._torch = torch
         self.arrays = arrays
         self.layer = HandLayer(arrays, flat_hand_mean=True, dtype=torch.float64)
         self.layer_mean = HandLayer(arrays, flat_hand_mean=False, dtype=torch.float64)
 
     def world(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """theta (61,) -> keypoints (21, 3), vertices (V, 3), metres, world frame."""
-        t = self._torch.as_tensor(np.asarray(theta, np.float64)[None])
-        with self._torch.no_grad():
+        t = torch.as_tensor(np.asarray(theta, np.float64)[None])
+        with torch.no_grad():
             out = self.layer(betas=t[:, :10], pose=t[:, 10:55], global_orient=t[:, 55:58], transl=t[:, 58:61])
         return out.keypoints[0].numpy(), out.vertices[0].numpy()
 
@@ -145,8 +143,8 @@ class _Poser:
         """FreiHAND's 61 numbers and the view's K -> keypoints (21, 3), vertices (V, 3) in the camera frame."""
         mano = np.asarray(mano, np.float64).reshape(-1)
         pose, shape, uv_root, scale = mano[:48], mano[48:58], mano[58:60], float(mano[60])
-        t = self._torch.as_tensor
-        with self._torch.no_grad():
+        t = torch.as_tensor
+        with torch.no_grad():
             out = self.layer_mean(betas=t(shape[None]), pose=t(pose[None, 3:]), global_orient=t(pose[None, :3]))
         keypoints, vertices = out.keypoints[0].numpy(), out.vertices[0].numpy()
         root = backproject_root(uv_root, scale, K)
@@ -201,8 +199,6 @@ def cut_and_paste(image_rgb: np.ndarray, foreground: np.ndarray, rng: np.random.
     """The supplementary's Cut&Paste: the image blended onto a random background of the networks' pool
     (workers/nets/data.py) with the foreground mask as alpha, softened by one pixel; the foreground keeps
     its colours (the training augmentation of workers/nets may recolour it; a dataset must not)."""
-    from workers.nets.data import random_background
-
     alpha = cv2.GaussianBlur(np.asarray(foreground, np.float32), (3, 3), 0)[..., None]
     background = random_background(image_rgb.shape[0], image_rgb.shape[1], rng).astype(np.float32)
     return np.clip(image_rgb.astype(np.float32) * alpha + background * (1 - alpha), 0, 255).astype(np.uint8)
@@ -244,8 +240,6 @@ def write_freihand(samples: Sequence[SampleRecord], out_dir: Path, read_bytes: C
     Everything is written into a temporary sibling folder that replaces `out_dir` at the end: a failed
     export leaves nothing behind.
     """
-    from workers.rendering.rasterizer import model_mask
-
     options = options or ExportOptions()
     if not samples:
         raise ExportError("nothing to export: no accepted samples")

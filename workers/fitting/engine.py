@@ -32,6 +32,7 @@ from workers.fitting.result import FitDiagnostics, FitResult
 from workers.fitting.solver import LMSettings, levenberg_marquardt
 from workers.geometry.camera import Camera
 from workers.geometry.projection import project_points_torch, stack_cameras
+from workers.handmodel import limits, pose_sampler
 from workers.handmodel.arrays import HandModelArrays
 from workers.handmodel.layer import HandLayer
 from workers.rendering import model_mask
@@ -67,8 +68,6 @@ class FittingEngine:
     def __init__(self, arrays: HandModelArrays, cameras: list[Camera], config: FitConfig | None = None, *,
                  device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32,
                  pose_bank: np.ndarray | None = None, init_poses: np.ndarray | None = None) -> None:
-        from workers.handmodel import limits, pose_sampler
-
         self.arrays = arrays
         self.cameras = list(cameras)
         self.config = config or FitConfig()

@@ -27,10 +27,10 @@ def load_hand_model(mano_path: Path | None = None, side: str = "right") -> HandM
     if side not in ("right", "left"):
         raise ValueError(f"side must be 'right' or 'left', got {side!r}")
     if mano_path is not None:
-        from workers.handmodel.mano_loader import load_mano
+        from workers.handmodel.mano_loader import load_mano  # deferred: only the chosen model's loader
 
         return load_mano(Path(mano_path), side=side)
-    from workers.handmodel.builtin import build_builtin_hand
+    from workers.handmodel.builtin import build_builtin_hand  # deferred, as load_mano
 
     log.info(STAND_IN_NOTICE)
     return build_builtin_hand(side=side)

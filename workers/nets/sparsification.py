@@ -51,7 +51,7 @@ def sparsification(errors: np.ndarray, confidence: np.ndarray, steps: int = 50) 
 
 def plot_sparsification(curves: dict[str, Sparsification], path: Path | str, unit: str = "mm") -> Path:
     """Write a PNG: each curve (solid) with its oracle (dashed), as in the supplementary figure."""
-    import matplotlib
+    import matplotlib  # deferred: the API's dashboard uses the curves (numpy) and never plots
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -2,6 +2,6 @@
 backgrounds, compositing with green spill, chroma key, visibility, and the parallel generator.
 
 Entry points: `workers.synth.plan.SynthConfig`, `workers.synth.generator.generate_capture` and
-`workers.synth.generator.FrameRenderer` (renders frames without writing them). Modules import torch
-lazily, so importing this package stays cheap.
+`workers.synth.generator.FrameRenderer` (renders frames without writing them). The package imports
+none of its modules, so importing it stays cheap.
 """

@@ -10,6 +10,7 @@ from functools import lru_cache
 
 import cv2
 import numpy as np
+import skimage.data
 
 # Photographs shipped inside scikit-image's wheel (skimage.data, loaded from disk, never fetched).
 PHOTO_NAMES: tuple[str, ...] = ("coffee", "rocket", "motorcycle", "brick", "grass", "gravel", "astronaut",
@@ -24,16 +25,12 @@ GREEN_SCREEN_RGB = np.array([0.16, 0.62, 0.25], dtype=np.float32)
 
 
 def _available_photos() -> tuple[str, ...]:
-    import skimage.data
-
     return tuple(n for n in PHOTO_NAMES if callable(getattr(skimage.data, _LOADERS.get(n, n), None)))
 
 
 @lru_cache(maxsize=16)
 def load_photo(name: str) -> np.ndarray:
     """A bundled scikit-image photograph as (H, W, 3) float32 sRGB in [0, 1] (greyscale expanded)."""
-    import skimage.data
-
     loader = getattr(skimage.data, _LOADERS.get(name, name), None)
     if loader is None or name not in PHOTO_NAMES:
         raise ValueError(f"unknown photo {name!r}; choose from {_available_photos()}")

@@ -19,11 +19,20 @@ from multiprocessing import get_all_start_methods, get_context
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
+import torch
 
 from workers.capture.schema import CAPTURE_FILE, HandModelInfo
 from workers.capture.writer import write_capture_header, write_frame, write_sequence
+from workers.geometry.rig import default_rig
+from workers.handmodel import HandLayer, load_hand_model
+from workers.handmodel.pose_sampler import sampler_for
+from workers.synth.compositing import NoiseBank, hex_to_srgb, srgb_to_linear
+from workers.synth.frame import HandState, SequenceLook, render_frame, sequence_backgrounds, sequence_lighting
+from workers.synth.motion import evaluate, hand_axes, plan_motion
 from workers.synth.plan import SequencePlan, SynthConfig, plan_capture
+from workers.synth.subjects import skin_albedo
 
 log = logging.getLogger(__name__)
 
@@ -81,12 +90,6 @@ class FrameRenderer:
     """
 
     def __init__(self, config: SynthConfig, out_dir: Path | None = None, mano_path: Path | None = None) -> None:
-        import torch
-
-        from workers.geometry.rig import default_rig
-        from workers.handmodel import HandLayer, load_hand_model
-        from workers.synth.compositing import NoiseBank
-
         self.config = config
         self.out_dir = out_dir
         self.arrays = load_hand_model(mano_path, config.side)
@@ -97,8 +100,6 @@ class FrameRenderer:
         self.noise = NoiseBank(sigma=0.01, seed=config.seed)
 
     def _forward(self, betas: np.ndarray, pose: np.ndarray, orient: np.ndarray, transl: np.ndarray) -> Any:
-        import torch
-
         with torch.no_grad():
             t = lambda a: torch.as_tensor(np.asarray(a, np.float64))  # noqa: E731
             return self.layer(t(betas), t(pose), t(orient), t(transl))
@@ -107,11 +108,6 @@ class FrameRenderer:
         """(look, motion plan, rest wrist joint) of a sequence, built once per process."""
         if index in self.sequences:
             return self.sequences[index]
-        from workers.handmodel.pose_sampler import sampler_for
-        from workers.synth.compositing import hex_to_srgb, srgb_to_linear
-        from workers.synth.frame import SequenceLook, sequence_backgrounds, sequence_lighting
-        from workers.synth.motion import hand_axes, plan_motion
-        from workers.synth.subjects import skin_albedo
 
         plan: SequencePlan = self.plans[index]
         betas = plan.subject.betas[None]
@@ -142,8 +138,6 @@ class FrameRenderer:
 
     def render(self, index: int, start: int, stop: int) -> list[Any]:
         """Frames start..stop-1 of sequence `index` as `RenderedFrame`s (nothing is written)."""
-        from workers.synth.frame import HandState, render_frame
-        from workers.synth.motion import evaluate
 
         look, motion, rest_wrist = self._sequence(index)
         plan = look.plan
@@ -177,9 +171,6 @@ _WORKER: FrameRenderer | None = None
 
 def _single_threaded() -> None:
     """One process per core: keep torch and OpenCV from starting thread pools of their own."""
-    import cv2
-    import torch
-
     torch.set_num_threads(1)
     cv2.setNumThreads(1)
 
@@ -216,9 +207,6 @@ def generate_capture(out_dir: Path, config: SynthConfig, *, workers: int = 0, fo
     Returns:
         What was written and how long it took.
     """
-    from workers.geometry.rig import default_rig
-    from workers.handmodel import load_hand_model
-
     started = time.perf_counter()
     out_dir = Path(out_dir)
     prepare_output(out_dir, force)
@@ -245,9 +233,6 @@ def generate_capture(out_dir: Path, config: SynthConfig, *, workers: int = 0, fo
     log.info("synthesising %d sequences x %d frames x %d views at %d px with %d worker(s)",
              config.num_sequences, config.frames_per_sequence, len(cameras), config.width_px, workers)
     global _WORKER
-    import cv2
-    import torch
-
     threads = (torch.get_num_threads(), cv2.getNumThreads())
     _single_threaded()  # restored below; torch's spinning OpenMP threads only hurt on small tensors
     try:

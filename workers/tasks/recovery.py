@@ -33,4 +33,10 @@ class JobTask(Task):
             if self.request.called_directly or self.request.is_eager:
                 raise  # no broker to come back through: the caller decides
             log.info("%s[%s]: %s", self.name, self.request.id, exc)
-            raise self.retry(exc=exc, countdown=exc.retry_after_s) from exc
+            raise self.retry(exc=exc, countdown=self.countdown_s(exc.retry_after_s)) from exc
+
+    def countdown_s(self, retry_after_s: float) -> float:
+        """`retry_after_s`, kept under half of Redis's visibility timeout: a message held longer than that is
+        delivered again while it waits, and every copy would come back."""
+        visibility_s = (self.app.conf.broker_transport_options or {}).get("visibility_timeout")
+        return min(retry_after_s, visibility_s / 2) if visibility_s else retry_after_s

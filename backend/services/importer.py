@@ -8,6 +8,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from sqlalchemy import select
 from sqlalchemy.orm import Session
@@ -42,6 +43,14 @@ def import_capture(session: Session, storage: Storage, path: Path, *, project_na
         verify_capture_files(capture, progress=progress)
     except CaptureError as exc:
         raise InvalidInputError(f"capture rejected, nothing was imported: {exc}") from exc
+    return write_project(session, storage, capture, name, queue_for_annotation=queue_for_annotation,
+                         actor_id=actor_id, source=path)
+
+
+def write_project(session: Session, storage: Storage, capture: Any, name: str, *, queue_for_annotation: bool = True,
+                  actor_id: int | None = None, source: Path | None = None) -> ImportPublic:
+    """The rows and stored files of a capture already read and verified (`import_capture`'s last step, timed
+    alone by `handloop bench import`). `capture`: a workers.capture.Capture."""
     project = Project(name=name, hand_model=capture.hand_model.name, synthetic=capture.synthetic,
                       description=f"imported from {capture.root}")
     session.add(project)
@@ -92,7 +101,8 @@ def import_capture(session: Session, storage: Storage, path: Path, *, project_na
                     session.add(Mask(view_id=view.id, kind=MaskKind.chroma_key, version=1, storage_key=mask_key,
                                      created_by_id=actor_id))
                     n_masks += 1
-    audit.record(session, actor_id, "project.import", "project", project.id, path=str(path), samples=n_samples)
+    audit.record(session, actor_id, "project.import", "project", project.id, path=str(source or capture.root),
+                 samples=n_samples)
     logger.info("imported %s: %d samples, %d views, %d masks", name, n_samples, n_views, n_masks)
     return ImportPublic(project_id=project.id, project=name, cameras=len(cameras), sequences=len(capture.sequences),
                         samples=n_samples, views=n_views, masks=n_masks)

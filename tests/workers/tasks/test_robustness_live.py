@@ -88,10 +88,10 @@ KILL_RACE = {"job_heartbeat_timeout_s": 600, "outbox_poll_s": 3600, **SLOW_FIT}
 @pytest.mark.usefixtures("cpu_loaded")
 def test_worker_killed_mid_fit_is_redelivered_and_recorded_once(live_stack):
     require_redis()
-    # Redis gives an unacknowledged task back after the visibility timeout (35 s here, above the 30 s task
-    # limits, which leave the slow fit room on a loaded machine).
-    stack = live_stack(frames=1, broker="redis", broker_visibility_timeout_s=35, task_time_limit_s=30,
-                       fit_task_time_limit_s=30, **KILL_RACE)
+    # Redis gives an unacknowledged task back after the visibility timeout (105 s here, above the 100 s task
+    # limits: the slow fit took over 27 s, its soft limit at 30, with the CPU loaded; it must not reach them).
+    stack = live_stack(frames=1, broker="redis", broker_visibility_timeout_s=105, task_time_limit_s=100,
+                       fit_task_time_limit_s=100, **KILL_RACE)
     job_id = _submit_and_kill_right_after_a_heartbeat(stack)
     killed = _job(stack, job_id)
     assert killed.state == "running" and killed.attempts == 1 and _fits_of_job(stack, job_id) == 0

@@ -39,3 +39,6 @@ class Job(Base):
     dispatched_at: Mapped[datetime | None]
     attempts: Mapped[int] = mapped_column(default=0, server_default="0")
     worker: Mapped[str | None] = mapped_column(String(200))
+    # The operating-system process of the current attempt (services.worker_processes): a claimant on the same
+    # machine takes the job over as soon as that process is gone, without waiting for the heartbeat to age.
+    worker_process: Mapped[str | None] = mapped_column(String(120))

@@ -1,10 +1,14 @@
-"""Capture import: validate with the capture reader, then create the project's rows and copy images and
-chroma-key masks into storage. One transaction: a capture that fails validation writes no rows."""
+"""Capture import: validate with the capture reader, verify every file in full (each image and mask decoded,
+each ground-truth .npz loaded and its arrays checked: workers.capture.verify), then create the project's rows
+and copy images and chroma-key masks into storage. Validation and verification come before anything is
+written, and the rows are one transaction: a capture with a broken file writes nothing."""
 
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from sqlalchemy import select
 from sqlalchemy.orm import Session
@@ -21,10 +25,12 @@ logger = logging.getLogger(__name__)
 
 
 def import_capture(session: Session, storage: Storage, path: Path, *, project_name: str | None = None,
-                   queue_for_annotation: bool = True, actor_id: int | None = None) -> ImportPublic:
+                   queue_for_annotation: bool = True, actor_id: int | None = None,
+                   progress: Callable[[int, int], None] | None = None) -> ImportPublic:
     """Import the capture at `path` as a new project; samples start 'needs_annotation' (round 0's queue)
-    or 'unlabeled'."""
+    or 'unlabeled'. `progress(files verified, files in all)` is called during the verification."""
     from workers.capture import CaptureError, read_capture  # local: the reader pulls in cv2 and PIL
+    from workers.capture.verify import verify_capture_files
 
     try:
         capture = read_capture(path)
@@ -33,6 +39,18 @@ def import_capture(session: Session, storage: Storage, path: Path, *, project_na
     name = project_name or capture.name
     if session.execute(select(Project.id).where(Project.name == name)).first() is not None:
         raise ConflictError(f"a project named {name!r} already exists; pass another project name")
+    try:
+        verify_capture_files(capture, progress=progress)
+    except CaptureError as exc:
+        raise InvalidInputError(f"capture rejected, nothing was imported: {exc}") from exc
+    return write_project(session, storage, capture, name, queue_for_annotation=queue_for_annotation,
+                         actor_id=actor_id, source=path)
+
+
+def write_project(session: Session, storage: Storage, capture: Any, name: str, *, queue_for_annotation: bool = True,
+                  actor_id: int | None = None, source: Path | None = None) -> ImportPublic:
+    """The rows and stored files of a capture already read and verified (`import_capture`'s last step, timed
+    alone by `handloop bench import`). `capture`: a workers.capture.Capture."""
     project = Project(name=name, hand_model=capture.hand_model.name, synthetic=capture.synthetic,
                       description=f"imported from {capture.root}")
     session.add(project)
@@ -83,7 +101,8 @@ def import_capture(session: Session, storage: Storage, path: Path, *, project_na
                     session.add(Mask(view_id=view.id, kind=MaskKind.chroma_key, version=1, storage_key=mask_key,
                                      created_by_id=actor_id))
                     n_masks += 1
-    audit.record(session, actor_id, "project.import", "project", project.id, path=str(path), samples=n_samples)
+    audit.record(session, actor_id, "project.import", "project", project.id, path=str(source or capture.root),
+                 samples=n_samples)
     logger.info("imported %s: %d samples, %d views, %d masks", name, n_samples, n_views, n_masks)
     return ImportPublic(project_id=project.id, project=name, cameras=len(cameras), sequences=len(capture.sequences),
                         samples=n_samples, views=n_views, masks=n_masks)

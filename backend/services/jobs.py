@@ -10,7 +10,7 @@ outbox to re-send (backend.broker.outbox).
 from __future__ import annotations
 
 import logging
-from datetime import datetime, timedelta
+from datetime import datetime
 from typing import Any, Protocol
 
 from sqlalchemy import insert, select, update
@@ -19,7 +19,7 @@ from sqlalchemy.orm import Session
 from backend.db.base import utcnow
 from backend.models.enums import JobKind, JobState
 from backend.models.jobs import Job
-from backend.services import audit, fit_samples, queues
+from backend.services import audit, fit_samples, queues, worker_processes
 from backend.services.errors import ConflictError, InvalidInputError, NotFoundError, ServiceUnavailableError
 from backend.services.transactions import after_commit
 
@@ -117,24 +117,55 @@ def get(session: Session, job_id: int) -> Job:
     return job
 
 
+class JobStillRunningError(Exception):
+    """A delivery for jobs that run under another attempt which may be alive: it must come back later
+    (workers.tasks.recovery retries the task after `retry_after_s`), never be acknowledged and forgotten,
+    since that attempt may be dead without its heartbeat showing it yet."""
+
+    def __init__(self, job_ids: list[int], retry_after_s: float, workers: list[str | None]) -> None:
+        self.job_ids = job_ids
+        self.retry_after_s = retry_after_s
+        self.workers = workers
+        super().__init__(f"job(s) {job_ids} running under another attempt ({', '.join(map(str, workers))}); "
+                         f"delivery retried in {retry_after_s:.0f} s")
+
+    @classmethod
+    def merge(cls, errors: list[JobStillRunningError]) -> JobStillRunningError:
+        """One error for a batch: retried when the first of its jobs may be taken over."""
+        return cls([i for e in errors for i in e.job_ids], min(e.retry_after_s for e in errors),
+                   [w for e in errors for w in e.workers])
+
+
 def claim(session: Session, job_id: int, worker: str, stale_after_s: float, now: datetime | None = None, *,
-          max_attempts: int | None = None) -> Job | None:
+          max_attempts: int | None = None, process: str | None = None) -> Job | None:
     """For workers: start a job, or take over one whose worker died. Idempotent under redelivery.
 
-    Returns None when there is nothing to do: the job is gone or final, or it is 'running' under another
-    live attempt (its row changed within `stale_after_s`, so this delivery is a duplicate). A 'running'
-    job whose row is older belongs to a dead worker (killed, or its host lost) and is taken over, unless it
-    has been started `max_attempts` times already: then it fails (a job that kills or crashes every worker
-    must not come back forever), and a fit's sample goes back to the annotators.
+    Returns None when there is nothing to do: the job is gone or final. A 'running' job is taken over when
+    its attempt is dead: its process (`worker_process`, see services.worker_processes) is gone, which a
+    claimant on the same machine sees at once, or its row has not changed for `stale_after_s` (a worker on
+    another machine, or a hung one). Otherwise the attempt may be alive and JobStillRunningError is raised:
+    the delivery must come back after the error's `retry_after_s` (the time left until the heartbeat would
+    be stale), until the job is final or taken over. A job started `max_attempts` times already fails
+    instead of being taken over (a job that kills or crashes every worker must not come back forever), and
+    a fit's sample goes back to the annotators. `process`: the claimant's identity, recorded for the next.
     """
     now = now or utcnow()
     job = session.execute(select(Job).where(Job.id == job_id).with_for_update()
                           .execution_options(populate_existing=True)).scalar_one_or_none()
     if job is None or JobState(job.state) in FINAL_STATES:
         return None
-    if job.state == JobState.running and job.updated_at > now - timedelta(seconds=stale_after_s):
-        logger.info("job %s is running under a live attempt (%s); duplicate delivery ignored", job_id, job.worker)
-        return None
+    reason = ""
+    if job.state == JobState.running:
+        age_s = (now - job.updated_at).total_seconds()
+        if worker_processes.is_gone(job.worker_process):
+            reason = f"its process is gone, heartbeat {age_s:.1f} s old"
+        elif age_s >= stale_after_s:
+            reason = f"no heartbeat for {age_s:.1f} s"
+        else:
+            retry_after_s = max(1.0, stale_after_s - age_s + 1.0)
+            logger.info("job %s is running under another attempt (%s, heartbeat %.1f s old); delivery retried in "
+                        "%.0f s", job_id, job.worker, age_s, retry_after_s)
+            raise JobStillRunningError([job_id], retry_after_s, [job.worker])
     if max_attempts is not None and (job.attempts or 0) >= max_attempts:
         error = f"gave up after {job.attempts} attempts (the last by {job.worker}); see the worker logs"
         logger.warning("job %s: %s", job_id, error)
@@ -145,12 +176,15 @@ def claim(session: Session, job_id: int, worker: str, stale_after_s: float, now:
         else:
             finish(session, job.id, JobState.failed, error=error)
         return None
-    taken_over = job.state == JobState.running
+    if reason:
+        logger.warning("job %s: attempt %s by %s is dead (%s); taken over by %s", job_id, job.attempts, job.worker,
+                       reason, worker)
     job.state = JobState.running
     job.attempts = (job.attempts or 0) + 1
     job.worker = worker[:200]
+    job.worker_process = process
     job.updated_at = now
-    job.message = f"taken over by {worker} (attempt {job.attempts})" if taken_over else f"started by {worker}"
+    job.message = f"taken over by {worker} (attempt {job.attempts})" if reason else f"started by {worker}"
     audit.record(session, None, "job.start", "job", job.id, attempt=job.attempts, worker=worker)
     return job
 

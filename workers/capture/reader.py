@@ -4,7 +4,8 @@ Every problem raises `CaptureError` with the offending file and field (or folder
 unknown or missing JSON keys, non-finite numbers, unknown ids, missing or extra camera folders,
 missing frames, frame-count mismatches, images whose size differs from the calibration, and images
 that cannot be read. `read_capture` checks every image's header (size and format, cheap); pixel data
-is decoded, and checked again, by `load_frame_images`.
+is decoded, and checked again, by `load_frame_images`, and before an import by
+`workers.capture.verify.verify_capture_files` (every file in full).
 """
 
 from __future__ import annotations
@@ -351,6 +352,8 @@ def read_capture(path: Path | str, *, check_images: bool = True) -> Capture:
                    hand_model=hand_model, synthetic=synthetic)
 
 
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
 # --- per-frame data --------------------------------------------------------------------------------
 
 
@@ -361,9 +364,12 @@ def _decode(path: Path, flags: int) -> np.ndarray:
     image = cv2.imdecode(data, flags) if data.size else None
     if image is None:
         raise CaptureError(f"{path}: unreadable image (cannot be decoded)")
-    # OpenCV decodes a truncated JPEG with a warning (grey bottom rows): check the end-of-image marker.
+    # OpenCV decodes a truncated JPEG with a warning (grey bottom rows), and a PNG cut after its pixel data
+    # without complaint: check the end markers.
     if data[:2].tobytes() == b"\xff\xd8" and b"\xff\xd9" not in data[-64:].tobytes():
         raise CaptureError(f"{path}: unreadable image (truncated JPEG: no end-of-image marker)")
+    if data[:8].tobytes() == PNG_SIGNATURE and b"IEND" not in data[-64:].tobytes():
+        raise CaptureError(f"{path}: unreadable image (truncated PNG: no IEND chunk)")
     return image
 
 

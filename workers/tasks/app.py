@@ -27,7 +27,8 @@ READY_FILE_ENV = "HANDLOOP_WORKER_READY_FILE"
 def create_worker_app(settings: Settings | None = None) -> Celery:
     settings = settings or get_settings()
     ensure_embedded_folders(settings)
-    app = Celery("handloop", set_as_current=True)
+    # every task retries a delivery for a job that may still run elsewhere (workers.tasks.recovery)
+    app = Celery("handloop", set_as_current=True, task_cls="workers.tasks.recovery:JobTask")
     app.conf.update(celery_config(settings))
     app.conf.update(worker_concurrency=settings.worker_concurrency, imports=("workers.tasks.definitions",))
     return app

@@ -40,11 +40,13 @@ class WorkerContext:
             return self._cache[key]
 
     def claim(self, session: Session, job_id: int) -> Any:
-        """services.jobs.claim with this worker's name and the configured heartbeat and attempt limits."""
-        from backend.services import jobs
+        """services.jobs.claim with this worker's name and process and the configured heartbeat and attempt
+        limits. Raises services.jobs.JobStillRunningError for a job that may run elsewhere: the task is then
+        retried (workers.tasks.recovery)."""
+        from backend.services import jobs, worker_processes
 
         return jobs.claim(session, job_id, self.worker_name, self.settings.job_heartbeat_timeout_s,
-                          max_attempts=self.settings.job_max_attempts)
+                          max_attempts=self.settings.job_max_attempts, process=worker_processes.current())
 
     def storage_path(self, key: str) -> Path:
         """The file behind a storage key. Workers read images and masks as files (the networks' data code

@@ -2,8 +2,10 @@
 inference, rounds) that re-loads its rows and returns quietly when there is nothing to do.
 
 Every task is acknowledged late (after it ran) and requeued when its process dies; services claim their
-job rows, so a redelivered task records nothing twice. Tasks do not raise for a sample or a job that
-fails: the failure is recorded in the database, and a round's canvas goes on.
+job rows, so a redelivered task records nothing twice, and a delivery for a job that may still run under
+another attempt is retried later, never dropped (workers.tasks.recovery, the app's task class). Tasks do
+not raise for a sample or a job that fails: the failure is recorded in the database, and a round's canvas
+goes on.
 """
 
 from __future__ import annotations
@@ -42,7 +44,9 @@ def fit(job_ids: int | list[int]) -> dict[str, Any]:
     from workers.tasks.fits import run_fit_jobs
 
     ids = [int(job_ids)] if isinstance(job_ids, int) else [int(i) for i in job_ids]
-    return run_fit_jobs(get_context(), ids).to_dict()
+    summary = run_fit_jobs(get_context(), ids)
+    summary.raise_for_running_elsewhere()  # retried for those (workers.tasks.recovery)
+    return summary.to_dict()
 
 
 @celery_app.task(name=TASK_FIT_BATCH, **FIT_LIMITS)

@@ -26,6 +26,7 @@ from backend.models.enums import JobState, SampleState
 from backend.models.jobs import Job
 from backend.services import jobs, records
 from backend.services.errors import DomainError
+from backend.services.jobs import JobStillRunningError
 from backend.services.masks import encode_png
 from backend.services.verification import HeuristicThresholds
 from workers.capture.schema import CaptureError
@@ -45,18 +46,25 @@ SAMPLE_ERRORS = (InputError, FitInputError, CaptureError, DomainError, ValueErro
 
 @dataclass
 class FitSummary:
-    """What a batch did: fits recorded, samples failed (with reasons), jobs skipped (final, or running
-    under another live attempt)."""
+    """What a batch did: fits recorded, samples failed (with reasons), jobs skipped (final) or left to a
+    later delivery (running under another attempt that may be alive)."""
 
     fitted: list[int] = field(default_factory=list)  # fit ids
     failed: dict[int, str] = field(default_factory=dict)  # job id -> error
     skipped: list[int] = field(default_factory=list)  # job ids
+    running_elsewhere: list[JobStillRunningError] = field(default_factory=list)  # one per job
     seconds: float = 0.0  # the whole batch
     fit_seconds: float = 0.0  # inside FittingEngine.fit
+
+    def raise_for_running_elsewhere(self) -> None:
+        """After the others are done: the delivery must come back for jobs that may run elsewhere."""
+        if self.running_elsewhere:
+            raise JobStillRunningError.merge(self.running_elsewhere)
 
     def to_dict(self) -> dict[str, Any]:
         return {"fitted": len(self.fitted), "fit_ids": self.fitted, "failed": len(self.failed),
                 "errors": {str(k): v for k, v in self.failed.items()}, "skipped": len(self.skipped),
+                "running_elsewhere": [i for e in self.running_elsewhere for i in e.job_ids],
                 "seconds": round(self.seconds, 3), "fit_seconds": round(self.fit_seconds, 3)}
 
 
@@ -121,8 +129,10 @@ def run_fit_jobs_batched(ctx: WorkerContext, job_ids: list[int], *, round_job_id
         total.skipped += part.skipped
         total.seconds += part.seconds
         total.fit_seconds += part.fit_seconds
+        total.running_elsewhere += part.running_elsewhere
         if round_job_id is not None:
             touch_round(ctx, int(round_job_id))
+    total.raise_for_running_elsewhere()
     return total.to_dict()
 
 
@@ -152,6 +162,8 @@ def _claim_and_load_all(ctx: WorkerContext, job_ids: list[int], summary: FitSumm
                         summary.failed[job_id] = problem
                         continue
                     claimed.append(fit_input(ctx, session, job, frames))
+            except JobStillRunningError as exc:  # the savepoint is rolled back: the job is as it was
+                summary.running_elsewhere.append(exc)
             except SAMPLE_ERRORS as exc:  # the savepoint is rolled back: the job is as it was
                 message = getattr(exc, "message", None) or str(exc)
                 log.warning("fit job %s: cannot load inputs: %s", job_id, message)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import sys
 from pathlib import Path
 
 import typer
@@ -38,7 +39,9 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
     def import_(path: Path = typer.Argument(..., help="Capture directory."),
                 project: str | None = typer.Option(None, help="Project name (default: the capture's name)."),
                 queue: bool = typer.Option(True, help="Queue every sample for annotation (round 0).")) -> None:
-        """Validate a capture and import it as a project."""
+        """Validate a capture, verify every file in full, and import it as a project (nothing if a file is broken)."""
+        from tqdm import tqdm
+
         from backend.db.session import create_engine_from_url, make_session_factory
         from backend.services.errors import DomainError
         from backend.services.importer import import_capture
@@ -47,13 +50,23 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
 
         settings = get_settings()
         factory = make_session_factory(create_engine_from_url(settings.resolved_database_url))
+        bar = tqdm(unit="file", desc="verifying", file=sys.stderr)
+
+        def verified(done: int, total: int) -> None:
+            bar.total = total
+            bar.update(done - bar.n)
+            if done == total:
+                bar.close()
+
         try:
             with factory.begin() as session:
                 result = import_capture(session, LocalDiskStorage(settings.storage_dir), path, project_name=project,
-                                        queue_for_annotation=queue)
+                                        queue_for_annotation=queue, progress=verified)
         except DomainError as exc:
+            bar.close()
             logger.error("%s", exc.message)
             raise typer.Exit(code=2) from exc
+        bar.close()
         typer.echo(result.model_dump_json())
 
     @users.command("create")

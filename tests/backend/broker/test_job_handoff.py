@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import base64
 import json
+import subprocess
+import sys
 import threading
 from datetime import timedelta
 
@@ -16,7 +18,7 @@ from backend.broker.celery_queue import BatchingSender, CeleryJobQueue, task_for
 from backend.db.base import utcnow
 from backend.models.enums import JobKind, JobState, Role
 from backend.models.jobs import Job
-from backend.services import jobs
+from backend.services import jobs, worker_processes
 from backend.services.errors import ServiceUnavailableError
 from backend.services.jobs import InMemoryJobQueue
 from backend.settings import Settings
@@ -36,8 +38,11 @@ def test_claim_starts_skips_duplicates_and_takes_over_dead_jobs(env):
     with env.session() as session, session.begin():
         job = jobs.claim(session, job_id, "w1:1", stale_after_s=60)
         assert job.state == JobState.running and job.attempts == 1 and job.worker == "w1:1"
-    with env.session() as session, session.begin():
-        assert jobs.claim(session, job_id, "w2:2", stale_after_s=60) is None  # live attempt: a duplicate
+    with env.session() as session, session.begin():  # may be alive: the delivery must come back, not be dropped
+        with pytest.raises(jobs.JobStillRunningError) as busy:
+            jobs.claim(session, job_id, "w2:2", stale_after_s=60)
+        assert busy.value.job_ids == [job_id] and busy.value.workers == ["w1:1"]
+        assert 59 <= busy.value.retry_after_s <= 61  # when the heartbeat will be stale
     with env.session() as session, session.begin():
         session.execute(text("UPDATE jobs SET updated_at = :t WHERE id = :i"),
                         {"t": utcnow() - timedelta(seconds=120), "i": job_id})
@@ -47,6 +52,48 @@ def test_claim_starts_skips_duplicates_and_takes_over_dead_jobs(env):
         jobs.finish(session, job_id, JobState.succeeded)
     with env.session() as session, session.begin():
         assert jobs.claim(session, job_id, "w3:3", stale_after_s=0) is None  # final: nothing to do
+
+
+@pytest.fixture
+def dead_process() -> str:
+    """The identity of a process of this machine that has exited (services.worker_processes)."""
+    child = subprocess.Popen([sys.executable, "-c", "import os, sys; "
+                              "from backend.services import worker_processes; print(worker_processes.current())"],
+                             stdout=subprocess.PIPE, text=True)
+    identity = child.communicate(timeout=60)[0].strip()
+    assert identity != "None", "no process identity on this machine (no /proc)"
+    return identity
+
+
+def test_a_job_whose_process_is_gone_is_taken_over_at_once_after_a_fresh_heartbeat(env, dead_process):
+    # The race of issue 13: a worker killed right after a heartbeat, its task delivered again at once. The
+    # claimant sees the attempt's process gone and takes the job over instead of dropping the delivery.
+    job_id = _new_job(env)
+    with env.session() as session, session.begin():
+        jobs.claim(session, job_id, "w1:1", stale_after_s=600, process=dead_process)
+    with env.session() as session, session.begin():
+        job = jobs.claim(session, job_id, "w2:2", stale_after_s=600, process=worker_processes.current())
+        assert job is not None and job.attempts == 2 and "taken over" in job.message
+        assert job.worker_process == worker_processes.current()
+
+
+def test_a_live_process_or_one_on_another_machine_keeps_its_job_until_its_heartbeat_is_stale(env):
+    job_id = _new_job(env)
+    here = worker_processes.current()
+    elsewhere = "00000000-0000-0000-0000-000000000000/4026531836/12345/678"
+    for process in (here, elsewhere, None):
+        with env.session() as session, session.begin():
+            session.execute(text("UPDATE jobs SET state = 'running', updated_at = :t, worker_process = :p "
+                                 "WHERE id = :i"), {"t": utcnow() - timedelta(seconds=5), "p": process, "i": job_id})
+        with env.session() as session, session.begin():
+            with pytest.raises(jobs.JobStillRunningError) as busy:
+                jobs.claim(session, job_id, "w2:2", stale_after_s=60, process=here)
+            assert 55 <= busy.value.retry_after_s <= 57, process
+        with env.session() as session, session.begin():  # the retry, once the heartbeat is stale: taken over
+            assert jobs.claim(session, job_id, "w2:2", stale_after_s=60, process=here,
+                              now=utcnow() + timedelta(seconds=56)) is not None, process
+    assert not worker_processes.is_gone(here) and not worker_processes.is_gone(elsewhere)
+    assert not worker_processes.is_gone(None) and not worker_processes.is_gone("garbage")
 
 
 def test_a_job_that_keeps_dying_fails_after_max_attempts_and_releases_its_sample(env, h):

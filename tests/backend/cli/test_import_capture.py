@@ -56,6 +56,61 @@ def test_broken_capture_is_refused_and_writes_nothing(sqlite_env, capture_dir, t
         assert s.execute(text("SELECT count(*) FROM projects")).scalar_one() == 0
 
 
+# Files cut short that pass the structure and header checks (each imported with 201 before full verification).
+BROKEN_FILES = {
+    "jpeg-cut-at-1100-bytes": ("sequences/seq000/images/cam0/000001.jpg", lambda size: 1100),
+    "truncated-mask-png": ("sequences/seq000/masks/cam0/000000.png", lambda size: size // 2),
+    "truncated-ground-truth-npz": ("sequences/seq000/ground_truth/000001.npz", lambda size: size // 2),
+}
+
+
+def _break(capture_dir: Path, tmp_path: Path, case: str) -> tuple[Path, Path]:
+    broken = tmp_path / "broken"
+    subprocess.run(["cp", "-r", str(capture_dir), str(broken)], check=True)
+    relative, keep = BROKEN_FILES[case]
+    path = broken / relative
+    data = path.read_bytes()
+    assert len(data) > keep(len(data)), "the file is already shorter than the cut"
+    path.write_bytes(data[:keep(len(data))])
+    return broken, path
+
+
+def _stored_files(data_dir: Path) -> list[Path]:
+    return [p for p in (data_dir / "storage").rglob("*") if p.is_file()] if (data_dir / "storage").exists() else []
+
+
+@pytest.mark.parametrize("case", sorted(BROKEN_FILES))
+def test_admin_import_of_a_truncated_file_is_refused_naming_it_and_writes_nothing(sqlite_env, capture_dir, tmp_path,
+                                                                                    case):
+    env = sqlite_env
+    broken, path = _break(capture_dir, tmp_path, case)
+    response = env.client.post("/api/admin/imports", headers=env.headers(Role.admin), json={"path": str(broken)})
+    assert response.status_code == 422, response.text
+    assert str(path) in response.json()["detail"] and "nothing was imported" in response.json()["detail"]
+    with env.session() as s:
+        for table in ("projects", "samples", "views", "masks"):
+            assert s.execute(text(f"SELECT count(*) FROM {table}")).scalar_one() == 0, table
+    assert _stored_files(env.settings.data_dir) == []
+
+
+@pytest.mark.parametrize("case", sorted(BROKEN_FILES))
+def test_cli_import_of_a_truncated_file_is_refused_naming_it_and_writes_nothing(capture_dir, tmp_path, case):
+    data_dir = tmp_path / "data"
+    env = {**os.environ, "HANDLOOP_DATA_DIR": str(data_dir)}
+    env.pop("HANDLOOP_DATABASE_URL", None)
+    assert subprocess.run([HANDLOOP, "db", "upgrade"], cwd=REPO, env=env, capture_output=True, timeout=300
+                          ).returncode == 0
+    broken, path = _break(capture_dir, tmp_path, case)
+    refused = subprocess.run([HANDLOOP, "import", str(broken)], cwd=REPO, env=env, capture_output=True, text=True,
+                             timeout=300)
+    assert refused.returncode == 2 and str(path) in refused.stderr, refused.stderr[-2000:]
+    assert _stored_files(data_dir) == []
+    import sqlite3
+
+    with sqlite3.connect(data_dir / "handloop.sqlite3") as db:
+        assert db.execute("SELECT count(*) FROM projects").fetchone()[0] == 0
+
+
 def test_cli_import_and_users(capture_dir, tmp_path):
     env = {**os.environ, "HANDLOOP_DATA_DIR": str(tmp_path), "HANDLOOP_NEW_USER_PASSWORD": "password-123"}
     env.pop("HANDLOOP_DATABASE_URL", None)

@@ -50,7 +50,7 @@ def import_capture(session: Session, storage: Storage, path: Path, *, project_na
 def write_project(session: Session, storage: Storage, capture: Any, name: str, *, queue_for_annotation: bool = True,
                   actor_id: int | None = None, source: Path | None = None) -> ImportPublic:
     """The rows and stored files of a capture already read and verified (`import_capture`'s last step, timed
-    alone by `handloop bench import`). `capture`: a workers.capture.Capture."""
+    alone by `handloop bench verify`). `capture`: a workers.capture.Capture."""
     project = Project(name=name, hand_model=capture.hand_model.name, synthetic=capture.synthetic,
                       description=f"imported from {capture.root}")
     session.add(project)

@@ -8,6 +8,7 @@ from __future__ import annotations
 from fastapi import APIRouter, Query, Request, Response
 
 from backend.api.deps import SessionDep, SettingsDep, StorageDep
+from backend.schemas.base import Id
 from backend.services import scene_tickets, scenes
 from backend.services.errors import AuthError
 
@@ -16,7 +17,7 @@ router = APIRouter(prefix="/viewer", tags=["3D viewer"])
 
 @router.get("/samples/{sample_id}/scene", response_class=Response,
             responses={200: {"content": {"application/octet-stream": {}}}, 304: {}})
-def sample_scene(sample_id: int, request: Request, session: SessionDep, settings: SettingsDep, storage: StorageDep,
+def sample_scene(sample_id: Id, request: Request, session: SessionDep, settings: SettingsDep, storage: StorageDep,
                  ticket: str = Query(default="", max_length=400, description="From the review overlay.")) -> Response:
     """The sample's scene (mesh, skeleton, keypoints, camera frustums with their images) as a `.viser`
     recording."""

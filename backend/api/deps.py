@@ -95,7 +95,7 @@ async def get_current_user(
     token is newer than the cached row, one Core SELECT in the request's transaction (in the thread pool)."""
     if credentials is None:
         raise AuthError("not authenticated: send 'Authorization: Bearer <token>'")
-    user_id, version = parse_token(settings.secret_key, credentials.credentials)
+    user_id, version = parse_token(settings.signing_key, credentials.credentials)
     cache: AuthCache = request.app.state.auth_cache
     user = cache.get(user_id)
     if user is None or user.token_version < version:

@@ -19,7 +19,7 @@ def login(session: SessionDep, settings: SettingsDep,
     """OAuth2 password flow: `username` is the email. Returns a bearer token."""
     user = users.authenticate(session, form.username, form.password)
     lifetime_s = settings.access_token_minutes * 60
-    return Token(access_token=create_token(settings.secret_key, user.id, user.token_version, lifetime_s),
+    return Token(access_token=create_token(settings.signing_key, user.id, user.token_version, lifetime_s),
                  expires_in=lifetime_s)
 
 

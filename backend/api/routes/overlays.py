@@ -26,5 +26,5 @@ def review_overlay(sample_id: Id, session: SessionDep, settings: SettingsDep, us
                    mesh: bool = Query(default=True, description="Include the fit's mesh.")) -> dict[str, Any]:
     """The fit's keypoints and mesh, per-view IoU and residuals, and a ticket for the 3D scene, for a sample
     whose review lease you hold."""
-    return overlays.review_overlay(session, user, sample_id, secret_key=settings.secret_key,
+    return overlays.review_overlay(session, user, sample_id, secret_key=settings.signing_key,
                                    mano_path=settings.mano_path, with_mesh=mesh)

@@ -23,7 +23,7 @@ def sample_scene(sample_id: Id, request: Request, session: SessionDep, settings:
     recording."""
     if not ticket:
         raise AuthError("a scene ticket is needed: open the 3D view from the review page")
-    parsed = scenes.authorise(session, settings.secret_key, ticket, sample_id)
+    parsed = scenes.authorise(session, settings.signing_key, ticket, sample_id)
     fit = scenes.load_fit(session, sample_id, parsed.fit_id)
     etag = scenes.etag_of(fit)
     headers = {"ETag": etag, "Cache-Control": f"private, max-age={scene_tickets.TICKET_SECONDS}"}

@@ -5,9 +5,12 @@ from __future__ import annotations
 import logging
 
 from fastapi import FastAPI, Request
+from fastapi.concurrency import run_in_threadpool
+from fastapi.exception_handlers import http_exception_handler
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from sqlalchemy.exc import IntegrityError, OperationalError
+from starlette.exceptions import HTTPException
 
 from backend.services.errors import (
     AuthError,
@@ -47,6 +50,42 @@ def _location(loc: tuple) -> str:
     return ".".join(parts) or "body"
 
 
+def _needs_token(dependant) -> bool:
+    from backend.api.deps import get_current_user
+
+    return any(d.call is get_current_user or _needs_token(d) for d in dependant.dependencies)
+
+
+async def _unauthenticated(request: Request) -> JSONResponse | None:
+    """The 401 a caller without a valid token gets on a route that needs one, else None.
+
+    FastAPI parses a JSON body before it resolves the route's dependencies, so a body it cannot parse would be
+    answered before authentication; this runs the same check (services.security, the user's row) first."""
+    from backend.api.deps import _bearer, get_current_user
+
+    route = request.scope.get("route")
+    dependant = getattr(route, "dependant", None)
+    if dependant is None or not _needs_token(dependant):
+        return None
+    session = request.app.state.read_session_factory()
+    try:
+        await get_current_user(request, session, request.app.state.settings, await _bearer(request))
+    except AuthError as exc:
+        return JSONResponse({"detail": exc.message}, status_code=401, headers={"WWW-Authenticate": "Bearer"})
+    finally:
+        await run_in_threadpool(session.close)
+    return None
+
+
+def _unparseable_body(exc: BaseException | None) -> str | None:
+    """What is wrong with a body FastAPI could not parse (it answers a bare 400), if we can say."""
+    if isinstance(exc, UnicodeDecodeError):
+        return f"the body is not UTF-8 text (byte {exc.start} cannot be decoded): send JSON as UTF-8"
+    if isinstance(exc, RecursionError):
+        return "the JSON body is nested too deeply to be read"
+    return None
+
+
 def install(app: FastAPI) -> None:
     @app.exception_handler(DomainError)
     async def _domain(_request: Request, exc: DomainError) -> JSONResponse:
@@ -54,10 +93,22 @@ def install(app: FastAPI) -> None:
         headers = {"WWW-Authenticate": "Bearer"} if status == 401 else {"Retry-After": "5"} if status == 503 else None
         return JSONResponse({"detail": exc.message}, status_code=status, headers=headers)
 
+    @app.exception_handler(HTTPException)
+    async def _http(request: Request, exc: HTTPException) -> JSONResponse:
+        problem = _unparseable_body(exc.__cause__) if exc.status_code == 400 else None
+        if problem is None:
+            return await http_exception_handler(request, exc)
+        refused = await _unauthenticated(request)
+        return refused or JSONResponse({"detail": problem, "errors": [{"loc": ["body"], "msg": problem,
+                                                                        "type": "body_unreadable"}]}, status_code=422)
+
     @app.exception_handler(RequestValidationError)
-    async def _validation(_request: Request, exc: RequestValidationError) -> JSONResponse:
+    async def _validation(request: Request, exc: RequestValidationError) -> JSONResponse:
         errors = exc.errors()
         if any(e.get("type") == "json_invalid" for e in errors):
+            refused = await _unauthenticated(request)  # the body was read before the token was checked
+            if refused is not None:
+                return refused
             first = next(e for e in errors if e.get("type") == "json_invalid")
             message = f"malformed JSON: {first.get('ctx', {}).get('error', 'cannot parse the body')}"
         else:

@@ -84,3 +84,35 @@ def test_loosely_typed_user_updates_are_refused(sqlite_env, body):
     assert next(iter(body)) in response.json()["detail"]
     me = sqlite_env.client.get("/api/auth/me", headers=sqlite_env.headers(Role.annotator))
     assert me.status_code == 200 and me.json()["is_active"] is True and me.json()["role"] == "annotator"
+
+
+BAD_BODIES = {"not UTF-8": (b'{"lease_token": "\xff\xfe"}', "not UTF-8"),
+              "nested deeply": (b"[" * 100_000 + b"]" * 100_000, "nested too deeply"),
+              "malformed": (b'{"lease_token": ', "malformed JSON")}
+
+
+@pytest.mark.parametrize("kind", sorted(BAD_BODIES))
+def test_unreadable_bodies_are_401_without_a_token_and_422_naming_the_problem_with_one(sqlite_env, h, kind):
+    """Authentication comes before the body is read: a caller without a valid token learns nothing else."""
+    ids = h.seed(sqlite_env, frames=1, cameras=1)
+    url = f"/api/annotate/samples/{ids[0]}/lease/renew"
+    body, problem = BAD_BODIES[kind]
+    json_type = {"content-type": "application/json"}
+    anonymous = sqlite_env.client.post(url, content=body, headers=json_type)
+    assert anonymous.status_code == 401 and anonymous.headers["www-authenticate"] == "Bearer", anonymous.text
+    forged_token = {"Authorization": "Bearer 1.0.9999999999.x"}
+    forged = sqlite_env.client.post(url, content=body, headers={**json_type, **forged_token})
+    assert forged.status_code == 401, forged.text
+    signed_in = sqlite_env.client.post(url, content=body, headers={**json_type, **sqlite_env.headers(Role.annotator)})
+    assert signed_in.status_code == 422 and problem in signed_in.json()["detail"], signed_in.text
+
+
+def test_an_unreadable_body_with_a_revoked_token_is_401(sqlite_env, h):
+    headers = sqlite_env.headers(Role.annotator)
+    user_id = sqlite_env.user_ids[Role.annotator]
+    changed = sqlite_env.client.patch(f"/api/admin/users/{user_id}", json={"password": "another password 2"},
+                                      headers=sqlite_env.headers(Role.admin))
+    assert changed.status_code == 200
+    response = sqlite_env.client.post("/api/annotate/prefetch", content=BAD_BODIES["not UTF-8"][0],
+                                      headers={"content-type": "application/json", **headers})
+    assert response.status_code == 401 and "revoked" in response.json()["detail"], response.text

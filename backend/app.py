@@ -14,6 +14,7 @@ from backend.api.main import api_router
 from backend.db.session import create_engine_from_url, make_session_factory, read_only_engine
 from backend.services.auth_cache import AuthCache, watch_user_changes
 from backend.services.jobs import JobQueue
+from backend.services.login_limits import LoginLimiter, LoginPolicy
 from backend.services.storage import LocalDiskStorage, Storage
 from backend.settings import Settings, get_settings
 
@@ -36,6 +37,7 @@ def create_app(settings: Settings | None = None, *, job_queue: JobQueue | None =
     app.state.read_session_factory = make_session_factory(read_only_engine(engine))
     app.state.auth_cache = AuthCache(settings.auth_cache_seconds)
     watch_user_changes(app.state.session_factory, app.state.auth_cache)
+    app.state.login_limiter = LoginLimiter(LoginPolicy.from_settings(settings))
     if job_queue is None:
         from backend.services.celery_queue import CeleryJobQueue  # celery + kombu, no torch
 

@@ -53,6 +53,19 @@ class Settings(BaseSettings):
         default=2.0, ge=0, le=60, description="How long a server process reuses a token's user row (0: read it on "
         "every request). A revoked token stops working at once in the process that revoked it, within this time in "
         "the others.")
+    login_max_failures_per_account: int = Field(
+        default=5, ge=1, le=10_000, description="Failed logins per account within login_failure_window_s; then that "
+        "account's logins (even with the right password) are refused with 429 until the oldest failure expires.")
+    login_max_failures_per_address: int = Field(
+        default=30, ge=1, le=1_000_000, description="Failed logins per client address within the window; then that "
+        "address's logins are refused with 429.")
+    login_failure_window_s: float = Field(default=900.0, gt=0, le=7 * 24 * 3600,
+                                          description="How long a failed login counts against its account and address.")
+    login_max_concurrent_hashes: int = Field(
+        default=4, ge=1, le=1024, description="Password checks (Argon2, ~260 ms CPU and 64 MiB each) running at once "
+        "per server process; further logins wait.")
+    login_hash_wait_s: float = Field(default=10.0, ge=0, le=600,
+                                     description="How long a login waits for a hashing slot before a 429.")
     max_upload_bytes: int = Field(
         default=8 * 1024 * 1024, ge=1024, le=1024**3, description="Largest accepted request body, bytes."
     )

@@ -20,6 +20,7 @@ from backend.services.errors import (
     LeaseExpiredError,
     NotFoundError,
     PermissionDeniedError,
+    RateLimitedError,
     ServiceUnavailableError,
     TooLargeError,
 )
@@ -34,6 +35,7 @@ STATUS: list[tuple[type[DomainError], int]] = [
     (LeaseExpiredError, 409),
     (ConflictError, 409),
     (TooLargeError, 413),
+    (RateLimitedError, 429),
     (ServiceUnavailableError, 503),
 ]
 
@@ -90,7 +92,13 @@ def install(app: FastAPI) -> None:
     @app.exception_handler(DomainError)
     async def _domain(_request: Request, exc: DomainError) -> JSONResponse:
         status = status_of(exc)
-        headers = {"WWW-Authenticate": "Bearer"} if status == 401 else {"Retry-After": "5"} if status == 503 else None
+        headers = None
+        if status == 401:
+            headers = {"WWW-Authenticate": "Bearer"}
+        elif isinstance(exc, RateLimitedError):
+            headers = {"Retry-After": str(exc.retry_after_s)}
+        elif status == 503:
+            headers = {"Retry-After": "5"}
         return JSONResponse({"detail": exc.message}, status_code=status, headers=headers)
 
     @app.exception_handler(HTTPException)

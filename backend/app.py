@@ -8,7 +8,7 @@ from contextlib import asynccontextmanager
 
 from fastapi import FastAPI
 
-from backend.api import errors, frontend
+from backend.api import errors, frontend, openapi
 from backend.api.limits import BodySizeLimit
 from backend.api.main import api_router
 from backend.db.session import create_engine_from_url, make_session_factory, read_only_engine
@@ -45,6 +45,7 @@ def create_app(settings: Settings | None = None, *, job_queue: JobQueue | None =
     app.state.job_queue = job_queue
     app.state.storage = storage or LocalDiskStorage(settings.storage_dir)
     errors.install(app)
+    openapi.install(app)
     app.include_router(api_router)
     frontend.mount(app)  # the UI at / and viser's client at /viewer/, after the API routes
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes)

@@ -2,8 +2,7 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, Request
-from fastapi.security import OAuth2PasswordRequestForm
+from fastapi import APIRouter, Form, Request
 
 from backend.api.deps import AnnotatorUser, SessionDep, SettingsDep
 from backend.schemas.users import Token, UserPublic
@@ -15,20 +14,21 @@ from backend.services.security import create_token
 router = APIRouter(prefix="/auth", tags=["auth"])
 
 
-@router.post("/token", response_model=Token)
+@router.post("/token", response_model=Token, responses={401: {}, 429: {}})
 def login(request: Request, session: SessionDep, settings: SettingsDep,
-          form: Annotated[OAuth2PasswordRequestForm, Depends()]) -> Token:
+          username: Annotated[str, Form(min_length=1, max_length=254, description="The account's email.")],
+          password: Annotated[str, Form(min_length=1, max_length=256)]) -> Token:
     """OAuth2 password flow: `username` is the email. Returns a bearer token.
 
     429 with Retry-After after too many failed logins for the account or from the client's address, or when
     the server is busy checking other passwords (services.login_limits)."""
     limiter: LoginLimiter = request.app.state.login_limiter
-    account = users.normalise_email(form.username)
+    account = users.normalise_email(username)
     address = request.client.host if request.client else "unknown"
     limiter.check(account, address)  # before hashing: a locked account costs the server nothing
     try:
         with limiter.hashing():
-            user = users.authenticate(session, form.username, form.password)
+            user = users.authenticate(session, username, password)
     except AuthError:
         limiter.failed(account, address)
         raise

@@ -16,7 +16,7 @@ router = APIRouter(prefix="/viewer", tags=["3D viewer"])
 
 
 @router.get("/samples/{sample_id}/scene", response_class=Response,
-            responses={200: {"content": {"application/octet-stream": {}}}, 304: {}})
+            responses={200: {"content": {"application/octet-stream": {}}}, 304: {}, 401: {}, 403: {}})
 def sample_scene(sample_id: Id, request: Request, session: SessionDep, settings: SettingsDep, storage: StorageDep,
                  ticket: str = Query(default="", max_length=400, description="From the review overlay.")) -> Response:
     """The sample's scene (mesh, skeleton, keypoints, camera frustums with their images) as a `.viser`

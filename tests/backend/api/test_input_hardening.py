@@ -48,7 +48,7 @@ def test_a_path_id_outside_the_ids_is_422(sqlite_env, bad):
     assert response.status_code == 422 and "job_id" in response.json()["detail"], response.text
 
 
-@pytest.mark.parametrize(("field", "value"), [("keypoint", True), ("keypoint", "4"), ("keypoint", 4.0),
+@pytest.mark.parametrize(("field", "value"), [("keypoint", True), ("keypoint", "4"), ("keypoint", 4.5),
                                               ("x", "12"), ("x", True), ("view_id", "1"), ("visibility", 1),
                                               ("visibility", "seen")])
 def test_loosely_typed_clicks_are_refused_and_nothing_is_written(env, h, field, value):
@@ -65,11 +65,12 @@ def test_loosely_typed_clicks_are_refused_and_nothing_is_written(env, h, field, 
 
 
 def test_proper_types_still_pass(sqlite_env, h):
-    """Integers where floats are wanted are numbers, not coercion; enums take their values."""
+    """Integers where floats are wanted and whole floats where integers are (JSON has one number type) are
+    numbers, not coercion; enums take their values."""
     ids = h.seed(sqlite_env, frames=1, cameras=1)
     task = h.next_task(sqlite_env)
     body = h.body(task, time_spent_s=12)
-    body["clicks"][0].update(x=10, y=20, visibility="occluded")
+    body["clicks"][0].update(x=10, y=20, visibility="occluded", keypoint=float(body["clicks"][0]["keypoint"]))
     response = sqlite_env.client.post(f"/api/annotate/samples/{ids[0]}/submissions", json=body,
                                       headers=sqlite_env.headers(Role.annotator))
     assert response.status_code == 201, response.text

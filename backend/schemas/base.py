@@ -6,6 +6,7 @@ import types
 import typing
 from enum import Enum
 from functools import cache
+from itertools import repeat
 from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator
@@ -38,8 +39,10 @@ class Strict(BaseModel):
             return value
         if kind is int:
             return _whole(value)
-        if kind is list:
-            return [_whole(v) for v in value] if isinstance(value, list) else value
+        if kind is list:  # a mask's run lengths can be millions long: look for floats at C speed first
+            if isinstance(value, list) and any(map(isinstance, value, repeat(float))):
+                return [_whole(v) for v in value]
+            return value
         if not isinstance(value, str):
             return value
         try:

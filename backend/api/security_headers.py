@@ -39,7 +39,7 @@ def viewer_policy() -> str:
     except (OSError, ValueError) as exc:  # a viser release that packs its client differently: say so, keep working
         logger.warning("viser's client scripts could not be hashed (%s); /viewer/ allows inline scripts", exc)
         scripts = "'unsafe-inline'"
-    return "; ".join(("default-src 'self'", f"script-src 'self' {scripts} 'wasm-unsafe-eval'",
+    return "; ".join(("default-src 'self'", f"script-src 'self' {scripts} 'wasm-unsafe-eval' 'unsafe-eval'",
                       "style-src 'self' 'unsafe-inline'", "img-src 'self' data: blob:", "font-src 'self' data:",
                       "connect-src 'self' data: blob:", "worker-src 'self' blob:", "frame-ancestors 'self'", *COMMON))
 

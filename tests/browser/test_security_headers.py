@@ -24,21 +24,6 @@ RECORD_VIOLATIONS = """document.addEventListener("securitypolicyviolation", (e) 
 });"""
 
 
-# viser's client loads its Gaussian-splat sorter (Sorter.wasm through Emscripten's embind, which builds functions
-# from strings) at start-up whether or not a scene has splats; without 'unsafe-eval' (kept out of the viewer's
-# policy on purpose) that one module fails, and nothing our scenes show uses it (meshes, lines, points, frustums,
-# text). These are the only answers the test lets through: the page error, and the violation it reports.
-SPLAT_SORTER_EVAL = "Evaluating a string as JavaScript violates the following Content Security Policy directive"
-
-
-def _unexpected(errors: list[str]) -> list[str]:
-    return [e for e in errors if not (e.startswith(SPLAT_SORTER_EVAL) and "'wasm-unsafe-eval'" in e)]
-
-
-def _unexpected_violations(violations: list[tuple[str, str]]) -> list[tuple[str, str]]:
-    return [(url, v) for url, v in violations if not ("/viewer/" in url and v.startswith("script-src eval "))]
-
-
 def _in_review(stack) -> int:
     """Annotate the first sample through the API and record a fit from its ground truth: it is in review."""
     from backend.services import records
@@ -115,6 +100,6 @@ def test_ui_viewer_and_docs_work_under_their_policies(live_stack, tab):
     assert requested_hosts <= {stack.base_url.split("://")[1]}, requested_hosts
 
     for t in (reviewer, annotator, admin, docs):
-        assert not _unexpected(t.errors), t.errors
-        assert not _unexpected_violations(_violations(t)), _violations(t)
-    assert not _unexpected(csp_console), csp_console
+        assert not t.errors, t.errors
+        assert not _violations(t), _violations(t)
+    assert not csp_console, csp_console

@@ -12,6 +12,7 @@ from fastapi.responses import JSONResponse
 from sqlalchemy.exc import IntegrityError, OperationalError
 from starlette.exceptions import HTTPException
 
+from backend.api.deps import bearer, depends_on, get_current_user
 from backend.services.errors import (
     AuthError,
     ConflictError,
@@ -52,26 +53,18 @@ def _location(loc: tuple) -> str:
     return ".".join(parts) or "body"
 
 
-def _needs_token(dependant) -> bool:
-    from backend.api.deps import get_current_user
-
-    return any(d.call is get_current_user or _needs_token(d) for d in dependant.dependencies)
-
-
 async def _unauthenticated(request: Request) -> JSONResponse | None:
     """The 401 a caller without a valid token gets on a route that needs one, else None.
 
     FastAPI parses a JSON body before it resolves the route's dependencies, so a body it cannot parse would be
     answered before authentication; this runs the same check (services.security, the user's row) first."""
-    from backend.api.deps import _bearer, get_current_user
-
     route = request.scope.get("route")
     dependant = getattr(route, "dependant", None)
-    if dependant is None or not _needs_token(dependant):
+    if dependant is None or not depends_on(dependant, get_current_user):
         return None
     session = request.app.state.read_session_factory()
     try:
-        await get_current_user(request, session, request.app.state.settings, await _bearer(request))
+        await get_current_user(request, session, request.app.state.settings, await bearer(request))
     except AuthError as exc:
         return JSONResponse({"detail": exc.message}, status_code=401, headers={"WWW-Authenticate": "Bearer"})
     finally:

@@ -16,13 +16,12 @@ so a route added later is documented without doing anything.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import Any
 
 from fastapi import FastAPI
 from fastapi.routing import APIRoute, iter_route_contexts
 
-from backend.api.deps import get_current_user, get_session
+from backend.api.deps import depends_on, get_current_user, get_session
 from backend.schemas.errors import ErrorBody
 
 ERROR_REF = {"$ref": "#/components/schemas/ErrorBody"}
@@ -41,22 +40,13 @@ DESCRIPTIONS = {
 HEADERS = {429: RETRY_AFTER, 503: RETRY_AFTER}
 
 
-def _calls(dependant: Any) -> set[Callable[..., Any]]:
-    found = set()
-    for sub in dependant.dependencies:
-        found.add(sub.call)
-        found |= _calls(sub)
-    return found
-
-
 def error_statuses(route: APIRoute) -> set[int]:
     """The error statuses this operation can answer, from its dependencies, parameters and body."""
     dependant = route.dependant
-    calls = _calls(dependant)
     statuses = set()
-    if get_current_user in calls:
+    if depends_on(dependant, get_current_user):
         statuses |= {401, 403}
-    if get_session in calls:
+    if depends_on(dependant, get_session):
         statuses |= {404, 409, 503}  # 409 on reads too: a sample in another state than the route shows
     if route.body_field is not None:
         statuses.add(413)

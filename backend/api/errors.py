@@ -67,6 +67,10 @@ async def _unauthenticated(request: Request) -> JSONResponse | None:
         await get_current_user(request, session, request.app.state.settings, await bearer(request))
     except AuthError as exc:
         return JSONResponse({"detail": exc.message}, status_code=401, headers={"WWW-Authenticate": "Bearer"})
+    except OperationalError as exc:  # raised in a handler it would be a 500
+        logger.warning("database unavailable or busy: %s", exc.orig)
+        return JSONResponse({"detail": "database busy; nothing was written, retry"}, status_code=503,
+                            headers={"Retry-After": "1"})
     finally:
         await run_in_threadpool(session.close)
     return None

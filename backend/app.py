@@ -8,12 +8,14 @@ from contextlib import asynccontextmanager
 
 from fastapi import FastAPI
 
-from backend.api import errors, frontend
+from backend.api import docs, errors, frontend, openapi
 from backend.api.limits import BodySizeLimit
 from backend.api.main import api_router
+from backend.api.security_headers import SecurityHeaders
 from backend.db.session import create_engine_from_url, make_session_factory, read_only_engine
 from backend.services.auth_cache import AuthCache, watch_user_changes
 from backend.services.jobs import JobQueue
+from backend.services.login_limits import LoginLimiter, LoginPolicy
 from backend.services.storage import LocalDiskStorage, Storage
 from backend.settings import Settings, get_settings
 
@@ -23,7 +25,9 @@ logger = logging.getLogger(__name__)
 def create_app(settings: Settings | None = None, *, job_queue: JobQueue | None = None,
                storage: Storage | None = None) -> FastAPI:
     settings = settings or get_settings()
-    app = FastAPI(title="handloop", version="0.1.0", docs_url="/docs", openapi_url="/openapi.json", lifespan=_lifespan,
+    # docs_url=None: FastAPI's page loads Swagger UI from a CDN; backend.api.docs serves it from here.
+    app = FastAPI(title="handloop", version="0.1.0", docs_url=None, redoc_url=None, openapi_url="/openapi.json",
+                  lifespan=_lifespan,
                   description="Human-in-the-loop 3D hand labeling (FreiHAND's procedure): annotator and "
                   "reviewer queues with leases, bootstrap rounds, jobs.")
     url = settings.resolved_database_url
@@ -36,6 +40,7 @@ def create_app(settings: Settings | None = None, *, job_queue: JobQueue | None =
     app.state.read_session_factory = make_session_factory(read_only_engine(engine))
     app.state.auth_cache = AuthCache(settings.auth_cache_seconds)
     watch_user_changes(app.state.session_factory, app.state.auth_cache)
+    app.state.login_limiter = LoginLimiter(LoginPolicy.from_settings(settings))
     if job_queue is None:
         from backend.broker.celery_queue import CeleryJobQueue  # celery + kombu, no torch
 
@@ -43,9 +48,12 @@ def create_app(settings: Settings | None = None, *, job_queue: JobQueue | None =
     app.state.job_queue = job_queue
     app.state.storage = storage or LocalDiskStorage(settings.storage_dir)
     errors.install(app)
+    openapi.install(app)
     app.include_router(api_router)
+    docs.mount(app)
     frontend.mount(app)  # the UI at / and viser's client at /viewer/, after the API routes
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes)
+    app.add_middleware(SecurityHeaders)  # outermost: the body limit's 413 gets the headers too
     return app
 
 

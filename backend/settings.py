@@ -2,14 +2,22 @@
 
 from __future__ import annotations
 
-from functools import lru_cache
+import logging
+import os
+import secrets
+import stat
+from functools import cached_property, lru_cache
 from pathlib import Path
 from typing import Literal
 
 from pydantic import Field, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-DEFAULT_SECRET_KEY = "change-me-in-production"
+logger = logging.getLogger(__name__)
+
+# Keys once published as defaults (anyone can sign tokens with them): refused in every environment.
+PUBLISHED_SECRET_KEYS = frozenset({"change-me-in-production"})
+SECRET_KEY_FILE = "secret_key"
 
 
 class Settings(BaseSettings):
@@ -28,7 +36,7 @@ class Settings(BaseSettings):
 
     # --- backend service -------------------------------------------------------------------------
     environment: Literal["development", "test", "production"] = Field(
-        default="development", description="Outside 'development' the default secret key is refused."
+        default="development", description="Deployment kind (logging, checks); no behaviour depends on it silently."
     )
     database_url: str | None = Field(
         default=None,
@@ -37,12 +45,27 @@ class Settings(BaseSettings):
     )
     db_pool_size: int = Field(default=10, ge=1, le=200, description="Connection pool size (PostgreSQL).")
     db_max_overflow: int = Field(default=20, ge=0, le=500, description="Extra connections beyond the pool.")
-    secret_key: str = Field(default=DEFAULT_SECRET_KEY, min_length=16, description="Signs access tokens.")
+    secret_key: str | None = Field(
+        default=None, min_length=16, description="Signs access tokens and scene tickets. Unset: a random key made "
+        "once and kept in <data_dir>/secret_key (mode 0600), shared by every process using that folder.")
     access_token_minutes: int = Field(default=12 * 60, ge=1, le=60 * 24 * 30, description="Token lifetime.")
     auth_cache_seconds: float = Field(
         default=2.0, ge=0, le=60, description="How long a server process reuses a token's user row (0: read it on "
         "every request). A revoked token stops working at once in the process that revoked it, within this time in "
         "the others.")
+    login_max_failures_per_account: int = Field(
+        default=5, ge=1, le=10_000, description="Failed logins per account within login_failure_window_s; then that "
+        "account's logins (even with the right password) are refused with 429 until the oldest failure expires.")
+    login_max_failures_per_address: int = Field(
+        default=30, ge=1, le=1_000_000, description="Failed logins per client address within the window; then that "
+        "address's logins are refused with 429.")
+    login_failure_window_s: float = Field(default=900.0, gt=0, le=7 * 24 * 3600,
+                                          description="How long a failed login counts against its account and address.")
+    login_max_concurrent_hashes: int = Field(
+        default=4, ge=1, le=1024, description="Password checks (Argon2, ~260 ms CPU and 64 MiB each) running at once "
+        "per server process; further logins wait.")
+    login_hash_wait_s: float = Field(default=10.0, ge=0, le=600,
+                                     description="How long a login waits for a hashing slot before a 429.")
     max_upload_bytes: int = Field(
         default=8 * 1024 * 1024, ge=1024, le=1024**3, description="Largest accepted request body, bytes."
     )
@@ -130,11 +153,10 @@ class Settings(BaseSettings):
                                      description="Fit stage 2: most solver steps (Adam: its steps).")
 
     @model_validator(mode="after")
-    def _refuse_default_secret(self) -> Settings:
-        if self.environment != "development" and self.secret_key == DEFAULT_SECRET_KEY:
-            raise ValueError(
-                f"HANDLOOP_SECRET_KEY must be set outside development (environment={self.environment!r})"
-            )
+    def _refuse_published_secret(self) -> Settings:
+        if self.secret_key in PUBLISHED_SECRET_KEYS:
+            raise ValueError("HANDLOOP_SECRET_KEY is a published default: anyone could sign tokens with it; set a "
+                             "random one (e.g. `openssl rand -hex 32`) or unset it to use <data_dir>/secret_key")
         return self
 
     @model_validator(mode="after")
@@ -144,6 +166,14 @@ class Settings(BaseSettings):
             raise ValueError(f"broker_visibility_timeout_s ({self.broker_visibility_timeout_s}) must exceed the "
                              f"longest task time limit ({longest} s), or a running task would be delivered twice")
         return self
+
+    @cached_property
+    def signing_key(self) -> str:
+        """The key that signs tokens: HANDLOOP_SECRET_KEY, else the data folder's own random key (made on first
+        use). Read lazily, so commands that sign nothing leave the data folder alone."""
+        if self.secret_key is not None:
+            return self.secret_key
+        return data_dir_secret(self.data_dir / SECRET_KEY_FILE)
 
     @property
     def broker_dir(self) -> Path:
@@ -169,6 +199,39 @@ class Settings(BaseSettings):
         if self.database_url:
             return self.database_url
         return f"sqlite:///{(self.data_dir / 'handloop.sqlite3').resolve()}"
+
+
+def data_dir_secret(path: Path) -> str:
+    """The random key kept in `path`, made once (32 random bytes, URL-safe base64, mode 0600).
+
+    Several processes may start at once (the demo's API and worker): each writes its own candidate to a
+    temporary file and links it into place; `os.link` fails if another process got there first, and then
+    that process's key is read, so all of them sign with the same key. An existing file is never replaced
+    (that would log everybody out); an empty or short one is an error that names the file."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if not path.exists():
+        candidate = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}")
+        fd = os.open(candidate, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+        try:
+            with os.fdopen(fd, "w") as out:
+                out.write(secrets.token_urlsafe(32) + "\n")
+                out.flush()
+                os.fsync(out.fileno())
+            try:
+                os.link(candidate, path)
+                logger.info("made a random secret key in %s", path)
+            except FileExistsError:
+                pass  # another process made it first: use theirs
+        finally:
+            candidate.unlink(missing_ok=True)
+    mode = stat.S_IMODE(path.stat().st_mode)
+    if mode & 0o077:
+        logger.warning("%s is readable by other users (mode %o); anyone who can read it can sign tokens", path, mode)
+    key = path.read_text(encoding="ascii").strip()
+    if len(key) < 16:
+        raise ValueError(f"{path} holds no usable secret key (fewer than 16 characters): delete it to make a new "
+                         "one (every signed-in user must log in again) or set HANDLOOP_SECRET_KEY")
+    return key
 
 
 @lru_cache

@@ -4,7 +4,7 @@ role checks written once."""
 from __future__ import annotations
 
 from collections.abc import AsyncIterator, Callable
-from typing import Annotated
+from typing import Annotated, Any
 
 import anyio
 from fastapi import Depends, Request
@@ -82,20 +82,20 @@ SessionDep = Annotated[Session, Depends(get_session, scope="function")]
 JobQueueDep = Annotated[JobQueue, Depends(get_job_queue)]
 StorageDep = Annotated[Storage, Depends(get_storage)]
 
-_bearer = HTTPBearer(auto_error=False, description="Token from POST /api/auth/token")
+bearer = HTTPBearer(auto_error=False, description="Token from POST /api/auth/token")
 
 
 async def get_current_user(
     request: Request,
     session: SessionDep,
     settings: SettingsDep,
-    credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
+    credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)],
 ) -> Principal:
     """The token's user, from the process's short-lived cache (services.auth_cache) or, on a miss or when the
     token is newer than the cached row, one Core SELECT in the request's transaction (in the thread pool)."""
     if credentials is None:
         raise AuthError("not authenticated: send 'Authorization: Bearer <token>'")
-    user_id, version = parse_token(settings.secret_key, credentials.credentials)
+    user_id, version = parse_token(settings.signing_key, credentials.credentials)
     cache: AuthCache = request.app.state.auth_cache
     user = cache.get(user_id)
     if user is None or user.token_version < version:
@@ -111,6 +111,11 @@ async def get_current_user(
 
 
 CurrentUser = Annotated[Principal, Depends(get_current_user, scope="function")]
+
+
+def depends_on(dependant: Any, call: Callable[..., Any]) -> bool:
+    """Whether a route's dependency tree (`route.dependant`) includes `call`, directly or not."""
+    return any(sub.call is call or depends_on(sub, call) for sub in dependant.dependencies)
 
 
 def require_role(minimum: Role) -> Callable[[Principal], Principal]:

@@ -5,10 +5,14 @@ from __future__ import annotations
 import logging
 
 from fastapi import FastAPI, Request
+from fastapi.concurrency import run_in_threadpool
+from fastapi.exception_handlers import http_exception_handler
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from sqlalchemy.exc import IntegrityError, OperationalError
+from starlette.exceptions import HTTPException
 
+from backend.api.deps import bearer, depends_on, get_current_user
 from backend.services.errors import (
     AuthError,
     ConflictError,
@@ -17,6 +21,7 @@ from backend.services.errors import (
     LeaseExpiredError,
     NotFoundError,
     PermissionDeniedError,
+    RateLimitedError,
     ServiceUnavailableError,
     TooLargeError,
 )
@@ -31,6 +36,7 @@ STATUS: list[tuple[type[DomainError], int]] = [
     (LeaseExpiredError, 409),
     (ConflictError, 409),
     (TooLargeError, 413),
+    (RateLimitedError, 429),
     (ServiceUnavailableError, 503),
 ]
 
@@ -47,17 +53,67 @@ def _location(loc: tuple) -> str:
     return ".".join(parts) or "body"
 
 
+async def _unauthenticated(request: Request) -> JSONResponse | None:
+    """The 401 a caller without a valid token gets on a route that needs one, else None.
+
+    FastAPI parses a JSON body before it resolves the route's dependencies, so a body it cannot parse would be
+    answered before authentication; this runs the same check (services.security, the user's row) first."""
+    route = request.scope.get("route")
+    dependant = getattr(route, "dependant", None)
+    if dependant is None or not depends_on(dependant, get_current_user):
+        return None
+    session = request.app.state.read_session_factory()
+    try:
+        await get_current_user(request, session, request.app.state.settings, await bearer(request))
+    except AuthError as exc:
+        return JSONResponse({"detail": exc.message}, status_code=401, headers={"WWW-Authenticate": "Bearer"})
+    except OperationalError as exc:  # raised in a handler it would be a 500
+        logger.warning("database unavailable or busy: %s", exc.orig)
+        return JSONResponse({"detail": "database busy; nothing was written, retry"}, status_code=503,
+                            headers={"Retry-After": "1"})
+    finally:
+        await run_in_threadpool(session.close)
+    return None
+
+
+def _unparseable_body(exc: BaseException | None) -> str | None:
+    """What is wrong with a body FastAPI could not parse (it answers a bare 400), if we can say."""
+    if isinstance(exc, UnicodeDecodeError):
+        return f"the body is not UTF-8 text (byte {exc.start} cannot be decoded): send JSON as UTF-8"
+    if isinstance(exc, RecursionError):
+        return "the JSON body is nested too deeply to be read"
+    return None
+
+
 def install(app: FastAPI) -> None:
     @app.exception_handler(DomainError)
     async def _domain(_request: Request, exc: DomainError) -> JSONResponse:
         status = status_of(exc)
-        headers = {"WWW-Authenticate": "Bearer"} if status == 401 else {"Retry-After": "5"} if status == 503 else None
+        headers = None
+        if status == 401:
+            headers = {"WWW-Authenticate": "Bearer"}
+        elif isinstance(exc, RateLimitedError):
+            headers = {"Retry-After": str(exc.retry_after_s)}
+        elif status == 503:
+            headers = {"Retry-After": "5"}
         return JSONResponse({"detail": exc.message}, status_code=status, headers=headers)
 
+    @app.exception_handler(HTTPException)
+    async def _http(request: Request, exc: HTTPException) -> JSONResponse:
+        problem = _unparseable_body(exc.__cause__) if exc.status_code == 400 else None
+        if problem is None:
+            return await http_exception_handler(request, exc)
+        refused = await _unauthenticated(request)
+        return refused or JSONResponse({"detail": problem, "errors": [{"loc": ["body"], "msg": problem,
+                                                                        "type": "body_unreadable"}]}, status_code=422)
+
     @app.exception_handler(RequestValidationError)
-    async def _validation(_request: Request, exc: RequestValidationError) -> JSONResponse:
+    async def _validation(request: Request, exc: RequestValidationError) -> JSONResponse:
         errors = exc.errors()
         if any(e.get("type") == "json_invalid" for e in errors):
+            refused = await _unauthenticated(request)  # the body was read before the token was checked
+            if refused is not None:
+                return refused
             first = next(e for e in errors if e.get("type") == "json_invalid")
             message = f"malformed JSON: {first.get('ctx', {}).get('error', 'cannot parse the body')}"
         else:

@@ -1,20 +1,79 @@
-"""Shared field types."""
+"""Shared field types and the base classes of request and response models."""
 
 from __future__ import annotations
 
-from typing import Annotated
+import types
+import typing
+from enum import Enum
+from functools import cache
+from itertools import repeat
+from typing import Annotated, Any
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 Pixel = Annotated[float, Field(allow_inf_nan=False, ge=-1e6, le=1e6)]
-Id = Annotated[int, Field(ge=1, le=2**62)]
+# Every database id, in bodies and as a path parameter (`sample_id: Id`): beyond 2**63 SQLite's integers
+# overflow (a 500), so larger ids are a 422 before any query. The bound is JavaScript's largest exact integer,
+# so every id the server accepts survives a browser (and a JSON float) unchanged.
+MAX_ID = 2**53 - 1
+Id = Annotated[int, Field(ge=1, le=MAX_ID)]
 
 
 class Strict(BaseModel):
-    """Requests: unknown fields are errors, so typos do not pass silently."""
+    """Requests: unknown fields are errors, so typos do not pass silently; and no coercion (`"x": "12"`,
+    `"keypoint": true` and `"is_active": 1` are 422, not stored as 12, 1 and True).
 
-    model_config = ConfigDict(extra="forbid")
+    FastAPI validates the parsed JSON in Python mode, where strict enums would want Enum instances: an enum
+    field takes its values as strings (and nothing else), converted here. JSON has one number type and JSON
+    Schema counts `3.0` as an integer, so an integer field takes a float without a fractional part (never
+    `true` or `"3"`)."""
+
+    model_config = ConfigDict(extra="forbid", strict=True)
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _from_json_values(cls, value: Any, info: ValidationInfo) -> Any:
+        kind = _field_kinds(cls).get(info.field_name or "")
+        if kind is None:
+            return value
+        if kind is int:
+            return _whole(value)
+        if kind is list:  # a mask's run lengths can be millions long: look for floats at C speed first
+            if isinstance(value, list) and any(map(isinstance, value, repeat(float))):
+                return [_whole(v) for v in value]
+            return value
+        if not isinstance(value, str):
+            return value
+        try:
+            return kind(value)
+        except ValueError:
+            allowed = ", ".join(repr(member.value) for member in kind)
+            raise ValueError(f"{value!r} is not one of {allowed}") from None
+
+
+def _whole(value: Any) -> Any:
+    return int(value) if type(value) is float and value.is_integer() else value
+
+
+@cache
+def _field_kinds(model: type[BaseModel]) -> dict[str, Any]:
+    """Field name -> its Enum type, `int` or `list` (of int), plain or optional, for the fields that need it."""
+    found: dict[str, Any] = {}
+    for name, field in model.model_fields.items():
+        union = typing.get_origin(field.annotation) in (typing.Union, types.UnionType)
+        for arg in typing.get_args(field.annotation) if union else (field.annotation,):
+            if isinstance(arg, type) and issubclass(arg, Enum):
+                found[name] = arg
+            elif _is_int(arg):
+                found[name] = int
+            elif typing.get_origin(arg) is list and _is_int(typing.get_args(arg)[0]):
+                found[name] = list
+    return found
+
+
+def _is_int(annotation: Any) -> bool:
+    return annotation is int or (typing.get_origin(annotation) is Annotated and typing.get_args(annotation)[0] is int)
 
 
 class Public(BaseModel):

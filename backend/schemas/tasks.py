@@ -5,7 +5,7 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Annotated, Any
 
-from pydantic import Field, model_validator
+from pydantic import ConfigDict, Field, model_validator
 
 from backend.models.enums import DecisionKind, SampleState, Visibility
 from backend.schemas.base import Finite, Id, Pixel, Public, Strict
@@ -47,6 +47,12 @@ class LeaseRequest(Strict):
 
 
 class ClickIn(Strict):
+    # The cross-field rule below, in the published schema too (clients and fuzzers see what is refused).
+    model_config = ConfigDict(json_schema_extra={
+        "if": {"properties": {"visibility": {"const": "not_annotated"}}, "required": ["visibility"]},
+        "then": {"properties": {"x": {"type": "null"}, "y": {"type": "null"}}},
+        "else": {"required": ["x", "y"], "properties": {"x": {"type": "number"}, "y": {"type": "number"}}}})
+
     view_id: Id
     keypoint: int = Field(ge=0, le=20)
     x: Pixel | None = None
@@ -74,6 +80,10 @@ class MaskIn(Strict):
 
 
 class SubmissionCreate(Strict):
+    model_config = ConfigDict(json_schema_extra={"anyOf": [
+        {"required": ["clicks"], "properties": {"clicks": {"minItems": 1}}},
+        {"required": ["masks"], "properties": {"masks": {"minItems": 1}}}]})
+
     submission_id: ClientId = Field(description="Client-chosen unique id: resubmitting it is a no-op.")
     lease_token: LeaseToken | None = None
     time_spent_s: Finite = Field(ge=0, le=24 * 3600)
@@ -99,6 +109,10 @@ class SubmissionPublic(Public):
 
 
 class DecisionCreate(Strict):
+    model_config = ConfigDict(json_schema_extra={
+        "if": {"properties": {"decision": {"not": {"const": "accept"}}}},
+        "then": {"required": ["reason"], "properties": {"reason": {"pattern": "\\S"}}}})
+
     decision: DecisionKind
     reason: str = Field(default="", max_length=2000)
     lease_token: LeaseToken | None = None

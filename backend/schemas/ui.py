@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import Field
+from pydantic import ConfigDict, Field
 
 from backend.schemas.base import Finite, Id, Public, Strict
 from backend.schemas.tasks import ClientId
@@ -99,6 +99,13 @@ class ActionIn(Strict):
 
 
 class ActivityCreate(Strict):
+    # services.activity's rule (a log belongs to a submission or a decision), in the published schema too.
+    model_config = ConfigDict(json_schema_extra={"allOf": [
+        {"if": {"properties": {"context": {"const": "annotate"}}},
+         "then": {"required": ["submission_id"], "properties": {"submission_id": {"type": "string"}}}},
+        {"if": {"properties": {"context": {"const": "review"}}},
+         "then": {"required": ["decision_id"], "properties": {"decision_id": {"type": "integer"}}}}]})
+
     context: Literal["annotate", "review"]
     sample_id: Id
     submission_id: ClientId | None = None

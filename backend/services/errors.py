@@ -42,3 +42,11 @@ class TooLargeError(DomainError):
 
 class ServiceUnavailableError(DomainError):
     """A service the request needs (the job broker) is unreachable; nothing was written, retry later."""
+
+
+class RateLimitedError(DomainError):
+    """Too many attempts (logins): refused before any work is done; `retry_after_s` says when to try again."""
+
+    def __init__(self, message: str, retry_after_s: int) -> None:
+        super().__init__(message)
+        self.retry_after_s = retry_after_s

@@ -189,7 +189,7 @@ def review_overlay(session: Session, user: Actor, sample_id: int, *, secret_key:
         })
     all_res = [v for r in residuals.values() for v in r.values()]
     mesh, mesh_note, offset_mm = _mesh_payload(fit, mano_path) if with_mesh else (None, "not requested", None)
-    ticket = scene_tickets.issue(secret_key, user.id, sample_id, fit.id)
+    ticket = scene_tickets.issue(secret_key, user.id, sample_id, fit.id, token_version=user.token_version)
     keypoints = np.asarray(fit.keypoints_m, dtype=np.float64)
     return {
         "sample_id": sample_id,

@@ -48,6 +48,8 @@ def authorise(session: Session, secret_key: str, ticket: str, sample_id: int) ->
     user = load_principal(session, parsed.user_id)
     if user is None or not user.is_active:
         raise AuthError("the account this scene ticket was issued to is gone or deactivated")
+    if user.token_version != parsed.token_version:
+        raise AuthError("scene ticket revoked (the account's password, role or state changed); reload the review page")
     if Role(user.role).rank < Role.reviewer.rank:
         raise PermissionDeniedError(f"the 3D view needs the reviewer role; you are {user.role}")
     return parsed

@@ -5,6 +5,7 @@ from fastapi import APIRouter, Response
 from backend.api.deps import AnnotatorUser, JobQueueDep, SessionDep, SettingsDep, StorageDep
 from backend.api.routes.tasks_common import json_response, task_of
 from backend.models.enums import LeaseKind
+from backend.schemas.base import Id
 from backend.schemas.tasks import LeasePublic, LeaseRequest, SubmissionCreate, SubmissionPublic, TaskPublic
 from backend.services import queues, submissions
 
@@ -21,20 +22,20 @@ def next_task(session: SessionDep, settings: SettingsDep, user: AnnotatorUser) -
 
 
 @router.post("/samples/{sample_id}/lease/renew", response_model=LeasePublic)
-def renew(sample_id: int, body: LeaseRequest, session: SessionDep, settings: SettingsDep,
+def renew(sample_id: Id, body: LeaseRequest, session: SessionDep, settings: SettingsDep,
           user: AnnotatorUser) -> LeasePublic:
     lease = queues.renew(session, user, sample_id, LeaseKind.annotate, body.lease_token, settings.lease_seconds)
     return LeasePublic(sample_id=lease.sample_id, lease_token=lease.token, lease_expires_at=lease.expires_at)
 
 
 @router.post("/samples/{sample_id}/lease/release", status_code=204)
-def release(sample_id: int, body: LeaseRequest, session: SessionDep, user: AnnotatorUser) -> None:
+def release(sample_id: Id, body: LeaseRequest, session: SessionDep, user: AnnotatorUser) -> None:
     queues.release(session, user, sample_id, LeaseKind.annotate, body.lease_token)
 
 
 @router.post("/samples/{sample_id}/submissions", response_model=SubmissionPublic, status_code=201,
              responses={200: {"description": "Already submitted with this submission_id: nothing new written."}})
-def submit(sample_id: int, body: SubmissionCreate, session: SessionDep, settings: SettingsDep,
+def submit(sample_id: Id, body: SubmissionCreate, session: SessionDep, settings: SettingsDep,
            queue: JobQueueDep, storage: StorageDep, user: AnnotatorUser) -> Response:
     """Clicks and mask corrections for a leased sample; queues a fit. Idempotent on `submission_id`."""
     result = submissions.submit(session, queue, storage, user, sample_id, body, settings.max_clicks_per_submission)

@@ -7,6 +7,7 @@ import mimetypes
 from fastapi import APIRouter, Request, Response
 
 from backend.api.deps import AnnotatorUser, SessionDep, SettingsDep, StorageDep
+from backend.schemas.base import Id
 from backend.services.samples import get_mask, get_view
 
 router = APIRouter(prefix="/files", tags=["files"])
@@ -23,13 +24,13 @@ def _serve(request: Request, storage: StorageDep, key: str, max_age_s: int) -> R
 
 @router.get("/views/{view_id}/image", response_class=Response,
             responses={200: {"content": {"image/png": {}, "image/jpeg": {}}}, 304: {}})
-def view_image(view_id: int, request: Request, session: SessionDep, settings: SettingsDep, storage: StorageDep,
+def view_image(view_id: Id, request: Request, session: SessionDep, settings: SettingsDep, storage: StorageDep,
                _user: AnnotatorUser) -> Response:
     return _serve(request, storage, get_view(session, view_id).image_key, settings.image_cache_seconds)
 
 
 @router.get("/masks/{mask_id}", response_class=Response, responses={200: {"content": {"image/png": {}}}, 304: {}})
-def mask_image(mask_id: int, request: Request, session: SessionDep, settings: SettingsDep, storage: StorageDep,
+def mask_image(mask_id: Id, request: Request, session: SessionDep, settings: SettingsDep, storage: StorageDep,
                _user: AnnotatorUser) -> Response:
     # Mask versions are immutable: a new correction is a new id.
     return _serve(request, storage, get_mask(session, mask_id).storage_key, settings.image_cache_seconds)

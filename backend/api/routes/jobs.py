@@ -13,6 +13,7 @@ from backend.api.deps import AdminUser, JobQueueDep, SessionDep, SettingsDep
 from backend.models.enums import JobKind, JobState
 from backend.models.jobs import Job
 from backend.schemas.admin import JobPublic
+from backend.schemas.base import Id
 from backend.services import jobs
 
 router = APIRouter(prefix="/admin/jobs", tags=["admin: jobs"])
@@ -30,18 +31,18 @@ def list_jobs(session: SessionDep, _admin: AdminUser, state: JobState | None = N
 
 
 @router.get("/{job_id}", response_model=JobPublic)
-def get_job(job_id: int, session: SessionDep, _admin: AdminUser) -> Job:
+def get_job(job_id: Id, session: SessionDep, _admin: AdminUser) -> Job:
     return jobs.get(session, job_id)
 
 
 @router.post("/{job_id}/cancel", response_model=JobPublic)
-def cancel_job(job_id: int, session: SessionDep, queue: JobQueueDep, admin: AdminUser) -> Job:
+def cancel_job(job_id: Id, session: SessionDep, queue: JobQueueDep, admin: AdminUser) -> Job:
     return jobs.cancel(session, queue, job_id, admin.id)
 
 
 @router.get("/{job_id}/events", response_class=StreamingResponse,
             responses={200: {"content": {"text/event-stream": {}}}})
-def job_events(job_id: int, request: Request, session: SessionDep, settings: SettingsDep,
+def job_events(job_id: Id, request: Request, session: SessionDep, settings: SettingsDep,
                _admin: AdminUser) -> StreamingResponse:
     """Server-sent events: one `progress` event per change, then `done` when the job is final."""
     jobs.get(session, job_id)  # 404 before the stream starts

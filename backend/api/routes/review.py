@@ -5,6 +5,7 @@ from fastapi import APIRouter, Response
 from backend.api.deps import ReviewerUser, SessionDep, SettingsDep
 from backend.api.routes.tasks_common import task_of
 from backend.models.enums import LeaseKind
+from backend.schemas.base import Id
 from backend.schemas.tasks import DecisionCreate, DecisionPublic, LeasePublic, LeaseRequest, TaskPublic
 from backend.services import queues, review
 
@@ -21,19 +22,19 @@ def next_task(session: SessionDep, settings: SettingsDep, user: ReviewerUser) ->
 
 
 @router.post("/samples/{sample_id}/lease/renew", response_model=LeasePublic)
-def renew(sample_id: int, body: LeaseRequest, session: SessionDep, settings: SettingsDep,
+def renew(sample_id: Id, body: LeaseRequest, session: SessionDep, settings: SettingsDep,
           user: ReviewerUser) -> LeasePublic:
     lease = queues.renew(session, user, sample_id, LeaseKind.review, body.lease_token, settings.lease_seconds)
     return LeasePublic(sample_id=lease.sample_id, lease_token=lease.token, lease_expires_at=lease.expires_at)
 
 
 @router.post("/samples/{sample_id}/lease/release", status_code=204)
-def release(sample_id: int, body: LeaseRequest, session: SessionDep, user: ReviewerUser) -> None:
+def release(sample_id: Id, body: LeaseRequest, session: SessionDep, user: ReviewerUser) -> None:
     queues.release(session, user, sample_id, LeaseKind.review, body.lease_token)
 
 
 @router.post("/samples/{sample_id}/decision", response_model=DecisionPublic, status_code=201)
-def decide(sample_id: int, body: DecisionCreate, session: SessionDep, user: ReviewerUser) -> DecisionPublic:
+def decide(sample_id: Id, body: DecisionCreate, session: SessionDep, user: ReviewerUser) -> DecisionPublic:
     """Accept, reject, or send back for annotation (with a reason) a sample whose review lease you hold."""
     row, sample, stream = review.decide(session, user, sample_id, body.decision, body.reason, body.lease_token)
     return DecisionPublic(id=row.id, sample_id=sample_id, fit_id=row.fit_id, decision=row.decision,

@@ -5,6 +5,7 @@ from fastapi import APIRouter
 from backend.api.deps import AdminUser, JobQueueDep, SessionDep, SettingsDep
 from backend.models.review import Round
 from backend.schemas.admin import ReviewQueueBuilt, RoundCreate, RoundLaunched, RoundPublic, Statistics
+from backend.schemas.base import Id
 from backend.services import review, rounds
 from backend.services.verification import ReviewPolicy
 
@@ -24,7 +25,7 @@ def launch_round(body: RoundCreate, session: SessionDep, queue: JobQueueDep, adm
 
 
 @router.post("/{round_id}/cancel", response_model=RoundPublic)
-def cancel_round(round_id: int, session: SessionDep, queue: JobQueueDep, admin: AdminUser) -> Round:
+def cancel_round(round_id: Id, session: SessionDep, queue: JobQueueDep, admin: AdminUser) -> Round:
     return rounds.cancel(session, queue, round_id, admin.id)
 
 

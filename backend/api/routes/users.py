@@ -5,6 +5,7 @@ from sqlalchemy import select
 
 from backend.api.deps import AdminUser, SessionDep
 from backend.models.users import User
+from backend.schemas.base import Id
 from backend.schemas.users import UserCreate, UserPublic, UserUpdate
 from backend.services import users
 
@@ -22,6 +23,6 @@ def create_user(body: UserCreate, session: SessionDep, admin: AdminUser) -> User
 
 
 @router.patch("/{user_id}", response_model=UserPublic)
-def update_user(user_id: int, body: UserUpdate, session: SessionDep, admin: AdminUser) -> User:
+def update_user(user_id: Id, body: UserUpdate, session: SessionDep, admin: AdminUser) -> User:
     return users.update_user(session, user_id, admin.id, role=body.role, is_active=body.is_active,
                              password=body.password, full_name=body.full_name)

@@ -8,6 +8,7 @@ from __future__ import annotations
 from fastapi import APIRouter, Query, Request, Response
 
 from backend.api.deps import SessionDep, SettingsDep, StorageDep
+from backend.schemas.base import Id
 from backend.services import scene_tickets, scenes
 from backend.services.errors import AuthError
 
@@ -15,14 +16,14 @@ router = APIRouter(prefix="/viewer", tags=["3D viewer"])
 
 
 @router.get("/samples/{sample_id}/scene", response_class=Response,
-            responses={200: {"content": {"application/octet-stream": {}}}, 304: {}})
-def sample_scene(sample_id: int, request: Request, session: SessionDep, settings: SettingsDep, storage: StorageDep,
+            responses={200: {"content": {"application/octet-stream": {}}}, 304: {}, 401: {}, 403: {}})
+def sample_scene(sample_id: Id, request: Request, session: SessionDep, settings: SettingsDep, storage: StorageDep,
                  ticket: str = Query(default="", max_length=400, description="From the review overlay.")) -> Response:
     """The sample's scene (mesh, skeleton, keypoints, camera frustums with their images) as a `.viser`
     recording."""
     if not ticket:
         raise AuthError("a scene ticket is needed: open the 3D view from the review page")
-    parsed = scenes.authorise(session, settings.secret_key, ticket, sample_id)
+    parsed = scenes.authorise(session, settings.signing_key, ticket, sample_id)
     fit = scenes.load_fit(session, sample_id, parsed.fit_id)
     etag = scenes.etag_of(fit)
     headers = {"ETag": etag, "Cache-Control": f"private, max-age={scene_tickets.TICKET_SECONDS}"}

@@ -53,14 +53,28 @@ def test_bad_tickets_are_refused(sqlite_env, ui, ui_capture):
     other = env.client.get(f"/api/viewer/samples/{sid + 1}/scene?ticket={ticket}")
     assert other.status_code == 403 and f"for sample {sid}" in other.json()["detail"]
     secret = env.settings.secret_key
-    expired = scene_tickets.issue(secret, env.user_ids[Role.reviewer], sid, overlay["fit_id"], lifetime_s=-5)
+    expired = scene_tickets.issue(secret, env.user_ids[Role.reviewer], sid, overlay["fit_id"], token_version=0,
+                                  lifetime_s=-5)
     response = env.client.get(f"{base}?ticket={expired}")
     assert response.status_code == 401 and "expired" in response.json()["detail"]
-    annotator = scene_tickets.issue(secret, env.user_ids[Role.annotator], sid, overlay["fit_id"])
+    annotator = scene_tickets.issue(secret, env.user_ids[Role.annotator], sid, overlay["fit_id"], token_version=0)
     response = env.client.get(f"{base}?ticket={annotator}")
     assert response.status_code == 403 and "reviewer" in response.json()["detail"]
-    wrong_fit = scene_tickets.issue(secret, env.user_ids[Role.reviewer], sid, overlay["fit_id"] + 100)
+    wrong_fit = scene_tickets.issue(secret, env.user_ids[Role.reviewer], sid, overlay["fit_id"] + 100,
+                                    token_version=0)
     assert env.client.get(f"{base}?ticket={wrong_fit}").status_code == 404
+
+
+def test_a_password_change_revokes_the_scene_ticket(sqlite_env, ui, ui_capture):
+    """Like an access token: the ticket carries the token version, and a password change bumps it."""
+    env = sqlite_env
+    _task, overlay = _scene(env, ui, ui_capture)
+    assert env.client.get(overlay["scene_path"]).status_code == 200
+    changed = env.client.patch(f"/api/admin/users/{env.user_ids[Role.reviewer]}", json={"password": "a new password 1"},
+                               headers=env.headers(Role.admin))
+    assert changed.status_code == 200, changed.text
+    response = env.client.get(overlay["scene_path"])
+    assert response.status_code == 401 and "revoked" in response.json()["detail"], response.text
 
 
 def test_viser_client_and_the_ui_are_served(sqlite_env):

@@ -4,9 +4,9 @@ Sources are matched to the calibration's cameras by name (`<camera>.<video ext>`
 synchronised by frame index plus a per-camera offset (source frame = offset + i * every for output
 frame i) and streamed: each camera is read by one worker process that holds one frame at a time, so
 memory does not grow with the number of frames. Images stay at full resolution: JPEG and PNG files of
-the right size are copied byte for byte (after checking that they decode); video frames are encoded
-as JPEG. The capture is written into a hidden temporary folder beside `out`, validated with the reader,
-and renamed into place: a failure leaves nothing behind.
+the right size are copied byte for byte after the checks `handloop import` makes (header, size, end
+marker); video frames are encoded as JPEG. The capture is written into a hidden temporary folder
+beside `out`, validated with the reader, and renamed into place: a failure leaves nothing behind.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from typing import Any
 
 import cv2
 import numpy as np
-from PIL import Image
+from PIL import Image, UnidentifiedImageError
 
 from workers.capture.chroma import ChromaKey, key_mask, preview
 from workers.capture.schema import (
@@ -208,32 +208,53 @@ def _check_size(camera: str, where: Path, width: int, height: int, job: _CameraJ
                            f"calibration's {job.width}x{job.height}")
 
 
-def _decode_file(path: Path, camera: str, reduced: bool) -> tuple[bytes, np.ndarray, tuple[int, int]]:
-    """(file bytes, BGR image, full (width, height)). `reduced` decodes at 1/8 scale: every block of the
-    file is still entropy-decoded (so corrupt or truncated data fails) at a fraction of the cost."""
-    data = path.read_bytes()
-    flags = cv2.IMREAD_REDUCED_COLOR_8 if reduced else cv2.IMREAD_COLOR
-    bgr = cv2.imdecode(np.frombuffer(data, np.uint8), flags) if data else None
-    if bgr is None:
-        raise CaptureError(f"{path}: camera {camera!r}: unreadable image (cannot be decoded)")
+def _check_file_end(path: Path, data: bytes, camera: str) -> None:
+    """Truncation shows at the end of the file: a JPEG ends with the EOI marker, a PNG with its IEND chunk."""
     if data[:2] == b"\xff\xd8" and b"\xff\xd9" not in data[-64:]:
         raise CaptureError(f"{path}: camera {camera!r}: truncated JPEG (no end-of-image marker)")
-    if not reduced:
-        return data, bgr, (bgr.shape[1], bgr.shape[0])
-    with Image.open(io.BytesIO(data)) as header:
-        return data, bgr, header.size
+    if data[:8] == b"\x89PNG\r\n\x1a\n" and b"IEND" not in data[-12:]:
+        raise CaptureError(f"{path}: camera {camera!r}: truncated PNG (no IEND chunk)")
+
+
+def _header_size(path: Path, data: bytes, camera: str) -> tuple[int, int]:
+    """(width, height) from the image header (PIL parses it without decoding the pixels)."""
+    try:
+        with Image.open(io.BytesIO(data)) as header:
+            return header.size
+    except (UnidentifiedImageError, OSError, ValueError) as exc:
+        raise CaptureError(f"{path}: camera {camera!r}: unreadable image ({exc.__class__.__name__}: {exc})") from None
+
+
+def _decode(path: Path, data: bytes, camera: str) -> np.ndarray:
+    bgr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR) if data else None
+    if bgr is None:
+        raise CaptureError(f"{path}: camera {camera!r}: unreadable image (cannot be decoded)")
+    return bgr
 
 
 def _image_frames(job: _CameraJob) -> Iterator[tuple[bytes | None, np.ndarray | None]]:
     """Per frame: (the file's bytes when they can be stored as they are, else None; the decoded BGR image,
-    or None when only the bytes are needed)."""
+    or None when only the bytes are needed).
+
+    A file stored as it is gets the checks `handloop import` makes (header, size, end marker), not a decode:
+    decoding costs 5-10 times more, and OpenCV's decoder accepts corrupt scans with a warning anyway.
+    """
+    camera = job.source.camera
     for i in range(job.num_frames):
         path = job.source.files[job.offset + i * job.every]
+        data = path.read_bytes()
+        if not data:
+            raise CaptureError(f"{path}: camera {camera!r}: empty file")
+        _check_file_end(path, data, camera)
         copy = IMAGE_SUFFIXES[path.suffix.lower()] == job.image_format
-        reduced = copy and job.chroma is None
-        data, bgr, size = _decode_file(path, job.source.camera, reduced)
-        _check_size(job.source.camera, path, size[0], size[1], job)
-        yield (data if copy else None), (None if reduced else bgr)
+        if copy and job.chroma is None:
+            size = _header_size(path, data, camera)
+            bgr = None
+        else:
+            bgr = _decode(path, data, camera)
+            size = (bgr.shape[1], bgr.shape[0])
+        _check_size(camera, path, size[0], size[1], job)
+        yield (data if copy else None), bgr
 
 
 def _video_frames(job: _CameraJob) -> Iterator[tuple[None, np.ndarray]]:

@@ -126,6 +126,9 @@ def test_bad_images_and_offsets_are_refused_and_nothing_is_left(rig, tmp_path: P
         assemble_capture(rig, tmp_path / "x", images=images, workers=1)
     assert not (tmp_path / "x").exists()
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+    jpg.write_bytes(b"not an image at all")
+    with pytest.raises(CaptureError, match=r"img5.jpg: camera 'cam0': unreadable image"):
+        assemble_capture(rig, tmp_path / "x", images=images, workers=1)
     bad = tmp_path / "offsets.json"
     bad.write_text(json.dumps({"cam1": -2}))
     runner = CliRunner()
@@ -163,3 +166,4 @@ def test_version_2_keys_in_a_version_1_capture_are_refused(rig, tmp_path: Path) 
     (tmp_path / "c" / "capture.json").write_text(json.dumps(header))
     with pytest.raises(CaptureError, match=r"\['working_width_px'\] need capture.json 'version' 2"):
         read_capture(tmp_path / "c")
+

@@ -208,21 +208,29 @@ def _check_size(camera: str, where: Path, width: int, height: int, job: _CameraJ
                            f"calibration's {job.width}x{job.height}")
 
 
-def _check_file_end(path: Path, data: bytes, camera: str) -> None:
+HEAD_BYTES = 256 * 1024  # enough for a JPEG's or PNG's header with EXIF and ICC profile; longer ones are re-read
+TAIL_BYTES = 64
+
+
+def _check_file_end(path: Path, head: bytes, tail: bytes, camera: str) -> None:
     """Truncation shows at the end of the file: a JPEG ends with the EOI marker, a PNG with its IEND chunk."""
-    if data[:2] == b"\xff\xd8" and b"\xff\xd9" not in data[-64:]:
+    if head[:2] == b"\xff\xd8" and b"\xff\xd9" not in tail:
         raise CaptureError(f"{path}: camera {camera!r}: truncated JPEG (no end-of-image marker)")
-    if data[:8] == b"\x89PNG\r\n\x1a\n" and b"IEND" not in data[-12:]:
+    if head[:8] == b"\x89PNG\r\n\x1a\n" and b"IEND" not in tail[-12:]:
         raise CaptureError(f"{path}: camera {camera!r}: truncated PNG (no IEND chunk)")
 
 
-def _header_size(path: Path, data: bytes, camera: str) -> tuple[int, int]:
+def _header_size(path: Path, head: bytes, camera: str) -> tuple[int, int]:
     """(width, height) from the image header (PIL parses it without decoding the pixels)."""
-    try:
-        with Image.open(io.BytesIO(data)) as header:
-            return header.size
-    except (UnidentifiedImageError, OSError, ValueError) as exc:
-        raise CaptureError(f"{path}: camera {camera!r}: unreadable image ({exc.__class__.__name__}: {exc})") from None
+    for data in (head, None):
+        try:
+            with Image.open(io.BytesIO(data) if data is not None else path) as header:
+                return header.size
+        except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as exc:
+            if data is None or len(head) < HEAD_BYTES:  # the whole file was read: the header is bad
+                raise CaptureError(f"{path}: camera {camera!r}: unreadable image "
+                                   f"({exc.__class__.__name__}: {exc})") from None
+    raise AssertionError("unreachable")
 
 
 def _decode(path: Path, data: bytes, camera: str) -> np.ndarray:
@@ -232,29 +240,32 @@ def _decode(path: Path, data: bytes, camera: str) -> np.ndarray:
     return bgr
 
 
-def _image_frames(job: _CameraJob) -> Iterator[tuple[bytes | None, np.ndarray | None]]:
-    """Per frame: (the file's bytes when they can be stored as they are, else None; the decoded BGR image,
-    or None when only the bytes are needed).
+def _image_frames(job: _CameraJob) -> Iterator[tuple[Path | None, np.ndarray | None]]:
+    """Per frame: (the file to copy as it is, or None; the decoded BGR image, or None when only copied).
 
-    A file stored as it is gets the checks `handloop import` makes (header, size, end marker), not a decode:
-    decoding costs 5-10 times more, and OpenCV's decoder accepts corrupt scans with a warning anyway.
+    A file stored as it is gets the checks `handloop import` makes (header, size, end marker), reading
+    only its head and tail, and is copied by the kernel (shutil.copyfile): decoding would cost 5-10 times
+    more, and OpenCV's decoder accepts corrupt scans with a warning anyway.
     """
     camera = job.source.camera
     for i in range(job.num_frames):
         path = job.source.files[job.offset + i * job.every]
-        data = path.read_bytes()
-        if not data:
-            raise CaptureError(f"{path}: camera {camera!r}: empty file")
-        _check_file_end(path, data, camera)
-        copy = IMAGE_SUFFIXES[path.suffix.lower()] == job.image_format
-        if copy and job.chroma is None:
-            size = _header_size(path, data, camera)
+        copy = IMAGE_SUFFIXES[path.suffix.lower()] == job.image_format and job.chroma is None
+        with open(path, "rb") as f:
+            head = f.read(HEAD_BYTES) if copy else f.read()
+            if not head:
+                raise CaptureError(f"{path}: camera {camera!r}: empty file")
+            f.seek(max(0, f.seek(0, os.SEEK_END) - TAIL_BYTES))
+            tail = f.read()
+        _check_file_end(path, head, tail, camera)
+        if copy:
+            size = _header_size(path, head, camera)
             bgr = None
         else:
-            bgr = _decode(path, data, camera)
+            bgr = _decode(path, head, camera)
             size = (bgr.shape[1], bgr.shape[0])
         _check_size(camera, path, size[0], size[1], job)
-        yield (data if copy else None), bgr
+        yield (path if copy else None), bgr
 
 
 def _video_frames(job: _CameraJob) -> Iterator[tuple[None, np.ndarray]]:
@@ -283,10 +294,10 @@ def _run_camera(job: _CameraJob, progress: Any = None) -> None:
     """Write one camera's frames (in a worker process or inline); `progress` is a queue or a callable."""
     frames = _video_frames(job) if job.source.is_video else _image_frames(job)
     params = [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY] if job.image_format == "jpg" else PNG_PARAMS
-    for i, (data, bgr) in enumerate(frames):
+    for i, (source, bgr) in enumerate(frames):
         target = job.images_dir / f"{frame_name(i)}.{job.image_format}"
-        if data is not None:
-            target.write_bytes(data)
+        if source is not None:
+            shutil.copyfile(source, target)
         elif not cv2.imwrite(str(target), bgr, params):
             raise CaptureError(f"{target}: could not write the image")
         if job.chroma is not None:

@@ -139,3 +139,14 @@ def test_too_few_cameras_or_points() -> None:
     visible[7, 3:] = False  # cam7 sees only three keypoints
     report = check_keypoints(cameras, [px], [visible])
     assert report.flagged == [] and any("'cam7': only 3 usable keypoints" in n for n in report.notes)
+
+
+def test_pose_chained_to_another_camera_read_as_world_is_flagged(capture: Path) -> None:
+    cameras = default_rig(320)
+    base, cam = cameras[0], cameras[5]
+    R_rel = cam.R @ base.R.T  # cam5's pose in cam0's frame (multical-style), taken for a world pose
+    cameras[5] = replace(cam, R=R_rel, t=cam.t - R_rel @ base.t)
+    _recalibrate(capture, cameras)
+    report = check_capture(capture)
+    assert report.flagged == ["cam5"]
+    assert "camera 'cam5'" in report.cameras[5].reason

@@ -6,15 +6,16 @@ detector's keypoints otherwise; annotators' clicks take the same path through `c
   lies from the epipolar line of its partner in the other view;
 - per camera, the leave-one-out reprojection error (pixels): the keypoint triangulated from the OTHER
   cameras, projected into this one, against its own 2D keypoint.
-A camera whose median leave-one-out error is well above the others' (a swapped name, a stale or
-mis-converted extrinsic) is flagged. The prediction from the other cameras is the coordinate-wise median
-over every pair of them, so one bad camera (in a minority of the pairs) does not drag the good ones
-over the limit.
+The verdict: a camera's epipolar figure is the median, over its partners, of the pairs' median distance,
+so one bad partner is outvoted (a good camera has it in one of C - 1 pairs, a bad camera in all of
+them). A camera well above the others' lower quartile (a swapped name, a stale or mis-converted
+extrinsic) is flagged; with several bad cameras, the worst is set aside and the rest judged again
+without it, until the remaining cameras agree. The leave-one-out figure (the median over pairs of other
+cameras of each pair's median error) is reported beside it, in pixels of the camera's own image.
 """
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from itertools import combinations
@@ -25,10 +26,12 @@ import numpy as np
 
 from workers.geometry.camera import Camera
 
-FLAG_RATIO = 3.0  # flagged when the median error exceeds this multiple of the median over cameras
+FLAG_RATIO = 3.0  # flagged when the median error exceeds this multiple of the lower quartile over cameras
 FLAG_FLOOR_FRACTION = 0.003  # ... and this fraction of the image width (4 px on a 1280 px camera)
 FLAG_FLOOR_MIN_PX = 2.0
-MIN_POINTS = 6  # keypoints a camera needs to be judged
+MIN_POINTS = 6  # keypoints a camera needs (each also seen by two other cameras) to be judged ...
+MIN_PAIRS = 3  # ... and this many partner cameras,
+MIN_PAIR_POINTS = 3  # each pair's figure from at least this many keypoints
 DETECTOR_MIN_SCORE = 0.5
 
 
@@ -49,12 +52,12 @@ class PairFigure:
 
 @dataclass(frozen=True)
 class CameraFigure:
-    """One camera: leave-one-out reprojection (median, 90th percentile, pixels), its pairs' median
-    epipolar distance, the keypoints used, the threshold it was judged by, and the verdict."""
+    """One camera, pixels: the leave-one-out reprojection (the median over pairs of other cameras of each
+    pair's median error), the median over its partners of their pairs' median epipolar distance (what the
+    verdict is judged by), the keypoint observations used, the limit it was judged by, and the verdict."""
 
     name: str
     reprojection_px: float
-    reprojection_p90_px: float
     epipolar_px: float
     points: int
     threshold_px: float
@@ -77,8 +80,12 @@ class CheckReport:
         return [c.name for c in self.cameras if c.flagged]
 
     def to_dict(self) -> dict[str, Any]:
+        """Plain JSON types; figures that could not be computed (NaN) are None."""
+        def clean(row: dict[str, Any]) -> dict[str, Any]:
+            return {k: None if isinstance(v, float) and not np.isfinite(v) else v for k, v in row.items()}
+
         return {"source": self.source, "frames": self.frames, "flagged": self.flagged,
-                "cameras": [asdict(c) for c in self.cameras], "pairs": [asdict(p) for p in self.pairs],
+                "cameras": [clean(asdict(c)) for c in self.cameras], "pairs": [clean(asdict(p)) for p in self.pairs],
                 "notes": list(self.notes)}
 
 
@@ -106,30 +113,6 @@ def _pinhole(P: np.ndarray, X: np.ndarray) -> np.ndarray:
     return uv
 
 
-def _predicted_pixels(ideal: np.ndarray, ok: np.ndarray, P: np.ndarray, P_target: np.ndarray) -> np.ndarray:
-    """(N, 2) where the other views put each point in the target view: every pair of them triangulates it
-    (two-view DLT), the pairs' projections into the target are combined by a coordinate-wise median, so
-    one bad camera among the others (in a minority of pairs) does not move the prediction.
-
-    Args:
-        ideal: (V, N, 2) undistorted pixels of the other views; ok: (V, N) bool observed; P: (V, 3, 4);
-        P_target: (3, 4) of the target camera. NaN where no pair saw the point.
-    """
-    V, N = ok.shape
-    predictions = []
-    for a, b in combinations(range(V), 2):
-        both = ok[a] & ok[b]
-        uv = np.full((N, 2), np.nan)
-        if both.any():
-            rows = [ideal[v, both, i:i + 1] * P[v, 2] - P[v, i] for v in (a, b) for i in (0, 1)]
-            Xh = np.linalg.svd(np.stack(rows, axis=1))[2][:, -1]  # (n, 4)
-            uv[both] = _pinhole(P_target, Xh[:, :3] / Xh[:, 3:])
-        predictions.append(uv)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns: points no pair saw
-        return np.nanmedian(np.stack(predictions), axis=0)
-
-
 def _stat(values: list[np.ndarray], q: float) -> float:
     flat = np.concatenate(values) if values else np.zeros(0)
     flat = flat[np.isfinite(flat)]
@@ -155,12 +138,15 @@ def check_keypoints(cameras: list[Camera], keypoints_px: list[np.ndarray], visib
         raise CheckError(f"the check needs at least 3 cameras to tell which one disagrees, the rig has {C}")
     notes = list(notes or [])
     pair_d: dict[tuple[int, int], list[np.ndarray]] = {p: [] for p in combinations(range(C), 2)}
-    loo: list[list[np.ndarray]] = [[] for _ in range(C)]
+    # loo[c][(a, b)]: errors in camera c of the points pair (a, b) of other cameras triangulated
+    loo: list[dict[tuple[int, int], list[np.ndarray]]] = [{p: [] for p in pair_d if c not in p} for c in range(C)]
     F = {(a, b): _fundamental(cameras[a], cameras[b]) for a, b in pair_d}
     P = np.stack([cam.P for cam in cameras])
+    observed: list[np.ndarray] = []  # per frame (C, K) bool: the keypoints each camera has
     for kp, vis in zip(keypoints_px, visible, strict=True):
         kp = np.where(vis[..., None], np.asarray(kp, dtype=np.float64), np.nan)
         ok = np.isfinite(kp).all(axis=2)
+        observed.append(ok)
         ideal = np.full_like(kp, np.nan)
         for c, cam in enumerate(cameras):
             if ok[c].any():
@@ -171,33 +157,71 @@ def check_keypoints(cameras: list[Camera], keypoints_px: list[np.ndarray], visib
                 d1 = _line_distance(F_ab, ideal[a, both], ideal[b, both])
                 d2 = _line_distance(F_ab.T, ideal[b, both], ideal[a, both])
                 pair_d[(a, b)].append((d1 + d2) / 2)
-        for c in range(C):
-            others = np.array([o for o in range(C) if o != c])
-            use = ok[c] & (ok[others].sum(axis=0) >= 2)
-            if use.any():
-                predicted = _predicted_pixels(ideal[others][:, use], ok[others][:, use], P[others], P[c])
-                loo[c].append(np.linalg.norm(predicted - ideal[c, use], axis=1))
+        for a, b in pair_d:  # every pair triangulates what both see and predicts it in every other camera
+            both = ok[a] & ok[b]
+            if not both.any():
+                continue
+            rows = [ideal[v, both, i:i + 1] * P[v, 2] - P[v, i] for v in (a, b) for i in (0, 1)]
+            Xh = np.linalg.svd(np.stack(rows, axis=1))[2][:, -1]
+            X = Xh[:, :3] / Xh[:, 3:]
+            for c in range(C):
+                seen = ok[c, both]
+                if c not in (a, b) and seen.any():
+                    loo[c][(a, b)].append(np.linalg.norm(_pinhole(P[c], X[seen]) - ideal[c, both][seen], axis=1))
     pairs = [PairFigure(cameras[a].name, cameras[b].name, round(_stat(d, 0.5), 3), round(_stat(d, 0.9), 3),
                         int(sum(np.isfinite(x).sum() for x in d))) for (a, b), d in pair_d.items()]
-    medians = np.array([_stat(loo[c], 0.5) for c in range(C)])
-    judged = np.array([sum(np.isfinite(x).sum() for x in loo[c]) >= MIN_POINTS for c in range(C)])
-    typical = float(np.nanmedian(medians[judged])) if judged.any() else float("nan")
+    # Each pair of other cameras scores a camera by its median error over what the pair triangulated.
+    pair_score = [{p: _stat(errs, 0.5) for p, errs in loo[c].items()
+                   if sum(np.isfinite(e).sum() for e in errs) >= MIN_PAIR_POINTS} for c in range(C)]
+    epipolar = {(a, b): f.median_px for (a, b), f in zip(pair_d, pairs, strict=True) if f.points >= MIN_PAIR_POINTS}
+    floors = np.array([max(FLAG_FLOOR_MIN_PX, FLAG_FLOOR_FRACTION * cam.width) for cam in cameras])
+
+    def judge(trusted: set[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[int], float]:
+        """With only trusted cameras judging: per camera the median epipolar distance to its trusted
+        partners, whether it is judged, the leave-one-out figure, its observations, and the typical figure."""
+        epi = np.array([float(np.median(v)) if (v := [d for p, d in epipolar.items() if c in p
+                                                       and set(p) - {c} <= trusted]) else float("nan")
+                        for c in range(C)])
+        partners = [sum(1 for p in epipolar if c in p and set(p) - {c} <= trusted) for c in range(C)]
+        scores = [[v for p, v in pair_score[c].items() if set(p) <= trusted] for c in range(C)]
+        reproj = np.array([float(np.median(sc)) if sc else float("nan") for sc in scores])
+        rows = sorted(trusted)
+        counts = [int(sum((ok[c] & (ok[[o for o in rows if o != c]].sum(axis=0) >= 2)).sum() for ok in observed))
+                  for c in range(C)]
+        judged = np.array([partners[c] >= MIN_PAIRS and counts[c] >= MIN_POINTS for c in range(C)])
+        among = [c for c in trusted if judged[c]]
+        # the lower quartile: the good cameras' figure even when several cameras are bad
+        typical = float(np.quantile(epi[among], 0.25)) if among else float("nan")
+        return epi, judged, reproj, counts, typical
+
+    # A camera's epipolar figure is the median over its partners, so a bad partner is outvoted; with
+    # several bad cameras the worst is set aside and the others judged again without it, until the
+    # remaining cameras agree.
+    trusted = set(range(C))
+    flagged: list[int] = []
+    while True:
+        epi, judged, reproj, counts, typical = judge(trusted)
+        limits = np.maximum(floors, FLAG_RATIO * np.nan_to_num(typical))
+        over = [c for c in trusted if judged[c] and epi[c] > limits[c]]
+        if not over or len(trusted) <= 3:
+            break
+        worst = max(over, key=lambda c: epi[c] / limits[c])
+        trusted.discard(worst)
+        flagged.append(worst)
     figures = []
     for c, cam in enumerate(cameras):
-        count = int(sum(np.isfinite(x).sum() for x in loo[c]))
-        threshold = max(FLAG_FLOOR_MIN_PX, FLAG_FLOOR_FRACTION * cam.width, FLAG_RATIO * typical)
-        epi = [p.median_px for p in pairs if cam.name in (p.a, p.b) and np.isfinite(p.median_px)]
-        flagged = bool(judged[c] and medians[c] > threshold)
+        is_flagged = c in flagged or bool(judged[c] and epi[c] > limits[c])
         reason = ""
-        if flagged:
-            reason = (f"camera {cam.name!r}: keypoints triangulated from the other cameras land {medians[c]:.1f} px "
-                      f"(median) from its own, against {typical:.1f} px typical: its calibration disagrees with the "
-                      "others (stale or mis-converted extrinsics, a swapped name, or wrong intrinsics)")
+        if is_flagged:
+            reason = (f"camera {cam.name!r}: its keypoints lie {epi[c]:.1f} px (median) from the epipolar lines of "
+                      f"the other cameras' (typical {typical:.1f} px), and keypoints triangulated from the others "
+                      f"land {reproj[c]:.1f} px from its own: its calibration disagrees with the others (stale or "
+                      "mis-converted extrinsics, a swapped name, or wrong intrinsics)")
         elif not judged[c]:
-            notes.append(f"camera {cam.name!r}: only {count} usable keypoints, not judged (needs {MIN_POINTS})")
-        figures.append(CameraFigure(cam.name, round(float(medians[c]), 3), round(_stat(loo[c], 0.9), 3),
-                                    round(float(np.median(epi)), 3) if epi else float("nan"), count,
-                                    round(threshold, 3), flagged, reason))
+            notes.append(f"camera {cam.name!r}: only {counts[c]} usable keypoints (seen by two other cameras too), "
+                         f"not judged (needs {MIN_POINTS}, and {MIN_PAIRS} partners)")
+        figures.append(CameraFigure(cam.name, round(float(reproj[c]), 3), round(float(epi[c]), 3), counts[c],
+                                    round(float(limits[c]), 3), is_flagged, reason))
     return CheckReport(source=source, frames=len(keypoints_px), cameras=figures, pairs=pairs, notes=notes)
 
 
@@ -285,11 +309,10 @@ def check_capture(path: Path, *, source: str = "auto", sequence_id: str | None =
 def format_report(report: CheckReport) -> str:
     """The report as text: one line per camera, then the pairs, then the verdict."""
     lines = [f"calibration check from {report.source} keypoints, {report.frames} frames", "",
-             f"{'camera':<12} {'reproj med px':>13} {'p90 px':>8} {'epipolar px':>12} {'points':>7} "
-             f"{'limit px':>9}  verdict"]
+             f"{'camera':<12} {'epipolar px':>12} {'limit px':>9} {'reproj px':>10} {'points':>7}  verdict"]
     for c in report.cameras:
-        lines.append(f"{c.name:<12} {c.reprojection_px:>13.2f} {c.reprojection_p90_px:>8.2f} {c.epipolar_px:>12.2f} "
-                     f"{c.points:>7d} {c.threshold_px:>9.2f}  {'FLAGGED' if c.flagged else 'ok'}")
+        lines.append(f"{c.name:<12} {c.epipolar_px:>12.2f} {c.threshold_px:>9.2f} {c.reprojection_px:>10.2f} "
+                     f"{c.points:>7d}  {'FLAGGED' if c.flagged else 'ok'}")
     lines += ["", "pairs (median / p90 epipolar distance, px):"]
     lines += [f"  {p.a}-{p.b}: {p.median_px:.2f} / {p.p90_px:.2f} ({p.points} points)" for p in report.pairs]
     lines += [""] + [c.reason for c in report.cameras if c.flagged] + [f"note: {n}" for n in report.notes]

@@ -52,26 +52,36 @@ def write_anipose(cameras: list[Camera], path: Path, scale: float = 1.0, fisheye
     return path
 
 
+def _easymocap_file(path: Path, entries: list[tuple[str, object]]) -> None:
+    """EasyMocap's own FileStorage writer (easymocap/mytools/camera_utils.py): YAML text, matrices with ten
+    decimals, lists of quoted strings, reals."""
+    lines = ["%YAML:1.0", "---"]
+    for key, value in entries:
+        if isinstance(value, list):
+            lines.append(f"{key}:")
+            lines += [f'  - "{v}"' for v in value]
+        elif isinstance(value, np.ndarray):
+            lines += [f"{key}: !!opencv-matrix", f"  rows: {value.shape[0]}", f"  cols: {value.shape[1]}", "  dt: d",
+                      "  data: [{}]".format(", ".join(f"{v:.10f}" for v in value.reshape(-1)))]
+        else:
+            lines.append(f"{key}: {float(value):.10f}")
+    path.write_text("\r\n".join(lines) + "\r\n")
+
+
 def write_easymocap(cameras: list[Camera], folder: Path, drop_extri: str | None = None) -> Path:
-    """EasyMocap's write_intri / write_extri (cv2.FileStorage); `drop_extri` leaves one camera out of extri.yml."""
+    """EasyMocap's write_intri / write_extri; `drop_extri` leaves one camera out of extri.yml."""
     folder.mkdir(parents=True, exist_ok=True)
-    names = [c.name for c in cameras]
-    fs = cv2.FileStorage(str(folder / "intri.yml"), cv2.FILE_STORAGE_WRITE)
-    fs.write("names", names)
+    intri: list[tuple[str, object]] = [("names", [c.name for c in cameras])]
     for cam in cameras:
-        fs.write(f"K_{cam.name}", cam.K)
-        fs.write(f"dist_{cam.name}", cam.dist.reshape(1, 5))
-        fs.write(f"H_{cam.name}", cam.height)
-        fs.write(f"W_{cam.name}", cam.width)
-    fs.release()
-    fs = cv2.FileStorage(str(folder / "extri.yml"), cv2.FILE_STORAGE_WRITE)
+        intri += [(f"K_{cam.name}", cam.K), (f"dist_{cam.name}", cam.dist.reshape(1, 5)),
+                  (f"H_{cam.name}", cam.height), (f"W_{cam.name}", cam.width)]
     kept = [c for c in cameras if c.name != drop_extri]
-    fs.write("names", [c.name for c in kept])
+    extri: list[tuple[str, object]] = [("names", [c.name for c in kept])]
     for cam in kept:
-        fs.write(f"R_{cam.name}", _rvec(cam.R).reshape(3, 1))
-        fs.write(f"Rot_{cam.name}", cam.R)
-        fs.write(f"T_{cam.name}", cam.t.reshape(3, 1))
-    fs.release()
+        extri += [(f"R_{cam.name}", _rvec(cam.R).reshape(3, 1)), (f"Rot_{cam.name}", cam.R),
+                  (f"T_{cam.name}", cam.t.reshape(3, 1))]
+    _easymocap_file(folder / "intri.yml", intri)
+    _easymocap_file(folder / "extri.yml", extri)
     return folder
 
 

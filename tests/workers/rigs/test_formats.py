@@ -82,6 +82,12 @@ def test_multical_chained_poses_are_composed_to_the_base_camera(tmp_path: Path) 
     assert any("base camera 'cam0'" in note for note in conversion.notes)
 
 
+def test_easymocap_names_that_look_like_numbers(tmp_path: Path) -> None:
+    cameras = [replace(c, name=f"{i + 1:02d}") for i, c in enumerate(default_rig(None))]
+    folder = rig_files.write_easymocap(cameras, tmp_path / "easymocap")
+    _assert_same(convert("easymocap", folder).cameras, cameras)
+
+
 def test_colmap_simple_models_and_pixel_origin(tmp_path: Path) -> None:
     cameras = [replace(c, dist=np.array([c.dist[0], c.dist[1], 0.0, 0.0, 0.0])) for c in default_rig(None)]
     folder = rig_files.write_colmap(cameras, tmp_path / "sparse", model="OPENCV")
@@ -195,6 +201,13 @@ def test_malformed_files_name_the_file(tmp_path: Path) -> None:
         convert("easymocap", tmp_path / "nowhere")
     with pytest.raises(FormatError, match=r"unknown calibration format 'bogus'"):
         convert("bogus", bad)
+    good = rig_files.write_anipose(default_rig(None), tmp_path / "good.toml")
+    good.write_text(good.read_text().replace("distortions = [", "distortions = 5\nx = [", 1))
+    with pytest.raises(FormatError, match=r"camera 'cam0': field 'dist' has 1 coefficients"):
+        convert("anipose", good)
+    good.write_text(good.read_text().replace("distortions = 5", 'distortions = "none"', 1))
+    with pytest.raises(FormatError, match=r"camera 'cam0': field 'distortions' is not a list of numbers"):
+        convert("anipose", good)
 
 
 def test_non_finite_numbers_are_refused(tmp_path: Path) -> None:

@@ -13,7 +13,7 @@ from __future__ import annotations
 import tomllib
 from pathlib import Path
 
-from workers.rigs.formats.common import FormatError, RawCamera, as_matrix, rodrigues
+from workers.rigs.formats.common import FormatError, RawCamera, as_matrix, as_vector, rodrigues
 
 DEFAULT_UNIT = "m"
 _KEYS = ("name", "size", "matrix", "distortions", "rotation", "translation")
@@ -41,7 +41,7 @@ def read(path: Path) -> tuple[list[RawCamera], list[str]]:
         fisheye = bool(table.get("fisheye", False))
         raws.append(RawCamera(
             name=name, K=as_matrix(table["matrix"], (3, 3), where, "matrix"),
-            dist=as_matrix(table["distortions"], (len(table["distortions"]),), where, "distortions"),
+            dist=as_vector(table["distortions"], where, "distortions"),
             R=rodrigues(as_matrix(table["rotation"], (3,), where, "rotation")),
             t=as_matrix(table["translation"], (3,), where, "translation"),
             width=width, height=height, model="fisheye" if fisheye else "opencv", supported=not fisheye))

@@ -83,6 +83,17 @@ def as_matrix(value: object, shape: tuple[int, ...], where: str, field_name: str
     return array
 
 
+def as_vector(value: object, where: str, field_name: str) -> np.ndarray:
+    """`value` as a flat float64 array of any length; FormatError for non-numbers and non-finite values."""
+    try:
+        array = np.asarray(value, dtype=np.float64).ravel()
+    except (TypeError, ValueError):
+        raise FormatError(f"{where}: field '{field_name}' is not a list of numbers") from None
+    if not np.all(np.isfinite(array)):
+        raise FormatError(f"{where}: field '{field_name}' contains non-finite numbers")
+    return array
+
+
 def rodrigues(rvec: np.ndarray) -> np.ndarray:
     """(3, 3) rotation matrix of a (3,) Rodrigues (axis times angle, radians) vector."""
     import cv2

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from workers.rigs.formats import jsonfile
-from workers.rigs.formats.common import FormatError, RawCamera, as_matrix
+from workers.rigs.formats.common import FormatError, RawCamera, as_matrix, as_vector
 
 DEFAULT_UNIT = "m"
 _SUPPORTED_MODELS = ("standard",)
@@ -75,7 +75,7 @@ def read(path: Path) -> tuple[list[RawCamera], list[str]]:
                 raise FormatError(f"{where}: missing field {key!r}")
         model = str(cam.get("model", "standard"))
         width, height = (int(v) for v in as_matrix(cam["image_size"], (2,), where, "image_size"))
-        dist = np.asarray(cam["dist"], dtype=np.float64).ravel()
+        dist = as_vector(cam["dist"], where, "dist")
         R, T = world_pose(name)
         raws.append(RawCamera(name=name, K=as_matrix(cam["K"], (3, 3), where, "K"), dist=dist, R=R, t=T,
                               width=width, height=height, model=model, supported=model in _SUPPORTED_MODELS))

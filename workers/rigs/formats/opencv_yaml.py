@@ -56,7 +56,9 @@ class Storage:
             return None
         if not node.isSeq():
             raise FormatError(f"{self.path}: field '{key}' is not a list")
-        return [node.at(i).string() or str(int(node.at(i).real())) for i in range(node.size())]
+        # Unquoted numeric names ("- 01") read as numbers; OpenCV 3.4 writers pad lists with "none" entries.
+        values = [node.at(i).string() or str(int(node.at(i).real())) for i in range(node.size())]
+        return [v for v in values if v != "none"]
 
     def close(self) -> None:
         self._fs.release()

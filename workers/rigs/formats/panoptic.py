@@ -12,7 +12,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from workers.rigs.formats import jsonfile
-from workers.rigs.formats.common import FormatError, RawCamera, as_matrix
+from workers.rigs.formats.common import FormatError, RawCamera, as_matrix, as_vector
 
 DEFAULT_UNIT = "cm"
 _KEYS = ("name", "resolution", "K", "distCoef", "R", "t")
@@ -36,7 +36,7 @@ def read(path: Path, camera_type: str | None = None) -> tuple[list[RawCamera], l
         name = str(cam["name"])
         where = f"{path}: camera {name!r}"
         width, height = (int(v) for v in as_matrix(cam["resolution"], (2,), where, "resolution"))
-        dist = as_matrix(cam["distCoef"], (len(cam["distCoef"]),), where, "distCoef")
+        dist = as_vector(cam["distCoef"], where, "distCoef")
         raws.append(RawCamera(name=name, K=as_matrix(cam["K"], (3, 3), where, "K"), dist=dist,
                               R=as_matrix(cam["R"], (3, 3), where, "R"), t=as_matrix(cam["t"], (3,), where, "t"),
                               width=width, height=height))

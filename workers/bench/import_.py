@@ -2,7 +2,8 @@
 2048x1536 JPEGs, then `handloop import` (reader checks, rows, copies into storage).
 
 Full run: 8 cameras x 100 frames; --quick: 8 cameras x 24 frames. The source JPEGs are generated first
-(textured, shifted per frame, quality 90; not timed) in a temporary folder removed afterwards.
+(textured, shifted per frame, quality 90; not timed) in a temporary folder removed afterwards. With
+`videos`, the sources are one MJPG .avi per camera instead: every frame is decoded and re-encoded.
 Memory: the proportional set size (PSS) of this process and all its descendants (worker processes
 included), sampled every 100 ms from /proc; `memory_vs_frames` is the peak reached by the time 25 / 50 /
 75 / 100 % of the frames were assembled (flat when memory does not grow with the number of frames).
@@ -129,7 +130,33 @@ def write_sources(folder: Path, cameras: list[Any], frames: int, progress: Any =
         return sum(pool.map(one, [(c, i) for c in range(len(cameras)) for i in range(frames)]))
 
 
-def run(*, quick: bool = False, workers: int = 0, emit_json: bool = True) -> dict[str, Any]:
+def write_videos(folder: Path, cameras: list[Any], frames: int, progress: Any = None) -> int:
+    """Per camera an MJPG .avi of `frames` textured frames (OpenCV's own codec, no FFmpeg needed to read it
+    back); returns the bytes written."""
+    import cv2
+
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(0)
+    base = cv2.resize(rng.integers(0, 256, (HEIGHT // 16, WIDTH // 16, 3), dtype=np.uint8), (WIDTH, HEIGHT),
+                      interpolation=cv2.INTER_CUBIC)
+
+    def one(c: int) -> int:
+        path = folder / f"{cameras[c].name}.avi"
+        writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, (WIDTH, HEIGHT))
+        if not writer.isOpened():
+            raise RuntimeError("OpenCV cannot write MJPG videos here")
+        for i in range(frames):
+            writer.write(np.roll(base, (7 * i + 50 * c, 11 * i), axis=(0, 1)))
+            if progress is not None:
+                progress(1)
+        writer.release()
+        return path.stat().st_size
+
+    with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+        return sum(pool.map(one, range(len(cameras))))
+
+
+def run(*, quick: bool = False, workers: int = 0, videos: bool = False, emit_json: bool = True) -> dict[str, Any]:
     """Run the benchmark and return its record (printed as the last stdout line when `emit_json`)."""
     from tqdm import tqdm
 
@@ -146,7 +173,8 @@ def run(*, quick: bool = False, workers: int = 0, emit_json: bool = True) -> dic
     with tempfile.TemporaryDirectory(prefix="handloop-bench-import-") as tmp_dir:
         tmp = Path(tmp_dir)
         with tqdm(total=num_cameras * frames, unit="image", desc="bench import: sources", file=sys.stderr) as bar:
-            source_bytes = write_sources(tmp / "sources", cameras, frames, bar.update)
+            write = write_videos if videos else write_sources
+            source_bytes = write(tmp / "sources", cameras, frames, bar.update)
 
         checkpoints = [round(frames * num_cameras * q) for q in (0.25, 0.5, 0.75, 1.0)]
         memory_vs_frames: list[dict[str, Any]] = []
@@ -162,7 +190,8 @@ def run(*, quick: bool = False, workers: int = 0, emit_json: bool = True) -> dic
                                              "peak_pss_mb": round(memory.peak / 2**20, 1)})
 
             t0 = time.perf_counter()
-            assemble_capture(cameras, tmp / "capture", images=tmp / "sources", workers=workers, progress=progress)
+            source = {"videos": tmp / "sources"} if videos else {"images": tmp / "sources"}
+            assemble_capture(cameras, tmp / "capture", **source, workers=workers, progress=progress)
             assemble_s = time.perf_counter() - t0
             assemble_peak = memory.peak
 
@@ -199,6 +228,7 @@ def run(*, quick: bool = False, workers: int = 0, emit_json: bool = True) -> dic
         "target_frames_per_s": 10.0,
         "load_average": {"before": [round(v, 2) for v in load_before], "after": [round(v, 2) for v in load_after]},
     }
-    settings = {"quick": quick, "workers": workers or min(num_cameras, os.cpu_count() or 1),
+    settings = {"quick": quick, "source": "mjpg videos" if videos else "jpeg folders",
+                "workers": workers or min(num_cameras, os.cpu_count() or 1),
                 "source_jpeg_quality": SOURCE_JPEG_QUALITY}
     return emit("import", record, settings, started) if emit_json else record

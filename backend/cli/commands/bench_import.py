@@ -11,11 +11,13 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         json_out: bool = typer.Option(False, "--json", help="Print the JSON record as the last stdout line."),
         quick: bool = typer.Option(False, "--quick", help="Reduced run: 24 frames instead of 100."),
         workers: int = typer.Option(0, min=0, max=256, help="Assembly processes (0 = one per CPU core)."),
+        videos: bool = typer.Option(False, "--videos", help="Sources as one MJPG video per camera (decoded and "
+                                                            "re-encoded) instead of JPEG folders (copied)."),
     ) -> None:
         """Time `capture assemble` + `import` of real-sized JPEGs (frames/s, peak memory, memory vs frames)."""
         from workers.bench.import_ import run
 
-        record = run(quick=quick, workers=workers, emit_json=json_out)
+        record = run(quick=quick, workers=workers, videos=videos, emit_json=json_out)
         if not json_out:
             typer.echo(f"{record['end_to_end_frames_per_s']:.2f} eight-view frames/s end to end (assemble "
                        f"{record['assemble_frames_per_s']:.2f}, import {record['import_frames_per_s']:.2f}); peak "

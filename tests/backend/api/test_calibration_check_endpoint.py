@@ -47,10 +47,9 @@ def _annotate_from_ground_truth(env, capture) -> None:
         assert response.status_code == 201, response.text
 
 
-def test_check_from_clicks_flags_the_turned_camera(sqlite_env, tmp_path: Path) -> None:
+def test_check_from_clicks_flags_the_turned_camera(env, tmp_path: Path) -> None:
     from backend.models.capture import CameraCalibration
 
-    env = sqlite_env
     project_id, capture = _import(env, tmp_path)
     url = f"/api/admin/projects/{project_id}/calibration-check"
     before = env.client.get(url, headers=env.headers(Role.admin))

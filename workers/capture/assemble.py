@@ -5,8 +5,9 @@ synchronised by frame index plus a per-camera offset (source frame = offset + i 
 frame i) and streamed: each camera is read by one worker process that holds one frame at a time, so
 memory does not grow with the number of frames. Images stay at full resolution: JPEG and PNG files of
 the right size are copied byte for byte after the checks `handloop import` makes (header, size, end
-marker); video frames are encoded as JPEG. The capture is written into a hidden temporary folder
-beside `out`, validated with the reader, and renamed into place: a failure leaves nothing behind.
+marker); MJPEG video frames are stored as the JPEGs they are, other videos' frames are encoded as
+JPEG. The capture is written into a hidden temporary folder beside `out`, validated with the reader,
+and renamed into place: a failure leaves nothing behind.
 """
 
 from __future__ import annotations
@@ -268,8 +269,32 @@ def _image_frames(job: _CameraJob) -> Iterator[tuple[Path | None, np.ndarray | N
         yield (path if copy else None), bgr
 
 
-def _video_frames(job: _CameraJob) -> Iterator[tuple[None, np.ndarray]]:
-    cap = cv2.VideoCapture(str(job.source.path))
+def _mjpeg_packets(job: _CameraJob) -> cv2.VideoCapture | None:
+    """A capture returning an MJPEG video's packets undecoded, when they are standalone JPEGs of the right
+    size (they are what a decode and re-encode would only approximate, at a fraction of the cost); else None."""
+    if job.chroma is not None or job.image_format != "jpg":
+        return None
+    cap = cv2.VideoCapture(str(job.source.path), cv2.CAP_FFMPEG)
+    fourcc = int(cap.get(cv2.CAP_PROP_FOURCC)).to_bytes(4, "little") if cap.isOpened() else b""
+    if fourcc.upper() not in (b"MJPG", b"AVRN", b"MJPA") or not cap.set(cv2.CAP_PROP_FORMAT, -1):
+        cap.release()
+        return None
+    ok, packet = cap.read()
+    data = packet.tobytes() if ok and packet is not None else b""
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR) if data[:2] == b"\xff\xd8" else None
+    cap.release()
+    if image is None or image.shape[:2] != (job.height, job.width):
+        return None  # e.g. AVI1 packets without Huffman tables: decode and re-encode instead
+    cap = cv2.VideoCapture(str(job.source.path), cv2.CAP_FFMPEG)
+    cap.set(cv2.CAP_PROP_FORMAT, -1)
+    return cap
+
+
+def _video_frames(job: _CameraJob) -> Iterator[tuple[bytes | None, np.ndarray | None]]:
+    """Per output frame (JPEG bytes to store as they are, or None; the decoded BGR frame, or None)."""
+    packets = _mjpeg_packets(job)
+    cap = packets or cv2.VideoCapture(str(job.source.path))
+    where = f"{job.source.path}: camera {job.source.camera!r}"
     try:
         position = 0
         for i in range(job.num_frames):
@@ -278,14 +303,21 @@ def _video_frames(job: _CameraJob) -> Iterator[tuple[None, np.ndarray]]:
                 if not cap.grab():
                     break
                 position += 1
-            ok, bgr = cap.read()
+            ok, frame = cap.read()
             position += 1
-            if not ok or bgr is None:
-                raise CaptureError(f"{job.source.path}: camera {job.source.camera!r}: the video ends at frame "
-                                   f"{position - 1}, before source frame {target} (output frame {i}); its "
-                                   f"header claimed {job.source.count} frames")
-            _check_size(job.source.camera, job.source.path, bgr.shape[1], bgr.shape[0], job)
-            yield None, bgr
+            if not ok or frame is None or frame.size == 0:
+                raise CaptureError(f"{where}: the video ends at frame {position - 1}, before source frame {target} "
+                                   f"(output frame {i}); its header claimed {job.source.count} frames")
+            if packets is None:
+                _check_size(job.source.camera, job.source.path, frame.shape[1], frame.shape[0], job)
+                yield None, frame
+                continue
+            data = frame.tobytes()
+            if data[:2] != b"\xff\xd8" or b"\xff\xd9" not in data[-TAIL_BYTES:]:
+                raise CaptureError(f"{where}: frame {target} is not a complete JPEG (truncated or corrupt video)")
+            size = _header_size(job.source.path, data[:HEAD_BYTES], job.source.camera)
+            _check_size(job.source.camera, job.source.path, size[0], size[1], job)
+            yield data, None
     finally:
         cap.release()
 
@@ -296,7 +328,9 @@ def _run_camera(job: _CameraJob, progress: Any = None) -> None:
     params = [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY] if job.image_format == "jpg" else PNG_PARAMS
     for i, (source, bgr) in enumerate(frames):
         target = job.images_dir / f"{frame_name(i)}.{job.image_format}"
-        if source is not None:
+        if isinstance(source, bytes):
+            target.write_bytes(source)
+        elif source is not None:
             shutil.copyfile(source, target)
         elif not cv2.imwrite(str(target), bgr, params):
             raise CaptureError(f"{target}: could not write the image")

@@ -167,3 +167,37 @@ def test_version_2_keys_in_a_version_1_capture_are_refused(rig, tmp_path: Path) 
     with pytest.raises(CaptureError, match=r"\['working_width_px'\] need capture.json 'version' 2"):
         read_capture(tmp_path / "c")
 
+
+
+def test_mjpeg_frames_are_stored_as_the_jpegs_in_the_video(rig, tmp_path: Path) -> None:
+    videos, _ = _write_sources(tmp_path, rig, {})
+    assemble_capture(rig, tmp_path / "m", videos=videos, every=2, workers=1)
+    frames = read_capture(tmp_path / "m").sequences[0].frames
+    for cam in ("cam0", "cam3"):
+        stored = frames[2].image_paths[cam].read_bytes()
+        assert stored[:2] == b"\xff\xd8" and stored in (videos / f"{cam}.avi").read_bytes()  # not re-encoded
+
+
+def test_other_codecs_are_decoded_and_a_cut_video_is_refused(rig, tmp_path: Path) -> None:
+    videos = tmp_path / "videos"
+    videos.mkdir()
+    for k, cam in enumerate(rig):
+        writer = cv2.VideoWriter(str(videos / f"{cam.name}.avi"), cv2.VideoWriter_fourcc(*"FFV1"), 30.0,
+                                 (cam.width, cam.height))
+        if not writer.isOpened():
+            pytest.skip("this OpenCV build cannot write FFV1")
+        for i in range(4):
+            writer.write(cv2.cvtColor(_frame(k, i, cam.height, cam.width), cv2.COLOR_RGB2BGR))
+        writer.release()
+    assemble_capture(rig, tmp_path / "f", videos=videos, workers=1)
+    cap = read_capture(tmp_path / "f")
+    image = load_frame_images(cap.sequences[0].frames[3], cap.cameras)["cam1"]
+    assert np.abs(image.astype(int) - _frame(1, 3, rig[1].height, rig[1].width)).mean() < 2.0  # lossless + q92
+
+    (tmp_path / "cut").mkdir()
+    mjpeg, _ = _write_sources(tmp_path / "cut", rig, {})
+    data = (mjpeg / "cam2.avi").read_bytes()
+    (mjpeg / "cam2.avi").write_bytes(data[: len(data) * 2 // 3])  # the header still counts every frame
+    with pytest.raises(CaptureError, match=r"cam2.avi: camera 'cam2': (the video ends|frame \d+ is not a complete)"):
+        assemble_capture(rig, tmp_path / "x", videos=mjpeg, workers=1)
+    assert not (tmp_path / "x").exists()

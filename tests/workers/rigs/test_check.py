@@ -150,3 +150,38 @@ def test_pose_chained_to_another_camera_read_as_world_is_flagged(capture: Path) 
     report = check_capture(capture)
     assert report.flagged == ["cam5"]
     assert "camera 'cam5'" in report.cameras[5].reason
+
+
+def test_detector_keypoints_go_through_the_same_check(capture: Path, monkeypatch) -> None:
+    """The detector path, with workers.detector.pipeline replaced by one that returns the ground truth's
+    keypoints as its views (the interface of workers/detector/types.py)."""
+    import sys
+    import types
+
+    from workers.capture import load_ground_truth, read_capture
+    from workers.detector.types import LiftedKeypoints, ViewKeypoints
+
+    frames = list(read_capture(capture).sequences[0].frames)
+    calls = []
+
+    def detect_frame(images, cameras, masks=None, *, handedness="right"):
+        gt = load_ground_truth(frames[len(calls)])
+        calls.append((len(images), len(cameras), masks, handedness))
+        views = tuple(ViewKeypoints(gt.keypoints_2d[c], np.where(gt.visibility[c], 0.9, 0.1), 0.99, handedness,
+                                    np.zeros(4), 0.0) for c in range(len(cameras)))
+        return LiftedKeypoints(gt.keypoints_3d, np.ones(21), np.ones((21, len(cameras)), bool), np.zeros(21), views)
+
+    fake = types.ModuleType("workers.detector.pipeline")
+    fake.detect_frame = detect_frame
+    fake.detector_status = lambda: None
+    monkeypatch.setitem(sys.modules, "workers.detector.pipeline", fake)
+    import workers.detector
+
+    monkeypatch.setattr(workers.detector, "pipeline", fake, raising=False)
+    cameras = default_rig(320)
+    cameras[2] = _rotated(cameras[2], 2.0)
+    _recalibrate(capture, cameras)
+    report = check_capture(capture, source="detector")
+    assert report.source == "detector" and report.frames == FRAMES and report.flagged == ["cam2"]
+    assert calls[0] == (8, 8, None, "right") and len(calls) == FRAMES
+    assert check_capture(capture).source == "ground-truth"  # auto prefers ground truth

@@ -66,3 +66,12 @@ def test_a_wrong_way_import_fails_with_the_modules_named(tree_copy: Path, import
     assert result.returncode != 0
     assert contract in result.stdout and "BROKEN" in result.stdout, result.stdout
     assert named in result.stdout, result.stdout
+
+
+def test_every_package_of_workers_but_the_job_layer_is_in_the_core_contract() -> None:
+    import tomllib
+
+    contracts = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]["contracts"]
+    core = next(c for c in contracts if c["id"] == "core")
+    packages = {f"workers.{p.name}" for p in (ROOT / "workers").iterdir() if (p / "__init__.py").is_file()}
+    assert packages - {"workers.tasks"} == set(core["source_modules"]), "a new package of workers/ takes a side"

@@ -9,6 +9,7 @@ from backend.api.routes import (
     annotate,
     annotation_set,
     auth,
+    calibration,
     dashboard,
     exports,
     files,
@@ -27,5 +28,5 @@ api_router = APIRouter(prefix="/api")
 # The service's own resources, then the admin's choice of what people annotate (e.g. D_0), then the routes the
 # browser UI needs (prefetch, overlays, 3D scenes, activity timing, dashboard).
 for module in (health, auth, users, annotate, review, files, rounds, jobs, exports, imports, annotation_set,
-               prefetch, overlays, viewer, activity, dashboard):
+               prefetch, overlays, viewer, activity, dashboard, calibration):
     api_router.include_router(module.router)

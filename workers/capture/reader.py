@@ -44,6 +44,8 @@ from workers.capture.schema import (
     SUBJECT_KEYS_OPTIONAL,
     SUBJECT_KEYS_REQUIRED,
     SUBJECTS_FILE,
+    VERSION_2_CAPTURE_KEYS,
+    VERSION_2_SEQUENCE_KEYS,
     Capture,
     CaptureError,
     FrameRef,
@@ -127,6 +129,7 @@ def _read_header(root: Path) -> tuple[str, bool, HandModelInfo]:
         _typed(data, "description", str, where)
     if "generator" in data:
         _typed(data, "generator", dict, where)
+    _check_version_2_keys(data, VERSION_2_CAPTURE_KEYS, version, where)
     model_where = f"{where}: hand_model"
     model = _check_keys(data["hand_model"], HAND_MODEL_KEYS_REQUIRED, HAND_MODEL_KEYS_OPTIONAL, model_where)
     side = _typed(model, "side", str, model_where)
@@ -145,6 +148,36 @@ def _read_header(root: Path) -> tuple[str, bool, HandModelInfo]:
         source_note=_typed(model, "source_note", str, model_where) if "source_note" in model else "",
     )
     return name, synthetic, info
+
+
+def _check_version_2_keys(data: dict[str, Any], keys: frozenset[str], version: int, where: str) -> None:
+    present = sorted(keys & set(data))
+    if present and version < 2:
+        raise CaptureError(f"{where}: field(s) {present} need capture.json 'version' 2, the file says {version}")
+
+
+def _read_working_width(root: Path) -> int | None:
+    """capture.json's optional 'working_width_px' (version 2), checked against nothing but its range."""
+    path = root / CAPTURE_FILE
+    data = _load_json(path)
+    if "working_width_px" not in data:
+        return None
+    width = _typed(data, "working_width_px", int, str(path))
+    if not 16 <= width <= 100_000:
+        raise CaptureError(f"{path}: field 'working_width_px' must be in 16..100000, got {width}")
+    return width
+
+
+def _read_chroma_key(data: dict[str, Any], version: int, where: str) -> dict[str, Any] | None:
+    _check_version_2_keys(data, VERSION_2_SEQUENCE_KEYS, version, where)
+    if "chroma_key" not in data:
+        return None
+    from workers.capture.chroma import ChromaKey
+
+    try:
+        return ChromaKey.from_dict(data["chroma_key"]).to_dict()
+    except (TypeError, ValueError) as exc:
+        raise CaptureError(f"{where}: field 'chroma_key': {exc}") from None
 
 
 def _read_calibration(root: Path) -> tuple[Camera, ...]:
@@ -235,7 +268,7 @@ def _frame_files(folder: Path, ext: str, num_frames: int, what: str) -> list[Pat
 
 
 def _read_sequence(seq_dir: Path, cameras: tuple[Camera, ...], subjects: dict[str, Subject],
-                   check_images: bool) -> Sequence:
+                   check_images: bool, version: int = 1) -> Sequence:
     path = seq_dir / SEQUENCE_FILE
     where = str(path)
     data = _check_keys(_load_json(path), SEQUENCE_KEYS_REQUIRED, SEQUENCE_KEYS_OPTIONAL, where)
@@ -266,6 +299,7 @@ def _read_sequence(seq_dir: Path, cameras: tuple[Camera, ...], subjects: dict[st
     for key in ("background", "notes"):
         if key in data:
             _typed(data, key, str, where)
+    chroma_key = _read_chroma_key(data, version, where)
 
     allowed = {IMAGES_DIR, MASKS_DIR, GROUND_TRUTH_DIR, SEQUENCE_FILE}
     unknown = sorted(p.name for p in _visible_entries(seq_dir) if p.name not in allowed)
@@ -319,7 +353,7 @@ def _read_sequence(seq_dir: Path, cameras: tuple[Camera, ...], subjects: dict[st
     )
     return Sequence(id=seq_id, subject_id=subject, split=split, green_screen=green_screen, fps=fps,
                     holds_object=holds_object, frames=frames, object_kind=object_kind,
-                    background=data.get("background", ""), image_format=image_format)
+                    background=data.get("background", ""), image_format=image_format, chroma_key=chroma_key)
 
 
 def read_capture(path: Path | str, *, check_images: bool = True) -> Capture:
@@ -338,6 +372,8 @@ def read_capture(path: Path | str, *, check_images: bool = True) -> Capture:
     if not root.is_dir():
         raise CaptureError(f"{root}: capture folder not found")
     name, synthetic, hand_model = _read_header(root)
+    version = int(_load_json(root / CAPTURE_FILE)["version"])
+    working_width_px = _read_working_width(root)
     cameras = _read_calibration(root)
     subjects = _read_subjects(root)
     seq_root = root / SEQUENCES_DIR
@@ -347,9 +383,9 @@ def read_capture(path: Path | str, *, check_images: bool = True) -> Capture:
     for seq_dir in _visible_entries(seq_root):
         if not seq_dir.is_dir():
             raise CaptureError(f"{seq_dir}: unexpected file in {SEQUENCES_DIR}/ (expected sequence folders)")
-        sequences.append(_read_sequence(seq_dir, cameras, subjects, check_images))
+        sequences.append(_read_sequence(seq_dir, cameras, subjects, check_images, version=version))
     return Capture(root=root, name=name, cameras=cameras, subjects=subjects, sequences=tuple(sequences),
-                   hand_model=hand_model, synthetic=synthetic)
+                   hand_model=hand_model, synthetic=synthetic, working_width_px=working_width_px)
 
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"

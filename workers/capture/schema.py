@@ -9,13 +9,17 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from workers.geometry.camera import Camera
 
 FORMAT_NAME = "handloop-capture"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+# Keys added in version 2 (bring-your-own-rig captures); version-1 files must not carry them.
+VERSION_2_CAPTURE_KEYS = frozenset({"working_width_px"})
+VERSION_2_SEQUENCE_KEYS = frozenset({"chroma_key"})
 
 CAPTURE_FILE = "capture.json"
 CALIBRATION_FILE = "calibration.json"
@@ -32,14 +36,14 @@ SPLITS = ("train", "evaluation")
 
 # JSON keys: required and optional per file. Anything else is an error (catches typos early).
 CAPTURE_KEYS_REQUIRED = frozenset({"format", "version", "name", "synthetic", "hand_model"})
-CAPTURE_KEYS_OPTIONAL = frozenset({"description", "generator"})
+CAPTURE_KEYS_OPTIONAL = frozenset({"description", "generator"}) | VERSION_2_CAPTURE_KEYS
 HAND_MODEL_KEYS_REQUIRED = frozenset({"name", "is_mano", "side"})
 HAND_MODEL_KEYS_OPTIONAL = frozenset({"num_vertices", "source_note"})
 SUBJECT_KEYS_REQUIRED = frozenset({"id"})
 SUBJECT_KEYS_OPTIONAL = frozenset({"betas", "skin_tone", "sex", "notes"})
 SEQUENCE_KEYS_REQUIRED = frozenset({"id", "subject", "split", "green_screen", "fps", "num_frames",
                                     "holds_object", "image_format"})
-SEQUENCE_KEYS_OPTIONAL = frozenset({"object", "background", "notes"})
+SEQUENCE_KEYS_OPTIONAL = frozenset({"object", "background", "notes"}) | VERSION_2_SEQUENCE_KEYS
 
 # Arrays of a ground-truth file: name -> (shape with -1 for V and C, dtype kind).
 GT_ARRAYS: dict[str, tuple[tuple[int, ...], str]] = {
@@ -142,6 +146,8 @@ class Sequence:
         object_kind: what is held (free text, e.g. "cylinder"), or None.
         background: free-text description of the background, e.g. "green screen", "photo:brick".
         image_format: "jpg" or "png".
+        chroma_key: the keyer settings the masks were made with (workers.capture.chroma.ChromaKey as a
+            dict; version 2), or None.
     """
 
     id: str
@@ -154,6 +160,7 @@ class Sequence:
     object_kind: str | None = None
     background: str = ""
     image_format: str = "jpg"
+    chroma_key: dict[str, Any] | None = None
 
     @property
     def has_masks(self) -> bool:
@@ -176,6 +183,8 @@ class Capture:
         sequences: the sequences sorted by id.
         hand_model: the hand model the ground truth refers to (real captures: the one to fit).
         synthetic: True for captures written by `handloop synth`.
+        working_width_px: the image width networks and thumbnails derive their inputs at (images stay at
+            full resolution; version 2), or None: use the images as they are.
     """
 
     root: Path
@@ -185,6 +194,7 @@ class Capture:
     sequences: tuple[Sequence, ...]
     hand_model: HandModelInfo
     synthetic: bool
+    working_width_px: int | None = None
 
     @property
     def camera_names(self) -> tuple[str, ...]:

@@ -45,16 +45,23 @@ def _write_json(path: Path, data: dict[str, Any]) -> None:
 
 def write_capture_header(root: Path, name: str, cameras: list[Camera], subjects: list[Subject],
                          hand_model: HandModelInfo, synthetic: bool, *, description: str = "",
-                         generator: dict[str, Any] | None = None) -> None:
-    """Create `root` (it may exist and be empty) with capture.json, calibration.json, subjects.json."""
+                         generator: dict[str, Any] | None = None, working_width_px: int | None = None) -> None:
+    """Create `root` (it may exist and be empty) with capture.json, calibration.json, subjects.json.
+
+    `working_width_px` (a version-2 key) is written only when given; without it the capture is version 1,
+    which older readers accept.
+    """
     root = Path(root)
     (root / SEQUENCES_DIR).mkdir(parents=True, exist_ok=True)
     model: dict[str, Any] = {"name": hand_model.name, "is_mano": hand_model.is_mano, "side": hand_model.side,
                              "source_note": hand_model.source_note}
     if hand_model.num_vertices is not None:
         model["num_vertices"] = int(hand_model.num_vertices)
-    header: dict[str, Any] = {"format": FORMAT_NAME, "version": FORMAT_VERSION, "name": name,
+    header: dict[str, Any] = {"format": FORMAT_NAME, "version": 1, "name": name,
                               "synthetic": bool(synthetic), "hand_model": model}
+    if working_width_px is not None:
+        header["version"] = FORMAT_VERSION
+        header["working_width_px"] = int(working_width_px)
     if description:
         header["description"] = description
     if generator is not None:
@@ -79,8 +86,12 @@ def write_capture_header(root: Path, name: str, cameras: list[Camera], subjects:
 def write_sequence(root: Path, sequence_id: str, *, subject_id: str, split: str, green_screen: bool,
                    fps: float, num_frames: int, holds_object: bool, camera_names: list[str],
                    image_format: str = "jpg", object_kind: str | None = None, background: str = "",
-                   with_masks: bool = False, with_ground_truth: bool = False) -> Path:
-    """Write sequences/<id>/sequence.json and create its folders; returns the sequence folder."""
+                   with_masks: bool = False, with_ground_truth: bool = False,
+                   chroma_key: dict[str, Any] | None = None) -> Path:
+    """Write sequences/<id>/sequence.json and create its folders; returns the sequence folder.
+
+    `chroma_key` (the keyer settings of the masks, a version-2 key) needs a version-2 capture.json.
+    """
     if not math.isfinite(fps) or fps <= 0:
         raise ValueError(f"fps must be a positive number, got {fps}")
     seq_dir = Path(root) / SEQUENCES_DIR / sequence_id
@@ -91,6 +102,8 @@ def write_sequence(root: Path, sequence_id: str, *, subject_id: str, split: str,
         data["object"] = object_kind
     if background:
         data["background"] = background
+    if chroma_key is not None:
+        data["chroma_key"] = dict(chroma_key)
     for cam in camera_names:
         (seq_dir / IMAGES_DIR / cam).mkdir(parents=True, exist_ok=True)
         if with_masks:

@@ -43,6 +43,7 @@ ROUTES = [
     ("GET", "/api/review/samples/1/overlay", Role.reviewer),
     ("POST", "/api/activity", Role.annotator),
     ("GET", "/api/admin/dashboard", Role.admin),
+    ("GET", "/api/admin/projects/1/calibration-check", Role.admin),
 ]
 # The 3D scene takes a scene ticket instead of a bearer token (tests/backend/api/ui/test_viewer_scene.py).
 OPEN = {("GET", "/api/health"), ("POST", "/api/auth/token"), ("GET", "/api/viewer/samples/{x}/scene")}
@@ -53,7 +54,8 @@ def test_the_table_covers_every_route(sqlite_env):
     declared = {(m.upper(), p) for p, ops in paths.items() for m in ops}
     listed = {(m, p.replace("/1", "/{x}")) for m, p, _ in ROUTES} | OPEN
     normalised = {(m, p.replace("{sample_id}", "{x}").replace("{view_id}", "{x}").replace("{mask_id}", "{x}")
-                   .replace("{user_id}", "{x}").replace("{round_id}", "{x}").replace("{job_id}", "{x}"))
+                   .replace("{user_id}", "{x}").replace("{round_id}", "{x}").replace("{job_id}", "{x}")
+                   .replace("{project_id}", "{x}"))
                   for m, p in declared}
     assert normalised == listed
 

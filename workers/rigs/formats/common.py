@@ -1,0 +1,226 @@
+"""What every format reader returns, and the checks that turn it into handloop cameras.
+
+A reader only parses: it returns `RawCamera`s in the file's own length unit, already in handloop's
+conventions otherwise (R world -> camera, OpenCV pixel centres, K in pixels). `build_rig` then applies
+the unit, fills missing image sizes and refuses values that cannot be right, naming the camera and field.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from workers.capture.schema import ID_PATTERN
+from workers.geometry.camera import CalibrationError, Camera
+
+UNITS_TO_M: dict[str, float] = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+# OpenCV's coefficient order beyond k1 k2 p1 p2 k3, and the model each group belongs to.
+_EXTRA_COEFFICIENTS = ("k4", "k5", "k6", "s1", "s2", "s3", "s4", "tau_x", "tau_y")
+ORTHONORMAL_TOL = 1e-6
+TYPICAL_SPAN_M = 2.0
+MAX_FOV_DEG = 170.0  # wider than this is a fisheye or a focal length in millimetres, not pixels
+
+
+class FormatError(CalibrationError):
+    """A calibration file in another toolchain's format cannot be converted; names file, camera and field."""
+
+
+@dataclass
+class RawCamera:
+    """One camera as a format reader found it.
+
+    Attributes:
+        name: camera name (must be a capture id, see docs/capture-format.md).
+        K: (3, 3) intrinsics, pixels, OpenCV pixel-centre convention.
+        dist: OpenCV coefficients in OpenCV's order (k1 k2 p1 p2 [k3 [k4 k5 k6 [s1..s4 [tau_x tau_y]]]]).
+        R: (3, 3) rotation world -> camera (any matrix: `build_rig` checks it).
+        t: (3,) translation world -> camera, in the file's length unit.
+        width, height: image size in pixels, or None when the format does not store it.
+        model: the distortion model's name as the format calls it, for messages ("standard", "OPENCV", ...).
+        supported: False when the format names a distortion model handloop cannot represent (fisheye, ...).
+    """
+
+    name: str
+    K: np.ndarray
+    dist: np.ndarray
+    R: np.ndarray
+    t: np.ndarray
+    width: int | None = None
+    height: int | None = None
+    model: str = "opencv"
+    supported: bool = True
+
+
+@dataclass
+class Conversion:
+    """A converted rig and what the user should know about it.
+
+    Attributes:
+        cameras: handloop cameras, in the file's order.
+        span_m: largest distance between two camera centres, metres.
+        notes: non-fatal remarks (a world frame on one camera, dropped all-zero coefficients, ...).
+    """
+
+    cameras: list[Camera]
+    span_m: float
+    notes: list[str] = field(default_factory=list)
+
+
+def as_matrix(value: object, shape: tuple[int, ...], where: str, field_name: str) -> np.ndarray:
+    """`value` as a float64 array of `shape` (a flat list of the right size is reshaped); FormatError otherwise."""
+    try:
+        array = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise FormatError(f"{where}: field '{field_name}' is not a numeric array") from None
+    if array.size != math.prod(shape):
+        raise FormatError(f"{where}: field '{field_name}' must hold {math.prod(shape)} numbers {shape}, "
+                          f"got shape {array.shape}")
+    array = array.reshape(shape)
+    if not np.all(np.isfinite(array)):
+        raise FormatError(f"{where}: field '{field_name}' contains non-finite numbers")
+    return array
+
+
+def as_vector(value: object, where: str, field_name: str) -> np.ndarray:
+    """`value` as a flat float64 array of any length; FormatError for non-numbers and non-finite values."""
+    try:
+        array = np.asarray(value, dtype=np.float64).ravel()
+    except (TypeError, ValueError):
+        raise FormatError(f"{where}: field '{field_name}' is not a list of numbers") from None
+    if not np.all(np.isfinite(array)):
+        raise FormatError(f"{where}: field '{field_name}' contains non-finite numbers")
+    return array
+
+
+def rodrigues(rvec: np.ndarray) -> np.ndarray:
+    """(3, 3) rotation matrix of a (3,) Rodrigues (axis times angle, radians) vector."""
+    import cv2
+
+    return cv2.Rodrigues(np.asarray(rvec, dtype=np.float64).reshape(3, 1))[0]
+
+
+def rotation_field(value: object, where: str, field_name: str) -> np.ndarray:
+    """A rotation stored either as a 3x3 matrix or as a 3-vector (Rodrigues): the (3, 3) matrix."""
+    array = np.asarray(value, dtype=np.float64) if value is not None else np.zeros(0)
+    if array.size == 3:
+        return rodrigues(as_matrix(array, (3,), where, field_name))
+    return as_matrix(array, (3, 3), where, field_name)
+
+
+def _check_rotation(R: np.ndarray, where: str) -> None:
+    error = float(np.abs(R @ R.T - np.eye(3)).max())
+    if error > ORTHONORMAL_TOL:
+        raise FormatError(f"{where}: field 'R' is not orthonormal (|R R^T - I| = {error:.3g}); a rotation "
+                          "matrix is expected (scaled, sheared or a projection matrix?)")
+    if np.linalg.det(R) < 0:
+        raise FormatError(f"{where}: field 'R' has determinant -1 (a reflection): the axes are left-handed or "
+                          "one axis is flipped")
+
+
+def _five_coefficients(raw: RawCamera, where: str, notes: list[str]) -> np.ndarray:
+    dist = np.asarray(raw.dist, dtype=np.float64).ravel()
+    if not raw.supported:
+        raise FormatError(f"{where}: distortion model {raw.model!r} is not supported: handloop's cameras use "
+                          "OpenCV's k1 k2 p1 p2 k3 (undistort the images or recalibrate with that model)")
+    if dist.size not in (0, 4, 5, 8, 12, 14):
+        raise FormatError(f"{where}: field 'dist' has {dist.size} coefficients; OpenCV models have 4, 5, 8, 12 "
+                          "or 14")
+    if not np.all(np.isfinite(dist)):
+        raise FormatError(f"{where}: field 'dist' contains non-finite numbers")
+    extra = dist[5:]
+    used = [name for name, v in zip(_EXTRA_COEFFICIENTS, extra, strict=False) if v != 0.0]
+    if used:
+        model = ("tilted" if any(n.startswith("tau") for n in used) else
+                 "thin prism" if any(n.startswith("s") for n in used) else "rational")
+        raise FormatError(f"{where}: distortion model {model!r} ({', '.join(used)} non-zero) is not supported: "
+                          "handloop's cameras use OpenCV's k1 k2 p1 p2 k3")
+    if extra.size:
+        notes.append(f"camera {raw.name!r}: {extra.size} extra distortion coefficients are all zero (dropped)")
+    out = np.zeros(5)
+    out[:min(5, dist.size)] = dist[:5]
+    return out
+
+
+def _rig_span(centres: np.ndarray) -> float:
+    if len(centres) < 2:
+        return 0.0
+    return float(max(np.linalg.norm(a - b) for i, a in enumerate(centres) for b in centres[i + 1:]))
+
+
+def check_units(span_m: float, unit: str, source: str, min_span_m: float = 0.05, max_span_m: float = 30.0) -> None:
+    """Refuse a rig whose size does not fit a hand-capture rig: the length unit was read wrong."""
+    if span_m == 0.0 or min_span_m <= span_m <= max_span_m:
+        return
+    spans = {u: span_m * s / UNITS_TO_M[unit] for u, s in UNITS_TO_M.items() if u != unit}
+    # most likely first: the span closest (in ratio) to a typical 2 m rig
+    guesses = sorted((u for u, s in spans.items() if min_span_m <= s <= max_span_m),
+                     key=lambda u: abs(math.log(spans[u] / TYPICAL_SPAN_M)))
+    hint = ("; pass " + " or ".join(f"--units {u} (a {spans[u]:.3g} m rig)" for u in guesses)) if guesses else ""
+    raise FormatError(f"{source}: the cameras span {span_m:.4g} m when the file is read in {unit!r}, outside "
+                      f"{min_span_m}..{max_span_m} m for a hand-capture rig: the length unit is wrong "
+                      f"(millimetres read as metres?){hint}")
+
+
+def build_rig(raws: list[RawCamera], *, unit: str, source: str, image_size: tuple[int, int] | None = None,
+              notes: list[str] | None = None) -> Conversion:
+    """Validate raw cameras and convert them to handloop cameras in metres.
+
+    Args:
+        raws: from a format reader, translations in `unit`.
+        unit: "m", "cm" or "mm": the file's length unit.
+        source: the file, for messages.
+        image_size: (width, height) for cameras whose format stores no size.
+        notes: the reader's remarks, extended here.
+    Raises:
+        FormatError: naming the camera and field (rotation, focal length, distortion, size, units, names).
+    """
+    if unit not in UNITS_TO_M:
+        raise FormatError(f"{source}: unknown unit {unit!r}; use one of {sorted(UNITS_TO_M)}")
+    if not raws:
+        raise FormatError(f"{source}: no cameras found")
+    notes = list(notes or [])
+    names = [r.name for r in raws]
+    repeated = sorted({n for n in names if names.count(n) > 1})
+    if repeated:
+        raise FormatError(f"{source}: camera name(s) {repeated} appear more than once")
+    scale = UNITS_TO_M[unit]
+    cameras = []
+    for raw in raws:
+        where = f"{source}: camera {raw.name!r}"
+        if not ID_PATTERN.match(raw.name):
+            raise FormatError(f"{where}: field 'name' must match {ID_PATTERN.pattern} to name the camera's image "
+                              "folders (rename it in the file)")
+        width, height = raw.width, raw.height
+        if width is None or height is None:
+            if image_size is None:
+                raise FormatError(f"{where}: the file stores no image size (fields 'width', 'height'); pass "
+                                  "--image-size WIDTHxHEIGHT")
+            width, height = image_size
+        dist = _five_coefficients(raw, where, notes)
+        K = as_matrix(raw.K, (3, 3), where, "K")
+        R = as_matrix(raw.R, (3, 3), where, "R")
+        t = as_matrix(raw.t, (3,), where, "t") * scale
+        _check_rotation(R, where)
+        if K[0, 0] <= 0 or K[1, 1] <= 0:
+            raise FormatError(f"{where}: field 'K' has non-positive focal lengths ({K[0, 0]:.6g}, {K[1, 1]:.6g})")
+        fov_deg = math.degrees(2 * math.atan(width / (2 * K[0, 0])))
+        if fov_deg > MAX_FOV_DEG:
+            raise FormatError(f"{where}: field 'K' focal length {K[0, 0]:.6g} px gives a {fov_deg:.1f} degree field "
+                              f"of view on a {width} px image: a focal length in millimetres or normalised "
+                              "units, not pixels?")
+        if not (-width <= K[0, 2] <= 2 * width and -height <= K[1, 2] <= 2 * height):
+            raise FormatError(f"{where}: field 'K' principal point ({K[0, 2]:.6g}, {K[1, 2]:.6g}) is far outside "
+                              f"the {width}x{height} image (transposed K, or the image size is wrong?)")
+        try:
+            cameras.append(Camera(raw.name, int(width), int(height), K, dist, R, t))
+        except CalibrationError as exc:
+            raise FormatError(f"{source}: {exc}") from None
+    span = _rig_span(np.stack([c.center_world for c in cameras]))
+    check_units(span, unit, source)
+    for cam in cameras:
+        if np.allclose(cam.R, np.eye(3), atol=1e-9) and np.allclose(cam.t, 0.0, atol=1e-12):
+            notes.append(f"camera {cam.name!r}: R = I and t = 0, so the world frame is this camera's frame "
+                         "(z forward, y down), not a rig-centred frame with z up")
+    return Conversion(cameras=cameras, span_m=span, notes=notes)

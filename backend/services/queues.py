@@ -94,17 +94,24 @@ def acquire(session: Session, user: Actor, kind: LeaseKind, lease_seconds: int,
     ).first()
     if own is not None:
         return Lease(own.id, own.lease_token, expires, kind, SampleHead(*own[:6]))
-    return take_free(session, user, kind, expires, now)
+    # A free sample the caller left work on (its lease lapsed, or they signed out) before any other.
+    return (take_free(session, user, kind, expires, now, drafted_by=user.id)
+            or take_free(session, user, kind, expires, now))
 
 
 def take_free(session: Session, user: Actor, kind: LeaseKind, expires: datetime, now: datetime, *,
-              action: str = "lease.acquire", exclude_sample_id: int | None = None) -> Lease | None:
+              action: str = "lease.acquire", exclude_sample_id: int | None = None,
+              drafted_by: int | None = None) -> Lease | None:
     """Lease the first free sample of the queue (in the queue's order, skipping rows other transactions
-    hold) until `expires`, with its audit row; None when no sample is free."""
+    hold) until `expires`, with its audit row; None when no sample is free. With `drafted_by`, only
+    samples that user has a draft of in this queue (found through the drafts' user index)."""
     c = _SAMPLES.c
     conditions = [c.state == QUEUE_STATE[kind].value, or_(c.lease_expires_at.is_(None), c.lease_expires_at <= now)]
     if exclude_sample_id is not None:
         conditions.append(c.id != exclude_sample_id)
+    if drafted_by is not None:
+        conditions.append(c.id.in_(select(_DRAFTS.c.sample_id).where(_DRAFTS.c.user_id == drafted_by,
+                                                                     _DRAFTS.c.kind == kind.value)))
     free = select(c.id).where(*conditions).order_by(*_order(kind)).limit(1).with_for_update(skip_locked=True)
     token = secrets.token_urlsafe(16)
     taken = session.connection().execute(

@@ -5,6 +5,7 @@ import { Annotation, proposals as computeProposals } from "./annotation.js";
 import { fitCanvas, fmt, h, isTyping, toast, fill } from "./dom.js";
 import { marker, segment } from "./draw.js";
 import { History } from "./history.js";
+import { DraftSaver } from "./drafts.js";
 import { decodeMask, loadView } from "./images.js";
 import { colorOf, SPARSE, SPARSE_LABELS } from "./keypoints.js";
 import { LeaseKeeper } from "./lease.js";
@@ -43,6 +44,11 @@ class AnnotatePage {
     this.api = api;
     this.root = root;
     this.leases = new LeaseKeeper(api, "annotate");
+    this.leases.onretaken = (sampleId, token) => this.leaseRetaken(sampleId, token);
+    this.leases.onlost = (sampleId, error) => this.leaseLost(sampleId, error);
+    this.drafts = new DraftSaver(api, "annotate", { snapshot: () => this.draftBody(),
+      onstatus: (state, detail) => this.draftStatus(state, detail),
+      onlease: () => this.task && this.leases.retake(this.task.sample_id).catch(() => null) });
     this.history = new History();
     this.history.onchange = () => this.renderSide();
     this.vp = new Viewport();
@@ -70,9 +76,10 @@ class AnnotatePage {
     this.canvas = h("canvas", { class: "main-canvas", "aria-label": "enlarged view", tabindex: "0" });
     this.thumbs = h("div", { class: "thumbs", "aria-label": "views" });
     this.hud = h("div", { class: "hud" });
+    this.banner = h("div", { class: "lease-banner", role: "alert", hidden: true });
     this.side = h("aside", { class: "side" });
     this.root.append(h("div", { class: "annotate-page" }, this.thumbs,
-      h("section", { class: "stage" }, this.canvas, this.hud), this.side));
+      h("section", { class: "stage" }, this.canvas, this.hud, this.banner), this.side));
     const c = this.canvas;
     c.addEventListener("pointerdown", (e) => this.pointerdown(e));
     c.addEventListener("pointermove", (e) => this.pointermove(e));
@@ -93,12 +100,14 @@ class AnnotatePage {
     window.removeEventListener("resize", this.onResize);
     clearInterval(this.clock);
     clearTimeout(this.emptyTimer);
+    this.drafts.stop(); // what is not saved yet goes now (Back, another page): the next mount restores it
     // The prefetched sample goes back to the queue; the one on screen stays ours until its lease expires.
     if (this.prepared) this.leases.drop(this.prepared.task.sample_id, true);
     this.leases.dropAll(false);
   }
 
   async releaseAll() {
+    await this.drafts.settle(); // saved under the lease before the lease goes: a new login restores it
     await this.leases.dropAll(true);
   }
 
@@ -111,9 +120,10 @@ class AnnotatePage {
     this.leases.hold(task);
     const loads = task.views.map((view) => loadView(this.api, view));
     const proposals = this.api.get(`/api/annotate/samples/${task.sample_id}/proposals`);
+    const draft = this.drafts.load(task.sample_id);
     const ready = eager ? await Promise.all(loads) : [await loads[0]];
     const views = task.views.map((view, i) => ({ ...view, image: null, maskImage: null, ...(ready[i] || {}) }));
-    return { task, proposals: await proposals, views, loads, loadMs: performance.now() - t0 };
+    return { task, proposals: await proposals, draft: await draft, views, loads, loadMs: performance.now() - t0 };
   }
 
   async loadNext() {
@@ -191,6 +201,11 @@ class AnnotatePage {
     this.keypoint = this.annotation.firstUnset(this.views[0].id) ?? SPARSE[0];
     this.timer = new ActionTimer();
     this.submissionId = crypto.randomUUID();
+    this.hideBanner();
+    delete document.body.dataset.draftState;
+    delete document.body.dataset.draftSaved;
+    this.drafts.track(task.sample_id, prepared.draft ? prepared.draft.revision : 0);
+    if (prepared.draft) this.applyDraft(prepared.draft);
     this.updateProposals();
     this.history.clear();
     this.buildThumbs();
@@ -200,6 +215,7 @@ class AnnotatePage {
     this.metrics.shown.push({ sample_id: task.sample_id, show_ms: performance.now() - t0, load_ms: prepared.loadMs,
       at_ms: performance.now() });
     this.decodeRestLater(task.sample_id);
+    document.body.dataset.draft = prepared.draft ? String(prepared.draft.revision) : "none";
     document.body.dataset.ready = "annotate";
     document.body.dataset.sample = String(task.sample_id);
   }
@@ -219,6 +235,7 @@ class AnnotatePage {
   }
 
   changed(viewId) {
+    this.drafts.changed();
     this.updateProposals();
     this.renderThumb(this.views.findIndex((v) => v.id === viewId));
     this.requestRender();
@@ -312,6 +329,99 @@ class AnnotatePage {
       view.overlay = new MaskOverlay(view.mask);
     }
     return view.mask;
+  }
+
+  // --- drafts and leases --------------------------------------------------------------------------
+
+  // The page's state as a draft (PUT .../draft): the clicks set so far, the corrected masks, where the
+  // annotator is, the time spent and the submission id (a submit retried after a reload stays idempotent).
+  draftBody() {
+    if (!this.task) return null;
+    const clicks = [];
+    for (const [viewId, byKeypoint] of this.annotation.clicks) {
+      for (const [keypoint, c] of byKeypoint) {
+        clicks.push(c.visibility === "not_annotated" ? { view_id: viewId, keypoint, visibility: "not_annotated" }
+          : { view_id: viewId, keypoint, x: c.x, y: c.y, visibility: c.visibility });
+      }
+    }
+    const masks = this.views.filter((v) => v.maskEdited && v.mask)
+      .map((v) => ({ view_id: v.id, width: v.width, height: v.height, rle: v.mask.toRLE() }));
+    return { lease_token: this.task.lease_token, submission_id: this.submissionId,
+      time_spent_s: Math.round(this.timer.spentSeconds() * 1000) / 1000, clicks, masks,
+      view_index: this.viewIndex, keypoint: this.keypoint };
+  }
+
+  // Restore a saved draft over the freshly shown task (it holds the whole state: it replaces previous clicks).
+  applyDraft(draft) {
+    const p = draft.payload;
+    for (const byKeypoint of this.annotation.clicks.values()) byKeypoint.clear();
+    for (const c of p.clicks) {
+      if (!this.annotation.clicks.has(c.view_id) || !this.annotation.keypoints.includes(c.keypoint)) continue;
+      this.annotation.set(c.view_id, c.keypoint, { x: c.x ?? null, y: c.y ?? null, visibility: c.visibility });
+    }
+    for (const m of p.masks) {
+      const view = this.views.find((v) => v.id === m.view_id);
+      if (!view || view.width !== m.width || view.height !== m.height) continue;
+      view.mask = MaskLayer.fromRLE(m.rle, m.width, m.height);
+      view.overlay = new MaskOverlay(view.mask);
+      view.maskEdited = true;
+    }
+    this.viewIndex = Math.min(p.view_index, this.views.length - 1);
+    if (this.annotation.keypoints.includes(p.keypoint)) this.keypoint = p.keypoint;
+    this.submissionId = p.submission_id;
+    this.timer.carriedMs = p.time_spent_s * 1000;
+    window.__handloop.marks.draftRestored = performance.now();
+    toast(`restored your work on sample ${this.task.sample_id} (saved ${new Date(draft.updated_at).toLocaleTimeString()})`,
+      "info", 2500);
+  }
+
+  draftStatus(state, detail) {
+    document.body.dataset.draftState = state;
+    if (state === "saved") document.body.dataset.draftSaved = String(detail.revision);
+    if (state === "error" && detail && detail.status && detail.status < 500 && detail.status !== 403 &&
+        detail.status !== 409) toast(`work in progress not saved: ${detail.message}`, "warn", 5000);
+    const el = this.side.querySelector(".draft-state");
+    if (el) el.textContent = draftLabel(state);
+  }
+
+  leaseRetaken(sampleId, token) {
+    if (this.prepared && this.prepared.task.sample_id === sampleId) this.prepared.task.lease_token = token;
+    if (!this.task || this.task.sample_id !== sampleId) return;
+    this.task.lease_token = token;
+    this.hideBanner();
+    this.drafts.resume();
+    toast(`your lease on sample ${sampleId} had lapsed: taken again, nothing lost`, "info", 3000);
+  }
+
+  leaseLost(sampleId, error) {
+    if (this.prepared && this.prepared.task.sample_id === sampleId) {
+      this.prepared = null; // the prefetched sample went to someone else: fetch another when needed
+      return;
+    }
+    if (!this.task || this.task.sample_id !== sampleId) return;
+    this.lostLease = true;
+    fill(this.banner, h("strong", {}, `Sample ${sampleId} is no longer yours. `),
+      h("span", {}, `${error.message}. Your work on it cannot be submitted; it stays saved as your draft.`),
+      h("button", { class: "primary next-task", onclick: () => this.giveUp() }, "Take the next task"));
+    this.banner.hidden = false;
+    document.body.dataset.lease = "lost";
+    this.renderSide();
+  }
+
+  hideBanner() {
+    this.lostLease = false;
+    this.banner.hidden = true;
+    fill(this.banner, );
+    delete document.body.dataset.lease;
+  }
+
+  async giveUp() {
+    if (!this.task) return;
+    this.drafts.forget();
+    this.leases.drop(this.task.sample_id, false);
+    this.hideBanner();
+    this.task = null;
+    await this.loadNext();
   }
 
   // --- pointer ------------------------------------------------------------------------------------
@@ -591,6 +701,7 @@ class AnnotatePage {
 
   async submit() {
     if (!this.task || this.submitting) return;
+    if (this.lostLease) return toast("this sample is no longer yours: take the next task", "warn", 3000);
     const task = this.task;
     const masks = this.views.filter((v) => v.maskEdited && v.mask)
       .map((v) => ({ view_id: v.id, width: v.width, height: v.height, rle: v.mask.toRLE() }));
@@ -604,7 +715,17 @@ class AnnotatePage {
     this.submitting = true;
     this.renderSide();
     try {
-      const result = await this.api.post(`/api/annotate/samples/${task.sample_id}/submissions`, body);
+      const url = `/api/annotate/samples/${task.sample_id}/submissions`;
+      let result;
+      try {
+        result = await this.api.post(url, body);
+      } catch (error) {
+        if (error.status !== 403 && error.status !== 409) throw error;
+        // The lease lapsed (or the token is stale): take it again while the sample is free, then submit.
+        body.lease_token = await this.leases.retake(task.sample_id);
+        result = await this.api.post(url, body);
+      }
+      this.drafts.forget(); // the server deleted the draft with the submission
       this.leases.drop(task.sample_id, false);
       const log = {
         context: "annotate", sample_id: task.sample_id, submission_id: result.submission_id,
@@ -748,6 +869,7 @@ class AnnotatePage {
     if (!el || !this.task) return;
     const expires = this.leases.expiresAt(this.task.sample_id);
     const left = expires ? Math.max(0, Math.round((expires - Date.now()) / 1000)) : null;
+    if (expires && expires <= Date.now() && !this.lostLease) this.leases.retake(this.task.sample_id).catch(() => null);
     el.textContent = `time ${fmt(this.timer.spentSeconds(), 0, " s")} · lease ${left === null ? "–" : `${left} s`}`;
   }
 
@@ -771,7 +893,8 @@ class AnnotatePage {
       h("div", { class: "sample-head" },
         h("h2", {}, `Sample ${t.sample_id}`),
         h("div", { class: "muted" }, `sequence ${t.sequence_id} · frame ${t.frame_index}`),
-        h("div", { class: "clock muted" }, "")),
+        h("div", { class: "clock muted" }, ""),
+        h("div", { class: "draft-state muted" }, draftLabel(document.body.dataset.draftState))),
       this.reviewNote ? h("div", { class: "callout" }, h("strong", {}, "Reviewer: "), this.reviewNote) : null,
       h("div", { class: "mode-switch", role: "group" },
         h("button", { class: this.mode === "points" ? "on" : "", onclick: () => this.setMode("points") }, "Points (P)"),
@@ -807,4 +930,9 @@ class AnnotatePage {
 function labelFor(keypoint) {
   const i = SPARSE.indexOf(keypoint);
   return i >= 0 ? SPARSE_LABELS[i] : String(keypoint);
+}
+
+function draftLabel(state) {
+  return { unsaved: "draft: unsaved changes", saving: "draft: saving…", saved: "draft: saved",
+    error: "draft: not saved yet (retrying)" }[state] || "draft: nothing to save";
 }

@@ -172,3 +172,16 @@ def test_a_reviewers_note_is_kept_until_the_decision(env, h):
                               headers=headers)
     assert decided.status_code == 201, decided.text
     assert h.count(env, "drafts") == 0
+
+
+def test_after_a_lapse_next_gives_back_the_sample_with_your_draft_first(env, h):
+    ids = h.seed(env, frames=3, cameras=1)
+    h.next_task(env)  # sample 1, left untouched
+    headers = env.headers(Role.annotator)
+    ahead = env.client.post("/api/annotate/prefetch", json={"current_sample_id": ids[0]}, headers=headers).json()
+    env.client.put(_url(ahead), json=_draft(ahead), headers=headers)
+    for sample_id in ids[:2]:
+        _lapse(env, sample_id)
+    again = h.next_task(env)  # both lapsed and free: the one with the work comes back, not the queue's first
+    assert again["sample_id"] == ahead["sample_id"] == ids[1]
+    assert env.client.get(_url(again), headers=headers).json()["revision"] == 1

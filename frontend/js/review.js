@@ -2,6 +2,7 @@
 // per-view IoU and residuals; the sample's 3D scene in viser's client; accept / reject / needs annotation
 // with one key (a reason for the last two); the next sample is prefetched and drawn ahead.
 import { fitCanvas, fmt, h, isTyping, toast, fill } from "./dom.js";
+import { DraftSaver } from "./drafts.js";
 import { marker, segment } from "./draw.js";
 import { loadViews } from "./images.js";
 import { colorOf, fingerOf, FINGER_COLORS } from "./keypoints.js";
@@ -61,6 +62,15 @@ class ReviewPage {
     this.api = api;
     this.root = root;
     this.leases = new LeaseKeeper(api, "review");
+    this.leases.onretaken = (sampleId, token) => this.leaseRetaken(sampleId, token);
+    this.leases.onlost = (sampleId, error) => this.leaseLost(sampleId, error);
+    // The reviewer's note in progress (decision picked, reason typed) survives a reload like annotations.
+    this.drafts = new DraftSaver(api, "review", { snapshot: () => this.draftBody(),
+      onstatus: (state, detail) => {
+        document.body.dataset.draftState = state;
+        if (state === "saved") document.body.dataset.draftSaved = String(detail.revision);
+      },
+      onlease: () => this.current && this.leases.retake(this.current.task.sample_id).catch(() => null) });
     this.layers = { outline: true, silhouette: false, wireframe: false, keypoints: true, clicks: true, mvnet: false };
     this.show3d = initialShow3d();
     this.cropToHand = true;
@@ -82,8 +92,9 @@ class ReviewPage {
     this.grid = h("div", { class: "review-grid" });
     this.side = h("aside", { class: "side review-side" });
     this.viewer = h("div", { class: "viewer3d" });
+    this.leaseBanner = h("div", { class: "lease-banner", role: "alert", hidden: true });
     this.root.append(h("div", { class: "review-page" },
-      h("section", { class: "review-main" }, this.banner, this.grid), this.side));
+      h("section", { class: "review-main" }, this.leaseBanner, this.banner, this.grid), this.side));
   }
 
   async start() {
@@ -96,11 +107,13 @@ class ReviewPage {
     clearInterval(this.clock);
     clearTimeout(this.emptyTimer);
     clearTimeout(this.viewerTimer);
+    this.drafts.stop();
     if (this.prepared) this.leases.drop(this.prepared.task.sample_id, true);
     this.leases.dropAll(false);
   }
 
   async releaseAll() {
+    await this.drafts.settle();
     await this.leases.dropAll(true);
   }
 
@@ -108,9 +121,10 @@ class ReviewPage {
 
   async prepare(task) {
     this.leases.hold(task);
-    const [overlay, views] = await Promise.all([
+    const [overlay, views, draft] = await Promise.all([
       this.api.get(`/api/review/samples/${task.sample_id}/overlay`),
       loadViews(this.api, task, { masks: false }),
+      this.drafts.load(task.sample_id),
     ]);
     const mesh = overlay.mesh ? decodeMesh(overlay.mesh) : null;
     const byId = new Map(overlay.views.map((v) => [v.view_id, v]));
@@ -120,7 +134,7 @@ class ReviewPage {
       return { ...v, info, projected, contour: projected ? contourEdges(projected, mesh) : null,
         crop: handCrop(projected, info) };
     });
-    return { task, overlay, mesh, views: prepared };
+    return { task, overlay, mesh, views: prepared, draft };
   }
 
   async loadNext() {
@@ -166,6 +180,17 @@ class ReviewPage {
     this.timer = new ActionTimer();
     this.reason = null;
     this.focus = null;
+    this.hideLeaseBanner();
+    delete document.body.dataset.draftState;
+    delete document.body.dataset.draftSaved;
+    const draft = prepared.draft;
+    this.drafts.track(prepared.task.sample_id, draft ? draft.revision : 0);
+    if (draft && draft.payload.decision && draft.payload.decision !== "accept") {
+      this.reason = { kind: draft.payload.decision, text: draft.payload.reason };
+      this.timer.carriedMs = draft.payload.time_spent_s * 1000;
+      window.__handloop.marks.draftRestored = performance.now();
+    }
+    document.body.dataset.draft = draft ? String(draft.revision) : "none";
     this.buildGrid();
     this.renderViews();
     this.renderSide();
@@ -182,8 +207,16 @@ class ReviewPage {
     const { task } = this.current;
     this.deciding = true;
     try {
-      const result = await this.api.post(`/api/review/samples/${task.sample_id}/decision`,
-        { decision, reason, lease_token: task.lease_token });
+      const url = `/api/review/samples/${task.sample_id}/decision`;
+      let result;
+      try {
+        result = await this.api.post(url, { decision, reason, lease_token: task.lease_token });
+      } catch (error) {
+        if (error.status !== 403 && error.status !== 409) throw error;
+        const token = await this.leases.retake(task.sample_id); // lapsed: taken again while still free
+        result = await this.api.post(url, { decision, reason, lease_token: token });
+      }
+      this.drafts.forget(); // the server deleted the draft with the decision
       const decidedAt = performance.now();
       this.timer.mark("decide");
       this.leases.drop(task.sample_id, false);
@@ -205,11 +238,76 @@ class ReviewPage {
     }
   }
 
+  pickReason(index) {
+    this.reason.text = QUICK_REASONS[this.reason.kind][index];
+    this.timer.mark("reason");
+    this.drafts.changed();
+    this.renderSide();
+    const input = this.side.querySelector(".reason-input");
+    if (input) {
+      input.focus();
+      input.setSelectionRange(input.value.length, input.value.length); // typing goes on after the reason
+    }
+  }
+
+  cancelReason() {
+    this.reason = null;
+    this.drafts.changed();
+    this.renderSide();
+    if (document.activeElement && document.activeElement !== document.body) document.activeElement.blur();
+  }
+
   openReason(kind) {
     this.reason = { kind, text: "" };
+    this.drafts.changed();
     this.renderSide();
     const input = this.side.querySelector(".reason-input");
     if (input) input.focus();
+  }
+
+  // --- leases -------------------------------------------------------------------------------------
+
+  // The note in progress as a draft (PUT .../draft): the decision picked and the reason typed so far.
+  draftBody() {
+    if (!this.current) return null;
+    return { lease_token: this.current.task.lease_token, decision: this.reason ? this.reason.kind : null,
+      reason: this.reason ? this.reason.text.slice(0, 2000) : "",
+      time_spent_s: Math.round(this.timer.spentSeconds() * 1000) / 1000 };
+  }
+
+  leaseRetaken(sampleId, token) {
+    if (this.prepared && this.prepared.task.sample_id === sampleId) this.prepared.task.lease_token = token;
+    if (!this.current || this.current.task.sample_id !== sampleId) return;
+    this.current.task.lease_token = token;
+    this.hideLeaseBanner();
+    this.drafts.resume();
+  }
+
+  leaseLost(sampleId, error) {
+    if (this.prepared && this.prepared.task.sample_id === sampleId) {
+      this.prepared = null;
+      return;
+    }
+    if (!this.current || this.current.task.sample_id !== sampleId) return;
+    fill(this.leaseBanner, h("strong", {}, `Sample ${sampleId} is no longer yours. `), h("span", {}, `${error.message}.`),
+      h("button", { class: "primary next-task", onclick: () => this.giveUp() }, "Take the next sample"));
+    this.leaseBanner.hidden = false;
+    document.body.dataset.lease = "lost";
+  }
+
+  hideLeaseBanner() {
+    this.leaseBanner.hidden = true;
+    fill(this.leaseBanner, );
+    delete document.body.dataset.lease;
+  }
+
+  async giveUp() {
+    if (!this.current) return;
+    this.drafts.forget();
+    this.leases.drop(this.current.task.sample_id, false);
+    this.hideLeaseBanner();
+    this.current = null;
+    await this.loadNext();
   }
 
   // --- keys ---------------------------------------------------------------------------------------
@@ -219,8 +317,7 @@ class ReviewPage {
     const key = e.key;
     if (this.reason) {
       if (key === "Escape") {
-        this.reason = null;
-        this.renderSide();
+        this.cancelReason();
         e.preventDefault();
       } else if (key === "Enter") {
         e.preventDefault();
@@ -228,12 +325,17 @@ class ReviewPage {
         if (!text) return toast("give a reason (type it, or press 1-5 for a common one)", "warn", 2500);
         this.keyAt = performance.now();
         this.decide(this.reason.kind, text);
-      } else if (!isTyping(e) && key >= "1" && key <= "5") {
+      } else if (key >= "1" && key <= "5" && !e.ctrlKey && !e.metaKey && !e.altKey) {
+        // A digit picks a common reason, even while the text box has focus (never typed into it).
         e.preventDefault();
-        this.reason.text = QUICK_REASONS[this.reason.kind][Number(key) - 1];
-        this.renderSide();
+        this.pickReason(Number(key) - 1);
       }
       return;
+    }
+    if (key === "Escape") {
+      // Esc always brings the keys back to the page (out of a text box, the 3D view's iframe, a button).
+      if (document.activeElement && document.activeElement !== document.body) document.activeElement.blur();
+      window.focus();
     }
     if (isTyping(e) || e.ctrlKey || e.metaKey || e.altKey) return;
     const lower = key.toLowerCase();
@@ -433,10 +535,31 @@ class ReviewPage {
       const url = this.viewerUrl();
       this.viewerTimer = setTimeout(() => {
         if (this.viewerSample !== sample) return;
-        fill(this.viewer, h("iframe", { class: "viewer-frame", title: "3D view of this sample (viser)", src: url }));
+        const frame = h("iframe", { class: "viewer-frame", title: "3D view of this sample (viser)", src: url });
+        frame.addEventListener("load", () => this.listenInFrame(frame));
+        fill(this.viewer, frame);
       }, VIEWER_DELAY_MS);
     }
     return this.viewer;
+  }
+
+  // The 3D view keeps the keyboard focus after a drag in it: listen there too (same origin), so every
+  // review key still works; Esc hands the focus back to the page.
+  listenInFrame(frame) {
+    let win;
+    try {
+      win = frame.contentWindow;
+      win.addEventListener("keydown", (e) => {
+        if (e.key === "Escape") {
+          frame.blur();
+          window.focus();
+        }
+        this.keydown(e);
+        if (e.defaultPrevented) e.stopPropagation();
+      }, true);
+    } catch {
+      // another origin: nothing to listen to (the viewer is served by this backend, so not expected)
+    }
   }
 
   renderClock() {
@@ -481,13 +604,11 @@ class ReviewPage {
   reasonBox() {
     const kind = this.reason.kind;
     const input = h("input", { class: "reason-input", type: "text", placeholder: "reason (Enter to send, Esc to cancel)",
-      value: this.reason.text, oninput: (e) => { this.reason.text = e.target.value; } });
+      value: this.reason.text, oninput: (e) => { this.reason.text = e.target.value; this.drafts.changed(); } });
     return h("div", { class: `reason-box ${kind}` },
       h("h3", {}, kind === "reject" ? "Reject: why?" : "Needs annotation: what is wrong?"),
-      h("ol", {}, QUICK_REASONS[kind].map((r, i) => h("li", { onclick: () => {
-        this.reason.text = r;
-        this.renderSide();
-      } }, h("kbd", {}, String(i + 1)), ` ${r}`))),
+      h("ol", {}, QUICK_REASONS[kind].map((r, i) => h("li", { onclick: () => this.pickReason(i) },
+        h("kbd", {}, String(i + 1)), ` ${r}`))),
       input,
       h("div", { class: "button-row" },
         h("button", { class: "primary", onclick: () => {
@@ -495,7 +616,7 @@ class ReviewPage {
           this.keyAt = performance.now();
           this.decide(kind, this.reason.text.trim());
         } }, "Send (Enter)"),
-        h("button", { onclick: () => { this.reason = null; this.renderSide(); } }, "Cancel (Esc)")));
+        h("button", { onclick: () => this.cancelReason() }, "Cancel (Esc)")));
   }
 }
 

@@ -21,16 +21,20 @@ const HELP = [
   ["click", "place the keypoint (then the next one is picked)"],
   ["drag", "move a point or a proposal"],
   ["A / Enter", "accept the proposal of this keypoint / of all keypoints in this view"],
-  ["O", "toggle occluded (position is a best guess)"],
-  ["N", "mark not annotated in this view"],
-  ["Del", "clear this keypoint in this view"],
+  ["O", "toggle occluded: the point just placed, else the picked one (ringed white)"],
+  ["N", "not annotated in this view: the point just placed, else the picked one"],
+  ["Del / Backspace", "clear the picked keypoint in this view"],
   ["Tab / Shift+Tab", "next / previous view (or click a thumbnail)"],
   ["M", "mask mode on / off; B brush, E eraser"],
   ["[ ] / wheel", "brush size (wheel in mask mode; Ctrl+wheel zooms)"],
-  ["wheel, right-drag", "zoom, pan (Space+drag pans too); 0 fits the view"],
+  ["P", "back to points"],
+  ["wheel, right-drag", "zoom, pan (Space+drag pans too)"],
+  ["+ / - / 0", "zoom in / out at the centre / fit the view"],
   ["H", "hide / show the mask"],
-  ["Ctrl+Z / Ctrl+Shift+Z", "undo / redo"],
+  ["Ctrl+Z / Ctrl+Shift+Z / Ctrl+Y", "undo / redo / redo"],
   ["Ctrl+Enter", "submit and show the next task"],
+  ["Esc", "cancel a drag, give the keys back to the view (from any button)"],
+  ["?", "open / close this list"],
 ];
 
 export async function mountAnnotate(root, ctx) {
@@ -228,6 +232,8 @@ class AnnotatePage {
 
   setClick(viewId, keypoint, value, kind) {
     const previous = this.annotation.set(viewId, keypoint, value);
+    // O and N then apply to this point, even after the selection moved on to the next keypoint.
+    if (kind === "click" || kind === "accept" || kind === "drag") this.justPlaced = value ? { viewId, keypoint } : null;
     const apply = (v) => { this.annotation.set(viewId, keypoint, v); this.changed(viewId); };
     this.history.record({ kind, undo: () => apply(previous), redo: () => apply(value) });
     this.timer.mark(kind, { view_id: viewId, keypoint });
@@ -276,24 +282,43 @@ class AnnotatePage {
   acceptAllInView() {
     const pending = [...this.proposals.get(this.view.id).keys()];
     for (const k of pending) this.acceptProposal(k, { advance: false });
+    this.justPlaced = null;
     if (pending.length === 0) toast("no proposals left in this view", "info", 1500);
     this.advance();
   }
 
+  // What O and N apply to: the point just placed (while it is still set), else the picked keypoint here.
+  target() {
+    const j = this.justPlaced;
+    if (j && this.annotation.get(j.viewId, j.keypoint)) return { ...j, justPlaced: true };
+    return { viewId: this.view.id, keypoint: this.keypoint, justPlaced: false };
+  }
+
+  // An explicit choice of keypoint or view: O and N follow it from now on.
+  pick(keypoint) {
+    this.justPlaced = null;
+    this.keypoint = keypoint;
+    this.requestRender();
+    this.renderSide();
+  }
+
   toggleOccluded() {
-    const click = this.annotation.get(this.view.id, this.keypoint);
+    const { viewId, keypoint } = this.target();
+    const click = this.annotation.get(viewId, keypoint);
     if (!click || click.visibility === "not_annotated") {
-      const p = this.proposals.get(this.view.id).get(this.keypoint);
+      const p = this.proposals.get(viewId).get(keypoint);
       if (!p) return toast("place the keypoint first (its best guess), then mark it occluded", "info", 2500);
-      return this.setClick(this.view.id, this.keypoint, { x: p.x, y: p.y, visibility: "occluded" }, "occlude");
+      return this.setClick(viewId, keypoint, { x: p.x, y: p.y, visibility: "occluded" }, "occlude");
     }
     const visibility = click.visibility === "occluded" ? "visible" : "occluded";
-    this.setClick(this.view.id, this.keypoint, { ...click, visibility }, "occlude");
+    this.setClick(viewId, keypoint, { ...click, visibility }, "occlude");
   }
 
   markNotAnnotated() {
-    this.setClick(this.view.id, this.keypoint, { x: null, y: null, visibility: "not_annotated" }, "not_annotated");
-    this.advance();
+    const { viewId, keypoint, justPlaced } = this.target();
+    this.setClick(viewId, keypoint, { x: null, y: null, visibility: "not_annotated" }, "not_annotated");
+    this.justPlaced = null;
+    if (!justPlaced) this.advance(); // after a placement the selection has already moved on
   }
 
   clearKeypoint() {
@@ -605,10 +630,16 @@ class AnnotatePage {
     } else if (ctrl) {
       handled = false;
     } else if (key >= "1" && key <= "6") {
-      this.keypoint = SPARSE[Number(key) - 1];
+      this.pick(SPARSE[Number(key) - 1]);
+    } else if (key === "Escape") {
+      // Keys back to the view from whatever has the focus (a button, the list); a drag in progress ends.
+      this.drag = null;
+      if (document.activeElement && document.activeElement !== this.canvas) document.activeElement.blur();
+      this.canvas.focus();
+      this.side.querySelector(".help").removeAttribute("open");
       this.requestRender();
-      this.renderSide();
     } else if (key === "Tab") {
+      this.justPlaced = null;
       this.selectView((this.viewIndex + (e.shiftKey ? this.views.length - 1 : 1)) % this.views.length);
     } else if (key === "a" || key === "A") {
       if (!this.acceptProposal(this.keypoint)) toast("no proposal for this keypoint here", "info", 1500);
@@ -670,11 +701,13 @@ class AnnotatePage {
   }
 
   undo() {
+    this.justPlaced = null;
     const c = this.history.undo();
     if (c) this.timer.mark("undo");
   }
 
   redo() {
+    this.justPlaced = null;
     const c = this.history.redo();
     if (c) this.timer.mark("redo");
   }
@@ -786,6 +819,20 @@ class AnnotatePage {
       ctx.fillText(`loading ${view.camera}…`, 16, 24);
     }
     this.drawPoints(ctx, view, this.vp, { labels: true, selected: this.keypoint });
+    const target = this.target();
+    const tc = target.viewId === view.id ? this.annotation.get(view.id, target.keypoint) : null;
+    if (tc && tc.x !== null && target.justPlaced) {
+      // The point O and N will change, when it is not the picked one: a white ring around it.
+      const [tx, ty] = this.vp.toScreen(tc.x, tc.y);
+      ctx.save();
+      ctx.strokeStyle = "#fff";
+      ctx.lineWidth = 1.5;
+      ctx.setLineDash([2, 2]);
+      ctx.beginPath();
+      ctx.arc(tx, ty, 14, 0, 2 * Math.PI);
+      ctx.stroke();
+      ctx.restore();
+    }
     if (this.mode === "mask" && this.hover) {
       ctx.save();
       ctx.strokeStyle = this.tool === "brush" ? "#4cc9f0" : "#ff6b6b";
@@ -798,7 +845,8 @@ class AnnotatePage {
     ctx.restore();
     if (dirty) return;
     this.hud.textContent = `${view.camera} · ${view.width}×${view.height} · ${Math.round(this.vp.scale * 100)}% · ` +
-      (this.mode === "mask" ? `mask: ${this.tool} r=${Math.round(this.radius)} px` : `points: ${labelFor(this.keypoint)}`);
+      (this.mode === "mask" ? `mask: ${this.tool} r=${Math.round(this.radius)} px` : `points: ${labelFor(this.keypoint)}` +
+        ` · O/N: ${labelFor(target.keypoint)}${target.justPlaced ? " (just placed)" : ""}`);
   }
 
   // Clicks, proposals and the dragged point of one view, on a 2D context in screen units.
@@ -836,7 +884,7 @@ class AnnotatePage {
     fill(this.thumbs, ...this.views.map((view, i) => {
       const canvas = h("canvas", { class: "thumb-canvas" });
       const el = h("button", { class: `thumb${i === this.viewIndex ? " active" : ""}`, title: `${view.camera} (Tab)`,
-        onclick: () => this.selectView(i) }, canvas, h("span", { class: "thumb-label" }, ""));
+        onclick: () => { this.justPlaced = null; this.selectView(i); } }, canvas, h("span", { class: "thumb-label" }, ""));
       view.thumb = { el, canvas };
       return el;
     }));
@@ -882,7 +930,7 @@ class AnnotatePage {
       const p = props.get(k);
       const text = status === "unset" ? (p ? `proposal (${p.source})` : "–") : status.replace("_", " ");
       return h("li", { class: `kp-row${k === this.keypoint ? " current" : ""} status-${status}`,
-        onclick: () => { this.keypoint = k; this.requestRender(); this.renderSide(); } },
+        onclick: () => this.pick(k) },
       h("kbd", {}, String(i + 1)), h("span", { class: "swatch", style: { background: colorOf(k) } }),
       h("span", { class: "kp-name" }, SPARSE_LABELS[i]), h("span", { class: "kp-status" }, text));
     });

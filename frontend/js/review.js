@@ -22,6 +22,16 @@ const LAYERS = [
   ["keypoints", "K", "keypoints and skeleton"], ["clicks", "C", "annotators' clicks and residuals"],
   ["mvnet", "P", "MVNet prediction"],
 ];
+const HELP = [
+  ["A", "accept"],
+  ["R / N", "reject / needs annotation: then 1-5 a common reason (or type one), Enter sends, Esc cancels"],
+  ["O S W K C P", "outline, silhouette, wireframe, keypoints, annotators' clicks, MVNet"],
+  ["1 … 8", "enlarge a view"],
+  ["Esc", "back to the grid; gives the keys back to the page (from the 3D view too)"],
+  ["Z", "crop to the hand / whole images"],
+  ["V", "show / hide the 3D view"],
+  ["?", "open / close this list"],
+];
 const IOU_LOW = 0.5;
 const VIEWER_DELAY_MS = 350;
 const SHOW_3D_KEY = "handloop.show3d";
@@ -358,6 +368,9 @@ class ReviewPage {
       this.renderSide();
     } else if (lower === "v") {
       this.toggle3d();
+    } else if (key === "?") {
+      this.helpOpen = !this.helpOpen;
+      this.renderSide();
     } else {
       const layer = LAYERS.find(([, k]) => k.toLowerCase() === lower);
       if (layer) {
@@ -597,6 +610,8 @@ class ReviewPage {
         } }), ` ${label} (${key})`))),
       h("div", { class: "muted" }, `1-8 enlarge a view, Esc back · Z ${this.cropToHand ? "whole images" : "zoom to the hand"} · V 3D view`),
       this.render3d(),
+      h("details", { class: "help", open: this.helpOpen }, h("summary", {}, "Keys (?)"),
+        h("table", {}, HELP.map(([k, d]) => h("tr", {}, h("td", {}, h("kbd", {}, k)), h("td", {}, d))))),
     );
     this.renderClock();
   }

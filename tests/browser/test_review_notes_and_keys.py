@@ -80,4 +80,23 @@ def test_keys_work_after_a_click_in_the_3d_view_and_esc_returns_the_focus(live_s
     assert page.evaluate("() => window.__handloop.page.focus") is None
     page.keyboard.press("z")  # and the page has the keys again
     assert page.evaluate("() => window.__handloop.page.cropToHand") is False
+    listed = page.eval_on_selector_all(".help td kbd", "els => els.map((e) => e.textContent)")
+    assert listed == ["A", "R / N", "O S W K C P", "1 … 8", "Esc", "Z", "V", "?"], listed
+    layers = "() => ({...window.__handloop.page.layers})"
+    for key, name in zip("oswkcp", ("outline", "silhouette", "wireframe", "keypoints", "clicks", "mvnet"), strict=True):
+        before = page.evaluate(layers)[name]
+        page.keyboard.press(key)
+        assert page.evaluate(layers)[name] is (not before), key
+    page.keyboard.press("n")
+    assert page.evaluate("() => window.__handloop.page.reason.kind") == "annotate"
+    page.keyboard.press("1")
+    assert page.input_value(".reason-input") == "a fingertip is on the wrong finger"
+    page.keyboard.press("Escape")
+    assert page.evaluate("() => window.__handloop.page.reason") is None
+    assert page.evaluate("() => document.activeElement.tagName") == "BODY"
+    page.keyboard.press("?")
+    assert page.evaluate("() => document.querySelector('.review-side .help').open") is True
+    shown = page.evaluate("() => window.__handloop.page.show3d")
+    page.keyboard.press("v")
+    assert page.evaluate("() => window.__handloop.page.show3d") is (not shown)
     assert not t.errors, t.errors

@@ -29,6 +29,7 @@ class TaskPublic(Public):
     lease_token: str
     lease_expires_at: datetime
     sequence_id: int
+    sequence: str | None = Field(default=None, description="The sequence's name in the capture and exports.")
     frame_index: int
     time_s: float
     keypoints_to_click: list[int]

@@ -940,7 +940,7 @@ class AnnotatePage {
     fill(this.side, 
       h("div", { class: "sample-head" },
         h("h2", {}, `Sample ${t.sample_id}`),
-        h("div", { class: "muted" }, `sequence ${t.sequence_id} · frame ${t.frame_index}`),
+        h("div", { class: "muted" }, `${t.sequence ?? `sequence ${t.sequence_id}`} · frame ${t.frame_index}`),
         h("div", { class: "clock muted" }, ""),
         h("div", { class: "draft-state muted" }, draftLabel(document.body.dataset.draftState))),
       this.reviewNote ? h("div", { class: "callout" }, h("strong", {}, "Reviewer: "), this.reviewNote) : null,

@@ -90,9 +90,11 @@ class ReviewPage {
     this.preparing = null;
     this.metrics = { decisions: [] };
     this.build();
-    this.onKey = (e) => this.keydown(e);
+    this.onKey = (e) => { this.firstAct(); this.keydown(e); };
     this.onResize = () => this.renderViews();
+    this.onAct = () => this.firstAct();
     window.addEventListener("keydown", this.onKey);
+    for (const kind of ["pointerdown", "pointermove", "wheel"]) root.addEventListener(kind, this.onAct, { passive: true });
     window.addEventListener("resize", this.onResize);
     this.clock = setInterval(() => this.renderClock(), 1000);
   }
@@ -188,6 +190,10 @@ class ReviewPage {
   show(prepared) {
     this.current = prepared;
     this.timer = new ActionTimer();
+    // The clock runs from the reviewer's first act (a key, the pointer), not from when the page opened; right
+    // after a decision the reviewer is acting already, so the next sample's clock starts at once.
+    this.clockWaits = !this.justDecided;
+    this.justDecided = false;
     this.reason = null;
     this.focus = null;
     this.hideLeaseBanner();
@@ -231,10 +237,11 @@ class ReviewPage {
       this.timer.mark("decide");
       this.leases.drop(task.sample_id, false);
       this.api.post("/api/activity", { context: "review", sample_id: task.sample_id, decision_id: result.id,
-        time_spent_s: Math.round(this.timer.spentSeconds() * 1000) / 1000, actions: this.timer.actions })
+        time_spent_s: Math.round(this.spentSeconds() * 1000) / 1000, actions: this.timer.actions })
         .catch((error) => toast(`time log not saved: ${error.message}`, "warn"));
       toast(`sample ${task.sample_id}: ${decision}${result.stream ? ` (joins D as ${result.stream})` : ""}`, "ok", 2000);
       this.deciding = false;
+      this.justDecided = true;
       const prefetched = Boolean(this.prepared);
       await this.loadNext();
       const drawnAt = performance.now();
@@ -282,7 +289,7 @@ class ReviewPage {
     if (!this.current) return null;
     return { lease_token: this.current.task.lease_token, decision: this.reason ? this.reason.kind : null,
       reason: this.reason ? this.reason.text.slice(0, 2000) : "",
-      time_spent_s: Math.round(this.timer.spentSeconds() * 1000) / 1000 };
+      time_spent_s: Math.round(this.spentSeconds() * 1000) / 1000 };
   }
 
   leaseRetaken(sampleId, token) {
@@ -567,7 +574,7 @@ class ReviewPage {
           frame.blur();
           window.focus();
         }
-        this.keydown(e);
+        this.onKey(e);
         if (e.defaultPrevented) e.stopPropagation();
       }, true);
     } catch {
@@ -575,10 +582,24 @@ class ReviewPage {
     }
   }
 
+  firstAct() {
+    if (!this.clockWaits || !this.timer) return;
+    this.clockWaits = false;
+    const carried = this.timer.carriedMs;
+    this.timer.start();
+    this.timer.carriedMs = carried;
+    this.renderClock();
+  }
+
+  // Active seconds on this sample so far (0 until the first act).
+  spentSeconds() {
+    return this.clockWaits ? this.timer.carriedMs / 1000 : this.timer.spentSeconds();
+  }
+
   renderClock() {
     const el = this.side.querySelector(".clock");
     if (!el || !this.current) return;
-    el.textContent = `time ${fmt(this.timer.spentSeconds(), 0, " s")}`;
+    el.textContent = this.clockWaits ? "time starts when you act" : `time ${fmt(this.timer.spentSeconds(), 0, " s")}`;
   }
 
   renderSide() {
@@ -590,7 +611,7 @@ class ReviewPage {
     fill(this.side, 
       h("div", { class: "sample-head" },
         h("h2", {}, `Sample ${task.sample_id}`),
-        h("div", { class: "muted" }, `sequence ${task.sequence_id} · frame ${task.frame_index} · fit ${overlay.fit_id}`),
+        h("div", { class: "muted" }, `${task.sequence ?? `sequence ${task.sequence_id}`} · frame ${task.frame_index} · fit ${overlay.fit_id}`),
         h("div", { class: "clock muted" }, "")),
       h("div", { class: overlay.hand_model.stand_in ? "callout warn" : "callout" }, overlay.hand_model.label),
       h("dl", { class: "facts" },

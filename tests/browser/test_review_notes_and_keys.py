@@ -33,7 +33,11 @@ def test_a_reviewers_note_survives_a_reload_and_digits_pick_reasons(live_stack, 
     sign_in(t, stack.base_url, user.email, user.password, "review")
     page = t.page
     assert page.get_attribute("body", "data-sample") == str(sample)
+    # The review clock waits for the reviewer's first act (the time before it is not verification).
+    assert page.inner_text(".review-side .clock") == "time starts when you act"
+    assert page.evaluate("() => window.__handloop.page.spentSeconds()") == 0
     page.keyboard.press("r")
+    assert page.evaluate("() => window.__handloop.page.clockWaits") is False
     assert page.evaluate("() => document.activeElement.classList.contains('reason-input')")  # typing goes there
     page.keyboard.press("2")
     reason = page.input_value(".reason-input")

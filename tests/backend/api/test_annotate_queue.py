@@ -198,3 +198,9 @@ def test_too_many_clicks_is_422(sqlite_url, tmp_path, h, env_with):
     response = env.client.post(f"/api/annotate/samples/{ids[0]}/submissions", json=h.body(h.next_task(env)),
                                headers=env.headers(Role.annotator))
     assert response.status_code == 422 and "at most 5" in response.json()["detail"]
+
+
+def test_a_task_names_its_sequence_as_the_exports_do(env, h):
+    h.seed(env, frames=1, cameras=1)
+    task = h.next_task(env)
+    assert task["sequence"] == "seq000" and isinstance(task["sequence_id"], int)

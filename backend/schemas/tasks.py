@@ -53,6 +53,8 @@ class ClickIn(Strict):
     x: Pixel | None = None
     y: Pixel | None = None
     visibility: Visibility = Visibility.visible
+    from_proposal: bool = Field(default=False, description="Accepted from a proposal (triangulated, fit, MVNet), "
+                                "not placed by hand: weighed as a proposal, not as a click.")
 
     @model_validator(mode="after")
     def _position_matches_visibility(self) -> ClickIn:

@@ -102,11 +102,12 @@ def _insert_submission(session: Session, values: dict[str, Any]) -> int | None:
 # caches its parsing and PostgreSQL its plan (a multi-row VALUES of 48 rows is over psycopg's 4 KiB cache limit
 # and was re-parsed on every request).
 _CLICKS_UNNEST = text(
-    "INSERT INTO clicks (submission_id, sample_id, view_id, keypoint, x_px, y_px, visibility, user_id, time_spent_s,"
-    " created_at) SELECT :submission_id, :sample_id, t.view_id, t.keypoint, t.x, t.y, t.visibility, :user_id,"
-    " :time_spent_s, :created_at FROM unnest(CAST(:view_ids AS integer[]), CAST(:keypoints AS integer[]),"
-    " CAST(:xs AS double precision[]), CAST(:ys AS double precision[]), CAST(:visibilities AS varchar[]))"
-    " AS t(view_id, keypoint, x, y, visibility)"
+    "INSERT INTO clicks (submission_id, sample_id, view_id, keypoint, x_px, y_px, visibility, from_proposal, user_id,"
+    " time_spent_s, created_at) SELECT :submission_id, :sample_id, t.view_id, t.keypoint, t.x, t.y, t.visibility,"
+    " t.from_proposal, :user_id, :time_spent_s, :created_at FROM unnest(CAST(:view_ids AS integer[]),"
+    " CAST(:keypoints AS integer[]), CAST(:xs AS double precision[]), CAST(:ys AS double precision[]),"
+    " CAST(:visibilities AS varchar[]), CAST(:from_proposals AS boolean[]))"
+    " AS t(view_id, keypoint, x, y, visibility, from_proposal)"
 ).bindparams(bindparam("created_at", type_=UTCDateTime()))
 
 
@@ -119,12 +120,14 @@ def _insert_clicks(session: Session, body: SubmissionCreate, submission_id: int,
             "time_spent_s": body.time_spent_s, "created_at": now,
             "view_ids": [c.view_id for c in body.clicks], "keypoints": [c.keypoint for c in body.clicks],
             "xs": [c.x for c in body.clicks], "ys": [c.y for c in body.clicks],
-            "visibilities": [Visibility(c.visibility).value for c in body.clicks]})
+            "visibilities": [Visibility(c.visibility).value for c in body.clicks],
+            "from_proposals": [c.from_proposal for c in body.clicks]})
         return
     # SQLite: the driver's executemany (a C loop over one prepared statement).
     conn.execute(insert(_CLICKS), [
         {"submission_id": submission_id, "sample_id": sample_id, "view_id": c.view_id, "keypoint": c.keypoint,
-         "x_px": c.x, "y_px": c.y, "visibility": Visibility(c.visibility).value, "user_id": user_id,
+         "x_px": c.x, "y_px": c.y, "visibility": Visibility(c.visibility).value, "from_proposal": c.from_proposal,
+         "user_id": user_id,
          "time_spent_s": body.time_spent_s, "created_at": now}
         for c in body.clicks
     ])

@@ -1,8 +1,9 @@
 // The annotate page: 8 views in a grid plus one enlarged with zoom and pan; click wrist and fingertips
 // per view (keys pick the keypoint, mark it occluded or not annotated), accept or drag proposals, correct
 // the automatic mask with brush and eraser, undo and redo, submit; the next task is prefetched.
-import { Annotation, proposals as computeProposals } from "./annotation.js";
+import { Annotation, inside, proposals as computeProposals, triangulateClicked } from "./annotation.js";
 import { fitCanvas, fmt, h, isTyping, toast, fill } from "./dom.js";
+import { epipolarCurve, projectPoint } from "./geometry.js";
 import { marker, segment } from "./draw.js";
 import { History } from "./history.js";
 import { DraftSaver } from "./drafts.js";
@@ -15,12 +16,15 @@ import { Viewport } from "./viewport.js";
 
 const HIT_PX = 12; // how close (screen px) a press must be to grab a point
 const DRAG_PX = 3; // movement below this is a click, not a drag
-const SOURCE_LETTER = { triangulated: "T", fit: "F", mvnet: "M" };
+const SOURCE_LETTER = { triangulated: "T", fit: "F", mvnet: "M", detector: "D" };
+// Enter accepts only proposals at least this confident; the others are ringed orange for a look (A takes
+// one anyway). A fit's projection has no confidence: it is always left for a look.
+const ACCEPT_CONF = 0.6;
 const HELP = [
   ["1 … 6", "pick wrist, thumb, index, middle, ring, pinky"],
   ["click", "place the keypoint (then the next one is picked)"],
   ["drag", "move a point or a proposal"],
-  ["A / Enter", "accept the proposal of this keypoint / of all keypoints in this view"],
+  ["A / Enter", `accept the proposal of this keypoint / all of this view's with confidence >= ${ACCEPT_CONF}`],
   ["O", "toggle occluded: the point just placed, else the picked one (ringed white)"],
   ["N", "not annotated in this view: the point just placed, else the picked one"],
   ["Del / Backspace", "clear the picked keypoint in this view"],
@@ -231,13 +235,39 @@ class AnnotatePage {
   // --- editing ------------------------------------------------------------------------------------
 
   setClick(viewId, keypoint, value, kind) {
-    const previous = this.annotation.set(viewId, keypoint, value);
+    const changes = [{ viewId, keypoint, value, previous: this.annotation.set(viewId, keypoint, value) }];
+    // A point placed by hand moves the proposals accepted for this keypoint in the other views with it.
+    if (value && !value.from && (kind === "click" || kind === "drag")) {
+      for (const c of this.reprojections(keypoint, viewId)) {
+        changes.push({ ...c, previous: this.annotation.set(c.viewId, c.keypoint, c.value) });
+      }
+    }
     // O and N then apply to this point, even after the selection moved on to the next keypoint.
     if (kind === "click" || kind === "accept" || kind === "drag") this.justPlaced = value ? { viewId, keypoint } : null;
-    const apply = (v) => { this.annotation.set(viewId, keypoint, v); this.changed(viewId); };
-    this.history.record({ kind, undo: () => apply(previous), redo: () => apply(value) });
-    this.timer.mark(kind, { view_id: viewId, keypoint });
-    this.changed(viewId);
+    const apply = (which) => {
+      for (const c of changes) this.annotation.set(c.viewId, c.keypoint, c[which]);
+      for (const c of changes) this.changed(c.viewId);
+    };
+    this.history.record({ kind, undo: () => apply("previous"), redo: () => apply("value") });
+    this.timer.mark(kind, { view_id: viewId, keypoint, ...(changes.length > 1 ? { reprojected: changes.length - 1 } : {}) });
+    for (const c of changes) this.changed(c.viewId);
+  }
+
+  // The keypoint re-triangulated from the views where it was placed by hand, projected into the views
+  // where it was accepted from a proposal: [{viewId, keypoint, value}] for those that move.
+  reprojections(keypoint, exceptViewId) {
+    const tri = triangulateClicked(this.annotation, this.cameras, keypoint);
+    if (!tri) return [];
+    const out = [];
+    for (const viewId of this.annotation.viewIds) {
+      const c = this.annotation.get(viewId, keypoint);
+      if (viewId === exceptViewId || !c || !c.from || c.x === null) continue;
+      const cam = this.cameras.get(viewId);
+      const p = projectPoint(tri.point, cam);
+      if (!inside(p, cam) || Math.hypot(p[0] - c.x, p[1] - c.y) < 0.01) continue;
+      out.push({ viewId, keypoint, value: { ...c, x: p[0], y: p[1], from: "triangulated", confidence: tri.confidence } });
+    }
+    return out;
   }
 
   changed(viewId) {
@@ -274,17 +304,29 @@ class AnnotatePage {
   acceptProposal(keypoint, { advance = true } = {}) {
     const p = this.proposals.get(this.view.id).get(keypoint);
     if (!p) return false;
-    this.setClick(this.view.id, keypoint, { x: p.x, y: p.y, visibility: "visible" }, "accept");
+    this.setClick(this.view.id, keypoint, { x: p.x, y: p.y, visibility: "visible", from: p.source,
+      confidence: p.confidence }, "accept");
     if (advance) this.advance();
     return true;
   }
 
   acceptAllInView() {
-    const pending = [...this.proposals.get(this.view.id).keys()];
-    for (const k of pending) this.acceptProposal(k, { advance: false });
+    const all = [...this.proposals.get(this.view.id)];
+    const sure = all.filter(([, p]) => confident(p)).map(([k]) => k);
+    for (const k of sure) this.acceptProposal(k, { advance: false });
     this.justPlaced = null;
-    if (pending.length === 0) toast("no proposals left in this view", "info", 1500);
-    this.advance();
+    const left = all.length - sure.length;
+    if (all.length === 0) toast("no proposals left in this view", "info", 1500);
+    else if (left) toast(`accepted ${sure.length}; ${left} below ${ACCEPT_CONF} ringed orange: have a look (A accepts one)`,
+      "info", 3000);
+    if (left) {
+      // Stay on the first doubtful one, so the next key is about it.
+      this.keypoint = all.find(([, p]) => !confident(p))[0];
+      this.renderSide();
+      this.requestRender();
+    } else {
+      this.advance();
+    }
   }
 
   // What O and N apply to: the point just placed (while it is still set), else the picked keypoint here.
@@ -366,7 +408,7 @@ class AnnotatePage {
     for (const [viewId, byKeypoint] of this.annotation.clicks) {
       for (const [keypoint, c] of byKeypoint) {
         clicks.push(c.visibility === "not_annotated" ? { view_id: viewId, keypoint, visibility: "not_annotated" }
-          : { view_id: viewId, keypoint, x: c.x, y: c.y, visibility: c.visibility });
+          : { view_id: viewId, keypoint, x: c.x, y: c.y, visibility: c.visibility, from_proposal: Boolean(c.from) });
       }
     }
     const masks = this.views.filter((v) => v.maskEdited && v.mask)
@@ -382,7 +424,9 @@ class AnnotatePage {
     for (const byKeypoint of this.annotation.clicks.values()) byKeypoint.clear();
     for (const c of p.clicks) {
       if (!this.annotation.clicks.has(c.view_id) || !this.annotation.keypoints.includes(c.keypoint)) continue;
-      this.annotation.set(c.view_id, c.keypoint, { x: c.x ?? null, y: c.y ?? null, visibility: c.visibility });
+      const value = { x: c.x ?? null, y: c.y ?? null, visibility: c.visibility };
+      if (c.from_proposal) value.from = "proposal"; // accepted, not placed by hand (its source is not kept)
+      this.annotation.set(c.view_id, c.keypoint, value);
     }
     for (const m of p.masks) {
       const view = this.views.find((v) => v.id === m.view_id);
@@ -818,6 +862,7 @@ class AnnotatePage {
       ctx.font = "14px system-ui, sans-serif";
       ctx.fillText(`loading ${view.camera}…`, 16, 24);
     }
+    if (this.mode === "points" && !this.annotation.get(view.id, this.keypoint)) this.drawEpipolar(ctx, view);
     this.drawPoints(ctx, view, this.vp, { labels: true, selected: this.keypoint });
     const target = this.target();
     const tc = target.viewId === view.id ? this.annotation.get(view.id, target.keypoint) : null;
@@ -849,6 +894,30 @@ class AnnotatePage {
         ` · O/N: ${labelFor(target.keypoint)}${target.justPlaced ? " (just placed)" : ""}`);
   }
 
+  // While the picked keypoint is being placed here: the epipolar curve of each view where it was placed by
+  // hand (the point lies on all of them; lens distortion bends them slightly).
+  drawEpipolar(ctx, view) {
+    const camTo = this.cameras.get(view.id);
+    if (!camTo) return;
+    ctx.save();
+    ctx.strokeStyle = colorOf(this.keypoint);
+    ctx.globalAlpha = 0.7;
+    ctx.lineWidth = 1;
+    ctx.setLineDash([6, 4]);
+    for (const other of this.views) {
+      const c = other.id === view.id ? null : this.annotation.get(other.id, this.keypoint);
+      if (!c || c.from || c.x === null) continue;
+      const curve = epipolarCurve([c.x, c.y], this.cameras.get(other.id), camTo);
+      ctx.beginPath();
+      curve.forEach(([u, v], i) => {
+        const [sx, sy] = this.vp.toScreen(u, v);
+        if (i === 0) ctx.moveTo(sx, sy); else ctx.lineTo(sx, sy);
+      });
+      ctx.stroke();
+    }
+    ctx.restore();
+  }
+
   // Clicks, proposals and the dragged point of one view, on a 2D context in screen units.
   drawPoints(ctx, view, vp, { labels = false, selected = null, r = 6 } = {}) {
     const clicks = this.annotation.clicks.get(view.id);
@@ -865,8 +934,8 @@ class AnnotatePage {
     for (const [k, p] of this.proposals.get(view.id)) {
       if (drag && drag.keypoint === k) continue;
       const [x, y] = vp.toScreen(p.x, p.y);
-      marker(ctx, x, y, k, { style: "proposal", r, label: labels ? SOURCE_LETTER[p.source] : null,
-        selected: labels && selected === k });
+      marker(ctx, x, y, k, { style: "proposal", r, label: labels ? proposalLabel(p) : null,
+        selected: labels && selected === k, look: !confident(p) });
     }
     for (const [k, c] of clicks) {
       if (c.x === null) continue;
@@ -928,7 +997,8 @@ class AnnotatePage {
     const rows = SPARSE.map((k, i) => {
       const status = this.annotation.status(view.id, k);
       const p = props.get(k);
-      const text = status === "unset" ? (p ? `proposal (${p.source})` : "–") : status.replace("_", " ");
+      const text = status === "unset" ? (p ? `proposal ${proposalLabel(p)}${confident(p) ? "" : " · look"}` : "–")
+        : status.replace("_", " ") + (this.annotation.get(view.id, k).from ? " (accepted)" : "");
       return h("li", { class: `kp-row${k === this.keypoint ? " current" : ""} status-${status}`,
         onclick: () => this.pick(k) },
       h("kbd", {}, String(i + 1)), h("span", { class: "swatch", style: { background: colorOf(k) } }),
@@ -954,7 +1024,8 @@ class AnnotatePage {
       h("h3", {}, `View ${this.viewIndex + 1}/${this.views.length} · ${view.camera}`),
       h("ul", { class: "kp-list" }, rows),
       h("div", { class: "button-row" },
-        h("button", { onclick: () => this.acceptAllInView(), disabled: props.size === 0 }, `Accept ${props.size} proposals (Enter)`),
+        h("button", { class: "accept-all", onclick: () => this.acceptAllInView(), disabled: props.size === 0 },
+          `Accept ${[...props.values()].filter(confident).length} of ${props.size} proposals (Enter)`),
         h("button", { onclick: () => this.toggleOccluded() }, "Occluded (O)"),
         h("button", { onclick: () => this.markNotAnnotated() }, "Not annotated (N)")),
       h("div", { class: "button-row" },
@@ -963,7 +1034,8 @@ class AnnotatePage {
       h("div", { class: "totals" }, `${total}/${this.views.length * this.annotation.keypoints.length} keypoints · ${masks} mask(s) corrected`),
       h("button", { class: "primary submit", onclick: () => this.submit(), disabled: this.submitting },
         this.submitting ? "Submitting…" : "Submit (Ctrl+Enter)"),
-      h("div", { class: "muted legend" }, "proposals: T triangulated from your clicks, F current fit, M MVNet"),
+      h("div", { class: "muted legend" }, "proposals: T triangulated from your clicks, F current fit, M MVNet, " +
+        `D detector; the number is its confidence (orange: below ${ACCEPT_CONF}, Enter leaves it)`),
       this.sources.map((source) => h("div", { class: source.label.includes("not MANO") ? "badge warn" : "badge" },
         `${SOURCE_LETTER[source.kind]}: ${source.label}`)),
       this.lastSubmission ? h("div", { class: "muted" },
@@ -983,4 +1055,14 @@ function labelFor(keypoint) {
 function draftLabel(state) {
   return { unsaved: "draft: unsaved changes", saving: "draft: saving…", saved: "draft: saved",
     error: "draft: not saved yet (retrying)" }[state] || "draft: nothing to save";
+}
+
+function confident(p) {
+  return p.confidence !== null && p.confidence !== undefined && p.confidence >= ACCEPT_CONF;
+}
+
+// "T 0.92": source letter and confidence ("F ?" for a fit, which has none).
+function proposalLabel(p) {
+  const conf = p.confidence === null || p.confidence === undefined ? "?" : p.confidence.toFixed(2);
+  return `${SOURCE_LETTER[p.source] || "?"} ${conf}`;
 }

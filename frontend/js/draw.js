@@ -3,7 +3,8 @@
 // background alike.
 import { colorOf } from "./keypoints.js";
 
-export function marker(ctx, x, y, keypoint, { style = "solid", r = 6, label = null, selected = false } = {}) {
+// look: a proposal to check before accepting (below the confidence Enter accepts): an orange ring.
+export function marker(ctx, x, y, keypoint, { style = "solid", r = 6, label = null, selected = false, look = false } = {}) {
   const color = colorOf(keypoint);
   ctx.save();
   ctx.lineWidth = selected ? 3 : 2;
@@ -22,6 +23,13 @@ export function marker(ctx, x, y, keypoint, { style = "solid", r = 6, label = nu
     ctx.setLineDash([]);
     ctx.fillStyle = color;
     ctx.fillRect(x - 1, y - 1, 2, 2);
+    if (look) {
+      ctx.strokeStyle = "#ff9f1c";
+      ctx.lineWidth = 2;
+      ctx.beginPath();
+      ctx.arc(x, y, r + 6, 0, 2 * Math.PI);
+      ctx.stroke();
+    }
   } else if (style === "occluded") {
     ctx.strokeStyle = "#fff";
     ctx.fillStyle = color;

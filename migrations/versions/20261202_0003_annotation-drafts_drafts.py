@@ -1,7 +1,8 @@
-"""drafts
+"""drafts and clicks from proposals
 
 Work in progress on a leased sample (an annotator's clicks and masks, a reviewer's note), one per sample,
-queue and user, saved as the person works and deleted on submit or decision.
+queue and user, saved as the person works and deleted on submit or decision; and clicks.from_proposal,
+whether a keypoint was accepted from a proposal rather than placed by hand.
 
 Revision ID: 0003_drafts
 Revises: 0002
@@ -42,8 +43,14 @@ def upgrade() -> None:
     with op.batch_alter_table('drafts', schema=None) as batch_op:
         batch_op.create_index(batch_op.f('ix_drafts_user_id'), ['user_id'], unique=False)
 
+    with op.batch_alter_table('clicks', schema=None) as batch_op:
+        batch_op.add_column(sa.Column('from_proposal', sa.Boolean(), server_default=sa.false(), nullable=False))
+
 
 def downgrade() -> None:
+    with op.batch_alter_table('clicks', schema=None) as batch_op:
+        batch_op.drop_column('from_proposal')
+
     with op.batch_alter_table('drafts', schema=None) as batch_op:
         batch_op.drop_index(batch_op.f('ix_drafts_user_id'))
 

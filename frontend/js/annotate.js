@@ -210,6 +210,7 @@ class AnnotatePage {
     this.timer = new ActionTimer();
     this.submissionId = crypto.randomUUID();
     this.hideBanner();
+    this.justPlaced = null; // a view of the previous sample
     delete document.body.dataset.draftState;
     delete document.body.dataset.draftSaved;
     this.drafts.track(task.sample_id, prepared.draft ? prepared.draft.revision : 0);

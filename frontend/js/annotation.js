@@ -15,7 +15,8 @@ export class Annotation {
   }
 
   get(viewId, keypoint) {
-    return this.clicks.get(viewId).get(keypoint) || null;
+    const view = this.clicks.get(viewId);
+    return (view && view.get(keypoint)) || null; // null for a view of another sample too
   }
 
   // Set (or with null, clear) a click; returns the previous value for undo.

@@ -2,6 +2,7 @@
 
 from backend.models.audit import AuditEvent
 from backend.models.capture import CameraCalibration, Project, Sample, Sequence, Subject, View
+from backend.models.drafts import Draft
 from backend.models.enums import (
     DecisionKind,
     JobKind,
@@ -22,7 +23,7 @@ from backend.models.review import Decision, Round, RoundMember
 from backend.models.users import User
 
 __all__ = [
-    "AuditEvent", "CameraCalibration", "Click", "Decision", "DecisionKind", "Fit", "Job", "JobKind",
+    "AuditEvent", "CameraCalibration", "Click", "Decision", "DecisionKind", "Draft", "Fit", "Job", "JobKind",
     "JobState", "LeaseKind", "Mask", "MaskKind", "Prediction", "Project", "Role", "Round", "RoundMember",
     "RoundState", "Sample", "SampleState", "Sequence", "Split", "Stream", "Subject", "Submission", "User",
     "View", "Visibility",

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from datetime import datetime
 
-from sqlalchemy import CheckConstraint, ForeignKey, String, UniqueConstraint
+from sqlalchemy import CheckConstraint, ForeignKey, String, UniqueConstraint, false
 from sqlalchemy.orm import Mapped, mapped_column
 
 from backend.db.base import Base, utcnow
@@ -45,6 +45,8 @@ class Click(Base):
     x_px: Mapped[float | None]
     y_px: Mapped[float | None]
     visibility: Mapped[str] = mapped_column(String(20))
+    # Accepted from a proposal rather than placed by hand (the annotator only looked at it).
+    from_proposal: Mapped[bool] = mapped_column(default=False, server_default=false())
     user_id: Mapped[int] = mapped_column(ForeignKey("users.id"))
     time_spent_s: Mapped[float]
     created_at: Mapped[datetime] = mapped_column(default=utcnow)

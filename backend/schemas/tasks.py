@@ -29,6 +29,7 @@ class TaskPublic(Public):
     lease_token: str
     lease_expires_at: datetime
     sequence_id: int
+    sequence: str | None = Field(default=None, description="The sequence's name in the capture and exports.")
     frame_index: int
     time_s: float
     keypoints_to_click: list[int]
@@ -58,6 +59,8 @@ class ClickIn(Strict):
     x: Pixel | None = None
     y: Pixel | None = None
     visibility: Visibility = Visibility.visible
+    from_proposal: bool = Field(default=False, description="Accepted from a proposal (triangulated, fit, MVNet), "
+                                "not placed by hand: weighed as a proposal, not as a click.")
 
     @model_validator(mode="after")
     def _position_matches_visibility(self) -> ClickIn:

@@ -121,7 +121,10 @@ class ActivityPublic(Public):
 
 
 class DashboardPublic(Public):
-    queues: dict[str, int]
+    queues: dict[str, int] = Field(description="Free samples per queue ('annotate', 'review') and those leased "
+                                   "now ('annotate_leased', 'review_leased').")
+    launch: dict[str, Any] = Field(description="accepted labels, the minimum a round trains on, and the refusal "
+                                   "in plain words (null: a round can be launched).")
     fits: int
     fits_by_hand_model: dict[str, int] = Field(description="Label -> fits; the stand-in is 'built-in stand-in hand, "
                                                "not MANO'.")

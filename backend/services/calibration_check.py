@@ -12,7 +12,7 @@ from sqlalchemy.orm import Session
 from backend.models.capture import CameraCalibration, Project, Sample, Sequence, View
 from backend.models.enums import Visibility
 from backend.models.labels import Click, Submission
-from backend.services.errors import InvalidInputError, NotFoundError
+from backend.services.errors import ConflictError, NotFoundError
 
 MAX_SUBMISSIONS = 200  # the latest ones: enough for a stable median, bounded work per request
 
@@ -46,6 +46,6 @@ def calibration_check(session: Session, project_id: int, max_submissions: int = 
     notes = [] if keypoints else ["no visible clicks yet: the check needs annotated samples"]
     try:
         report = check_keypoints(cameras, keypoints, visible, source="clicks", notes=notes)
-    except CheckError as exc:
-        raise InvalidInputError(str(exc)) from None
+    except CheckError as exc:  # the project's rig or clicks cannot be checked (yet): its state, not the request
+        raise ConflictError(str(exc)) from None
     return report.to_dict()

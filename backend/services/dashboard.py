@@ -9,11 +9,12 @@ import numpy as np
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
+from backend.db.base import utcnow
 from backend.models.audit import AuditEvent
 from backend.models.capture import Sample
 from backend.models.enums import LeaseKind, SampleState
 from backend.models.fits import Fit, Prediction
-from backend.services import activity, queues
+from backend.services import activity, queues, rounds
 
 # The paper's prices of human time ("FreiHAND Dataset", "Evaluation of Iterative Labeling").
 PAPER_SECONDS = {"keypoint": 2.0, "mask": 12.0, "verification": 5.0}
@@ -87,11 +88,25 @@ def fits_by_hand_model(session: Session) -> dict[str, int]:
     return out
 
 
-def dashboard(session: Session) -> dict[str, Any]:
+def leased_counts(session: Session) -> dict[str, int]:
+    """Samples of each queue someone holds a live lease on now (on screen or prefetched)."""
+    now = utcnow()
+    out = {}
+    for kind, state in queues.QUEUE_STATE.items():
+        out[kind.value] = session.execute(select(func.count()).select_from(Sample).where(
+            Sample.state == state, Sample.lease_kind == kind.value, Sample.lease_expires_at > now)).scalar_one()
+    return out
+
+
+def dashboard(session: Session, min_training_samples: int = 1) -> dict[str, Any]:
     by_model = fits_by_hand_model(session)
+    leased = leased_counts(session)
     return {
         "queues": {"annotate": queues.queue_length(session, LeaseKind.annotate),
-                   "review": queues.queue_length(session, LeaseKind.review)},
+                   "review": queues.queue_length(session, LeaseKind.review),
+                   "annotate_leased": leased["annotate"], "review_leased": leased["review"]},
+        "launch": {"accepted": rounds.accepted_labels(session), "minimum": min_training_samples,
+                   "refusal": rounds.launch_refusal(session, min_training_samples)},
         "fits": sum(by_model.values()),
         "fits_by_hand_model": by_model,
         "confidence_histogram": confidence_histogram(session),

@@ -13,11 +13,12 @@ from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Protocol
 
-from sqlalchemy import and_, or_, select, update
+from sqlalchemy import and_, exists, or_, select, update
 from sqlalchemy.orm import Session
 
 from backend.db.base import utcnow
 from backend.models.capture import Sample
+from backend.models.drafts import Draft
 from backend.models.enums import LeaseKind, SampleState
 from backend.services import audit
 from backend.services.errors import ConflictError, LeaseExpiredError, NotFoundError, PermissionDeniedError
@@ -53,6 +54,7 @@ def _lease_of(sample: Sample) -> Lease:
 
 
 _SAMPLES = Sample.__table__  # Core columns: the hot path skips the ORM's statement machinery
+_DRAFTS = Draft.__table__
 
 
 def _order(kind: LeaseKind) -> tuple:
@@ -81,25 +83,35 @@ def acquire(session: Session, user: Actor, kind: LeaseKind, lease_seconds: int,
     mine = (c.leased_by_id == user.id, c.lease_kind == kind.value, c.state == state.value, c.lease_expires_at > now)
     # The conditions again outside the subquery: on PostgreSQL they are re-checked on the newest row
     # version if a concurrent transaction (the same user's submit) changed it meanwhile.
+    # Of two held (the one on screen and the prefetched), the one with a draft: a reload shows the work.
+    drafted = exists().where(_DRAFTS.c.sample_id == c.id, _DRAFTS.c.kind == kind.value,
+                             _DRAFTS.c.user_id == user.id)
     own = conn.execute(
         update(_SAMPLES)
-        .where(c.id == select(c.id).where(*mine).limit(1).scalar_subquery(), *mine)
+        .where(c.id == select(c.id).where(*mine).order_by(drafted.desc(), c.id).limit(1).scalar_subquery(), *mine)
         .values(lease_expires_at=expires)
         .returning(*HEAD_COLUMNS, c.lease_token)
     ).first()
     if own is not None:
         return Lease(own.id, own.lease_token, expires, kind, SampleHead(*own[:6]))
-    return take_free(session, user, kind, expires, now)
+    # A free sample the caller left work on (its lease lapsed, or they signed out) before any other.
+    return (take_free(session, user, kind, expires, now, drafted_by=user.id)
+            or take_free(session, user, kind, expires, now))
 
 
 def take_free(session: Session, user: Actor, kind: LeaseKind, expires: datetime, now: datetime, *,
-              action: str = "lease.acquire", exclude_sample_id: int | None = None) -> Lease | None:
+              action: str = "lease.acquire", exclude_sample_id: int | None = None,
+              drafted_by: int | None = None) -> Lease | None:
     """Lease the first free sample of the queue (in the queue's order, skipping rows other transactions
-    hold) until `expires`, with its audit row; None when no sample is free."""
+    hold) until `expires`, with its audit row; None when no sample is free. With `drafted_by`, only
+    samples that user has a draft of in this queue (found through the drafts' user index)."""
     c = _SAMPLES.c
     conditions = [c.state == QUEUE_STATE[kind].value, or_(c.lease_expires_at.is_(None), c.lease_expires_at <= now)]
     if exclude_sample_id is not None:
         conditions.append(c.id != exclude_sample_id)
+    if drafted_by is not None:
+        conditions.append(c.id.in_(select(_DRAFTS.c.sample_id).where(_DRAFTS.c.user_id == drafted_by,
+                                                                     _DRAFTS.c.kind == kind.value)))
     free = select(c.id).where(*conditions).order_by(*_order(kind)).limit(1).with_for_update(skip_locked=True)
     token = secrets.token_urlsafe(16)
     taken = session.connection().execute(
@@ -162,6 +174,34 @@ def renew(session: Session, user: Actor, sample_id: int, kind: LeaseKind, token:
     sample = load_locked(session, sample_id)
     check_lease(sample, user, kind, token)
     sample.lease_expires_at = utcnow() + timedelta(seconds=lease_seconds)
+    return _lease_of(sample)
+
+
+def retake(session: Session, user: Actor, sample_id: int, kind: LeaseKind, token: str | None,
+           lease_seconds: int, now: datetime | None = None) -> Lease:
+    """Take the lease on `sample_id` again after it lapsed (the server was unreachable, the laptop slept),
+    so the work on screen can still be submitted: allowed while the sample is in the queue and nobody else
+    holds a live lease on it. The token is kept when the lapsed lease was the caller's own and nobody took
+    the sample since; otherwise (released, or another's lapsed lease) a new one is issued. A live own lease
+    is renewed. `token` (the one the caller had) is only recorded in the audit row.
+
+    ConflictError (409) naming why when the sample left the queue or another person holds it now."""
+    now = now or utcnow()
+    sample = load_locked(session, sample_id)
+    if sample.state != QUEUE_STATE[kind]:
+        raise ConflictError(f"sample {sample_id} is '{sample.state}' now, no longer in the {kind.value} queue")
+    live = sample.lease_expires_at is not None and sample.lease_expires_at > now
+    mine = sample.leased_by_id == user.id and sample.lease_kind == kind
+    if live and not mine:
+        raise ConflictError(f"sample {sample_id} was given to someone else while your lease had lapsed")
+    if not mine or sample.lease_token is None:  # someone's lapsed lease, or a released one: a new lease
+        sample.lease_token = secrets.token_urlsafe(16)
+    sample.leased_by_id = user.id
+    sample.lease_kind = kind.value
+    sample.lease_expires_at = now + timedelta(seconds=lease_seconds)
+    if not live:
+        audit.record(session, user.id, "lease.retake", "sample", sample_id, kind=kind.value,
+                     same_token=sample.lease_token == token)
     return _lease_of(sample)
 
 

@@ -9,7 +9,7 @@ from backend.models.capture import Sample
 from backend.models.enums import DecisionKind, LeaseKind, SampleState, Stream
 from backend.models.fits import Fit
 from backend.models.review import Decision
-from backend.services import audit, queues, rounds
+from backend.services import audit, drafts, queues, rounds
 from backend.services.errors import ConflictError
 from backend.services.state_machine import transition
 from backend.services.users import Actor
@@ -56,6 +56,7 @@ def decide(session: Session, user: Actor, sample_id: int, decision: DecisionKind
     else:
         transition(session, sample, SampleState.needs_annotation, user.id, reason=reason)
     queues.clear(sample)
+    drafts.delete_for_sample(session, sample_id, LeaseKind.review)
     row = Decision(sample_id=sample_id, fit_id=sample.current_fit_id, round_id=round_.id, user_id=user.id,
                    decision=decision, reason=reason)
     session.add(row)

@@ -64,8 +64,29 @@ def _counts(session: Session, round_id: int) -> dict[str, int]:
     return {stream: int(n) for stream, n in rows}
 
 
+def accepted_labels(session: Session) -> int:
+    """Accepted samples with a fit in any round: what the next round's networks train on (D_{i+1})."""
+    return session.execute(select(func.count()).select_from(RoundMember)
+                           .where(RoundMember.fit_id.is_not(None))).scalar_one()
+
+
+def launch_refusal(session: Session, min_training_samples: int) -> str | None:
+    """Why a round cannot be launched now, in plain words; None when it can."""
+    n = accepted_labels(session)
+    if n >= min_training_samples:
+        return None
+    return (f"a round trains its networks on the accepted labels: {n} accepted so far, at least "
+            f"{min_training_samples} needed. Accept {min_training_samples - n} more in review first.")
+
+
 def launch(session: Session, queue: jobs.JobQueue, actor_id: int, mvnet_version: str | None,
-           handsegnet_version: str | None, note: str) -> tuple[Round, Job]:
+           handsegnet_version: str | None, note: str, min_training_samples: int = 1) -> tuple[Round, Job]:
+    """Complete the open round and launch the next; ConflictError (nothing written) while fewer than
+    `min_training_samples` labels are accepted, since its training would fail."""
+    queue.ensure_available()  # an outage first (503): it is no reason to go and accept more labels
+    refusal = launch_refusal(session, min_training_samples)
+    if refusal is not None:
+        raise ConflictError(f"cannot launch a round yet: {refusal}")
     current = open_round(session, actor_id)
     current.state = RoundState.completed
     current.finished_at = utcnow()

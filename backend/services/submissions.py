@@ -22,9 +22,10 @@ from backend.models.capture import Sample, View
 from backend.models.enums import JobKind, LeaseKind, MaskKind, SampleState, Visibility
 from backend.models.labels import Click, Mask, Submission
 from backend.schemas.tasks import SubmissionCreate
-from backend.services import audit, jobs, queues
+from backend.services import audit, drafts, jobs, queues
+from backend.services.annotation_input import check_clicks, check_masks
 from backend.services.errors import ConflictError, DomainError, InvalidInputError, NotFoundError
-from backend.services.masks import decode_rle, encode_png
+from backend.services.masks import encode_png
 from backend.services.state_machine import check_path
 from backend.services.storage import Storage
 from backend.services.users import Actor
@@ -69,11 +70,6 @@ def _existing(session: Session, client_id: str, user: Actor, sample_id: int) -> 
     return info
 
 
-def in_image(x: float, y: float, width: int, height: int) -> bool:
-    """Pixel centres are integers, so the image spans [-0.5, W - 0.5] x [-0.5, H - 0.5]."""
-    return -0.5 <= x <= width - 0.5 and -0.5 <= y <= height - 0.5
-
-
 def _lock_with_views(session: Session, sample_id: int, client_id: str) -> list[Any]:
     """The sample row locked for the rest of the transaction (PostgreSQL: FOR UPDATE OF samples; SQLite is
     serialised by BEGIN IMMEDIATE), one result row per view, and the id of a submission already stored under
@@ -106,11 +102,12 @@ def _insert_submission(session: Session, values: dict[str, Any]) -> int | None:
 # caches its parsing and PostgreSQL its plan (a multi-row VALUES of 48 rows is over psycopg's 4 KiB cache limit
 # and was re-parsed on every request).
 _CLICKS_UNNEST = text(
-    "INSERT INTO clicks (submission_id, sample_id, view_id, keypoint, x_px, y_px, visibility, user_id, time_spent_s,"
-    " created_at) SELECT :submission_id, :sample_id, t.view_id, t.keypoint, t.x, t.y, t.visibility, :user_id,"
-    " :time_spent_s, :created_at FROM unnest(CAST(:view_ids AS integer[]), CAST(:keypoints AS integer[]),"
-    " CAST(:xs AS double precision[]), CAST(:ys AS double precision[]), CAST(:visibilities AS varchar[]))"
-    " AS t(view_id, keypoint, x, y, visibility)"
+    "INSERT INTO clicks (submission_id, sample_id, view_id, keypoint, x_px, y_px, visibility, from_proposal, user_id,"
+    " time_spent_s, created_at) SELECT :submission_id, :sample_id, t.view_id, t.keypoint, t.x, t.y, t.visibility,"
+    " t.from_proposal, :user_id, :time_spent_s, :created_at FROM unnest(CAST(:view_ids AS integer[]),"
+    " CAST(:keypoints AS integer[]), CAST(:xs AS double precision[]), CAST(:ys AS double precision[]),"
+    " CAST(:visibilities AS varchar[]), CAST(:from_proposals AS boolean[]))"
+    " AS t(view_id, keypoint, x, y, visibility, from_proposal)"
 ).bindparams(bindparam("created_at", type_=UTCDateTime()))
 
 
@@ -123,12 +120,14 @@ def _insert_clicks(session: Session, body: SubmissionCreate, submission_id: int,
             "time_spent_s": body.time_spent_s, "created_at": now,
             "view_ids": [c.view_id for c in body.clicks], "keypoints": [c.keypoint for c in body.clicks],
             "xs": [c.x for c in body.clicks], "ys": [c.y for c in body.clicks],
-            "visibilities": [Visibility(c.visibility).value for c in body.clicks]})
+            "visibilities": [Visibility(c.visibility).value for c in body.clicks],
+            "from_proposals": [c.from_proposal for c in body.clicks]})
         return
     # SQLite: the driver's executemany (a C loop over one prepared statement).
     conn.execute(insert(_CLICKS), [
         {"submission_id": submission_id, "sample_id": sample_id, "view_id": c.view_id, "keypoint": c.keypoint,
-         "x_px": c.x, "y_px": c.y, "visibility": Visibility(c.visibility).value, "user_id": user_id,
+         "x_px": c.x, "y_px": c.y, "visibility": Visibility(c.visibility).value, "from_proposal": c.from_proposal,
+         "user_id": user_id,
          "time_spent_s": body.time_spent_s, "created_at": now}
         for c in body.clicks
     ])
@@ -161,31 +160,8 @@ def submit(session: Session, queue: jobs.JobQueue, storage: Storage, user: Actor
         raise InvalidInputError(f"{len(body.clicks)} clicks in one submission; at most {max_clicks}")
 
     views = {r.view_id: (r.view_width, r.view_height) for r in rows if r.view_id is not None}
-    seen: set[tuple[int, int]] = set()
-    for i, click in enumerate(body.clicks):
-        size = views.get(click.view_id)
-        if size is None:
-            raise InvalidInputError(f"clicks[{i}]: view {click.view_id} is not a view of sample {sample_id}")
-        if (click.view_id, click.keypoint) in seen:
-            raise InvalidInputError(f"clicks[{i}]: keypoint {click.keypoint} of view {click.view_id} is given twice")
-        seen.add((click.view_id, click.keypoint))
-        if click.x is not None and click.y is not None and not in_image(click.x, click.y, *size):
-            raise InvalidInputError(f"clicks[{i}]: ({click.x}, {click.y}) lies outside view {click.view_id}'s "
-                                    f"{size[0]}x{size[1]} image")
-    decoded = []
-    for i, mask in enumerate(body.masks):
-        size = views.get(mask.view_id)
-        if size is None:
-            raise InvalidInputError(f"masks[{i}]: view {mask.view_id} is not a view of sample {sample_id}")
-        if (mask.width, mask.height) != size:
-            raise InvalidInputError(f"masks[{i}]: mask is {mask.width}x{mask.height}; view {mask.view_id} is "
-                                    f"{size[0]}x{size[1]}")
-        try:
-            decoded.append((mask.view_id, decode_rle(mask.rle, mask.width, mask.height)))
-        except InvalidInputError as exc:
-            raise InvalidInputError(f"masks[{i}]: {exc.message}") from exc
-    if len({view_id for view_id, _ in decoded}) != len(decoded):
-        raise InvalidInputError("masks: one view is given twice")
+    check_clicks(views, body.clicks, sample_id)
+    decoded = check_masks(views, body.masks, sample_id)
 
     now = utcnow()
     audit_rows: list[dict[str, Any]] = []
@@ -227,6 +203,8 @@ def submit(session: Session, queue: jobs.JobQueue, storage: Storage, user: Actor
                   client_id=body.submission_id, clicks=len(body.clicks), masks=len(decoded)),
     ]
     audit.write_rows(session, audit_rows)
+    drafts.delete_for_sample(session, sample_id, LeaseKind.annotate)  # submitted: the work in progress is done
     info = SubmissionInfo(submission_id, body.submission_id, sample_id, user.id, len(body.clicks), len(decoded),
                           job_id, now)
     return SubmitResult(info, duplicate=False)
+

@@ -76,7 +76,8 @@ class AdminPage {
         dataset: { state } }, h("div", { class: "n" }, String(counts[state] || 0)), h("div", { class: "label" },
         state.replace("_", " "))))),
       h("div", { class: "muted" }, `${total} samples · ${s.submissions} submissions · ${s.clicks} clicks · ` +
-        `${d.fits} fits · queues: ${d.queues.annotate} to annotate, ${d.queues.review} to review`),
+        `${d.fits} fits · queues: ${d.queues.annotate} to annotate (+${d.queues.annotate_leased ?? 0} being annotated), ` +
+        `${d.queues.review} to review (+${d.queues.review_leased ?? 0} being reviewed)`),
       Object.keys(d.fits_by_hand_model).length ? h("div", { class: "fit-models" }, "Fits made with: ",
         Object.entries(d.fits_by_hand_model).map(([label, n]) => h("span", { class: label.includes("not MANO")
           ? "badge warn" : "badge" }, `${label} (${n})`))) : null,
@@ -97,6 +98,8 @@ class AdminPage {
           "Cancel") : ""));
     });
     const note = h("input", { type: "text", name: "note", placeholder: "note for the next round (optional)" });
+    // Launching below the minimum of accepted labels would only fail in training: the button says why.
+    const refusal = this.dashboard.launch ? this.dashboard.launch.refusal : null;
     fill(this.sections.rounds, 
       h("h2", {}, "Rounds: D", h("sub", {}, "i+1"), " = D", h("sub", {}, "i"), " + D", h("sup", {}, "h"), " + D",
         h("sup", {}, "m"), " + D", h("sup", {}, "l")),
@@ -107,9 +110,11 @@ class AdminPage {
         h("tbody", {}, rows.length ? rows : h("tr", {}, h("td", { colspan: 9, class: "muted" },
           "no round yet: the first accepted sample opens round 0")))),
       h("form", { class: "inline-form", onsubmit: (e) => { e.preventDefault(); this.launchRound(note.value); } },
-        note, h("button", { class: "primary launch-round", type: "submit" }, running ? `Complete D${sub(running.index)} and launch the next round` :
+        note, h("button", { class: "primary launch-round", type: "submit", disabled: Boolean(refusal),
+          title: refusal || "" }, running ? `Complete D${sub(running.index)} and launch the next round` :
           "Launch a round"),
         h("button", { type: "button", onclick: () => this.buildReviewQueue() }, "Build review queue")),
+      refusal ? h("div", { class: "muted launch-why" }, `Not yet: ${refusal}`) : null,
       this.progress,
     );
   }
@@ -147,13 +152,16 @@ class AdminPage {
 
   renderJobs() {
     const rows = this.jobs.map((j) => h("tr", { dataset: { job: String(j.id), state: j.state } },
-      h("td", {}, String(j.id)), h("td", {}, j.kind), h("td", {}, j.state),
+      h("td", {}, String(j.id)), h("td", {}, j.kind), h("td", {}, j.sample_id === null ? "–" : String(j.sample_id)),
+      h("td", {}, j.state), h("td", { class: "muted" }, new Date(j.created_at).toLocaleTimeString()),
+      h("td", { class: "num" }, duration(j)),
       h("td", {}, progressBar(j.progress)),
-      h("td", { class: "muted msg" }, j.error || j.message || ""),
+      h("td", { class: "muted msg" }, jobMessage(j)),
       h("td", {}, j.state === "queued" || j.state === "running"
         ? h("button", { class: "small", onclick: () => this.cancelJob(j.id) }, "Cancel") : "")));
     fill(this.sections.jobs, h("h2", {}, "Jobs"), h("table", { class: "table" },
-      h("thead", {}, h("tr", {}, ...["id", "kind", "state", "progress", "message", ""].map((t) => h("th", {}, t)))),
+      h("thead", {}, h("tr", {}, ...["id", "kind", "sample", "state", "created", "took", "progress", "message", ""]
+        .map((t) => h("th", {}, t)))),
       h("tbody", {}, rows)));
   }
 
@@ -209,7 +217,7 @@ class AdminPage {
     fill(this.progress, bar);
     const draw = (job) => fill(bar, 
       h("div", { class: "live-head" }, `round job ${job.id}: ${job.state}`, h("span", { class: "muted" },
-        ` ${job.message || ""}`)), progressBar(job.progress, true), job.error ? h("div", { class: "error" }, job.error) : null);
+        ` ${FINAL.has(job.state) ? "" : job.message || ""}`)), progressBar(job.progress, true), job.error ? h("div", { class: "error" }, job.error) : null);
     this.api.events(`/api/admin/jobs/${jobId}/events`, (name, job) => {
       if (!job) return;
       draw(job);
@@ -308,4 +316,20 @@ function progressBar(progress, large = false) {
 
 function sub(i) {
   return String(i).split("").map((d) => "₀₁₂₃₄₅₆₇₈₉"[Number(d)]).join("");
+}
+
+const FINAL = new Set(["succeeded", "failed", "cancelled"]);
+
+// From creation to the end (or to now while it runs), e.g. "42 s", "3.5 min".
+function duration(job) {
+  const end = job.finished_at ? Date.parse(job.finished_at) : Date.now();
+  const s = Math.max(0, (end - Date.parse(job.created_at)) / 1000);
+  return `${s < 120 ? s.toFixed(0) + " s" : (s / 60).toFixed(1) + " min"}${job.finished_at ? "" : " so far"}`;
+}
+
+// A finished job shows how it ended, not its last progress message ("predicting 0/16").
+function jobMessage(job) {
+  if (job.error) return job.error;
+  if (!FINAL.has(job.state)) return job.message || "";
+  return job.state === "succeeded" ? "done" : job.state;
 }

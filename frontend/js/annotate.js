@@ -1,10 +1,12 @@
 // The annotate page: 8 views in a grid plus one enlarged with zoom and pan; click wrist and fingertips
 // per view (keys pick the keypoint, mark it occluded or not annotated), accept or drag proposals, correct
 // the automatic mask with brush and eraser, undo and redo, submit; the next task is prefetched.
-import { Annotation, proposals as computeProposals } from "./annotation.js";
+import { Annotation, inside, proposals as computeProposals, triangulateClicked } from "./annotation.js";
 import { fitCanvas, fmt, h, isTyping, toast, fill } from "./dom.js";
+import { epipolarCurve, projectPoint } from "./geometry.js";
 import { marker, segment } from "./draw.js";
 import { History } from "./history.js";
+import { DraftSaver } from "./drafts.js";
 import { decodeMask, loadView } from "./images.js";
 import { colorOf, SPARSE, SPARSE_LABELS } from "./keypoints.js";
 import { LeaseKeeper } from "./lease.js";
@@ -14,22 +16,29 @@ import { Viewport } from "./viewport.js";
 
 const HIT_PX = 12; // how close (screen px) a press must be to grab a point
 const DRAG_PX = 3; // movement below this is a click, not a drag
-const SOURCE_LETTER = { triangulated: "T", fit: "F", mvnet: "M" };
+const SOURCE_LETTER = { triangulated: "T", fit: "F", mvnet: "M", detector: "D" };
+// Enter accepts only proposals at least this confident; the others are ringed orange for a look (A takes
+// one anyway). A fit's projection has no confidence: it is always left for a look.
+const ACCEPT_CONF = 0.6;
 const HELP = [
   ["1 … 6", "pick wrist, thumb, index, middle, ring, pinky"],
   ["click", "place the keypoint (then the next one is picked)"],
   ["drag", "move a point or a proposal"],
-  ["A / Enter", "accept the proposal of this keypoint / of all keypoints in this view"],
-  ["O", "toggle occluded (position is a best guess)"],
-  ["N", "mark not annotated in this view"],
-  ["Del", "clear this keypoint in this view"],
+  ["A / Enter", `accept the proposal of this keypoint / all of this view's with confidence >= ${ACCEPT_CONF}`],
+  ["O", "toggle occluded: the point just placed, else the picked one (ringed white)"],
+  ["N", "not annotated in this view: the point just placed, else the picked one"],
+  ["Del / Backspace", "clear the picked keypoint in this view"],
   ["Tab / Shift+Tab", "next / previous view (or click a thumbnail)"],
   ["M", "mask mode on / off; B brush, E eraser"],
   ["[ ] / wheel", "brush size (wheel in mask mode; Ctrl+wheel zooms)"],
-  ["wheel, right-drag", "zoom, pan (Space+drag pans too); 0 fits the view"],
+  ["P", "back to points"],
+  ["wheel, right-drag", "zoom, pan (Space+drag pans too)"],
+  ["+ / - / 0", "zoom in / out at the centre / fit the view"],
   ["H", "hide / show the mask"],
-  ["Ctrl+Z / Ctrl+Shift+Z", "undo / redo"],
+  ["Ctrl+Z / Ctrl+Shift+Z / Ctrl+Y", "undo / redo / redo"],
   ["Ctrl+Enter", "submit and show the next task"],
+  ["Esc", "cancel a drag, give the keys back to the view (from any button)"],
+  ["?", "open / close this list"],
 ];
 
 export async function mountAnnotate(root, ctx) {
@@ -43,6 +52,11 @@ class AnnotatePage {
     this.api = api;
     this.root = root;
     this.leases = new LeaseKeeper(api, "annotate");
+    this.leases.onretaken = (sampleId, token) => this.leaseRetaken(sampleId, token);
+    this.leases.onlost = (sampleId, error) => this.leaseLost(sampleId, error);
+    this.drafts = new DraftSaver(api, "annotate", { snapshot: () => this.draftBody(),
+      onstatus: (state, detail) => this.draftStatus(state, detail),
+      onlease: () => this.task && this.leases.retake(this.task.sample_id).catch(() => null) });
     this.history = new History();
     this.history.onchange = () => this.renderSide();
     this.vp = new Viewport();
@@ -70,9 +84,10 @@ class AnnotatePage {
     this.canvas = h("canvas", { class: "main-canvas", "aria-label": "enlarged view", tabindex: "0" });
     this.thumbs = h("div", { class: "thumbs", "aria-label": "views" });
     this.hud = h("div", { class: "hud" });
+    this.banner = h("div", { class: "lease-banner", role: "alert", hidden: true });
     this.side = h("aside", { class: "side" });
     this.root.append(h("div", { class: "annotate-page" }, this.thumbs,
-      h("section", { class: "stage" }, this.canvas, this.hud), this.side));
+      h("section", { class: "stage" }, this.canvas, this.hud, this.banner), this.side));
     const c = this.canvas;
     c.addEventListener("pointerdown", (e) => this.pointerdown(e));
     c.addEventListener("pointermove", (e) => this.pointermove(e));
@@ -93,12 +108,14 @@ class AnnotatePage {
     window.removeEventListener("resize", this.onResize);
     clearInterval(this.clock);
     clearTimeout(this.emptyTimer);
+    this.drafts.stop(); // what is not saved yet goes now (Back, another page): the next mount restores it
     // The prefetched sample goes back to the queue; the one on screen stays ours until its lease expires.
     if (this.prepared) this.leases.drop(this.prepared.task.sample_id, true);
     this.leases.dropAll(false);
   }
 
   async releaseAll() {
+    await this.drafts.settle(); // saved under the lease before the lease goes: a new login restores it
     await this.leases.dropAll(true);
   }
 
@@ -111,9 +128,10 @@ class AnnotatePage {
     this.leases.hold(task);
     const loads = task.views.map((view) => loadView(this.api, view));
     const proposals = this.api.get(`/api/annotate/samples/${task.sample_id}/proposals`);
+    const draft = this.drafts.load(task.sample_id);
     const ready = eager ? await Promise.all(loads) : [await loads[0]];
     const views = task.views.map((view, i) => ({ ...view, image: null, maskImage: null, ...(ready[i] || {}) }));
-    return { task, proposals: await proposals, views, loads, loadMs: performance.now() - t0 };
+    return { task, proposals: await proposals, draft: await draft, views, loads, loadMs: performance.now() - t0 };
   }
 
   async loadNext() {
@@ -191,6 +209,12 @@ class AnnotatePage {
     this.keypoint = this.annotation.firstUnset(this.views[0].id) ?? SPARSE[0];
     this.timer = new ActionTimer();
     this.submissionId = crypto.randomUUID();
+    this.hideBanner();
+    this.justPlaced = null; // a view of the previous sample
+    delete document.body.dataset.draftState;
+    delete document.body.dataset.draftSaved;
+    this.drafts.track(task.sample_id, prepared.draft ? prepared.draft.revision : 0);
+    if (prepared.draft) this.applyDraft(prepared.draft);
     this.updateProposals();
     this.history.clear();
     this.buildThumbs();
@@ -200,6 +224,7 @@ class AnnotatePage {
     this.metrics.shown.push({ sample_id: task.sample_id, show_ms: performance.now() - t0, load_ms: prepared.loadMs,
       at_ms: performance.now() });
     this.decodeRestLater(task.sample_id);
+    document.body.dataset.draft = prepared.draft ? String(prepared.draft.revision) : "none";
     document.body.dataset.ready = "annotate";
     document.body.dataset.sample = String(task.sample_id);
   }
@@ -211,14 +236,43 @@ class AnnotatePage {
   // --- editing ------------------------------------------------------------------------------------
 
   setClick(viewId, keypoint, value, kind) {
-    const previous = this.annotation.set(viewId, keypoint, value);
-    const apply = (v) => { this.annotation.set(viewId, keypoint, v); this.changed(viewId); };
-    this.history.record({ kind, undo: () => apply(previous), redo: () => apply(value) });
-    this.timer.mark(kind, { view_id: viewId, keypoint });
-    this.changed(viewId);
+    const changes = [{ viewId, keypoint, value, previous: this.annotation.set(viewId, keypoint, value) }];
+    // A point placed by hand moves the proposals accepted for this keypoint in the other views with it.
+    if (value && !value.from && (kind === "click" || kind === "drag")) {
+      for (const c of this.reprojections(keypoint, viewId)) {
+        changes.push({ ...c, previous: this.annotation.set(c.viewId, c.keypoint, c.value) });
+      }
+    }
+    // O and N then apply to this point, even after the selection moved on to the next keypoint.
+    if (kind === "click" || kind === "accept" || kind === "drag") this.justPlaced = value ? { viewId, keypoint } : null;
+    const apply = (which) => {
+      for (const c of changes) this.annotation.set(c.viewId, c.keypoint, c[which]);
+      for (const c of changes) this.changed(c.viewId);
+    };
+    this.history.record({ kind, undo: () => apply("previous"), redo: () => apply("value") });
+    this.timer.mark(kind, { view_id: viewId, keypoint, ...(changes.length > 1 ? { reprojected: changes.length - 1 } : {}) });
+    for (const c of changes) this.changed(c.viewId);
+  }
+
+  // The keypoint re-triangulated from the views where it was placed by hand, projected into the views
+  // where it was accepted from a proposal: [{viewId, keypoint, value}] for those that move.
+  reprojections(keypoint, exceptViewId) {
+    const tri = triangulateClicked(this.annotation, this.cameras, keypoint);
+    if (!tri) return [];
+    const out = [];
+    for (const viewId of this.annotation.viewIds) {
+      const c = this.annotation.get(viewId, keypoint);
+      if (viewId === exceptViewId || !c || !c.from || c.x === null) continue;
+      const cam = this.cameras.get(viewId);
+      const p = projectPoint(tri.point, cam);
+      if (!inside(p, cam) || Math.hypot(p[0] - c.x, p[1] - c.y) < 0.01) continue;
+      out.push({ viewId, keypoint, value: { ...c, x: p[0], y: p[1], from: "triangulated", confidence: tri.confidence } });
+    }
+    return out;
   }
 
   changed(viewId) {
+    this.drafts.changed();
     this.updateProposals();
     this.renderThumb(this.views.findIndex((v) => v.id === viewId));
     this.requestRender();
@@ -251,32 +305,63 @@ class AnnotatePage {
   acceptProposal(keypoint, { advance = true } = {}) {
     const p = this.proposals.get(this.view.id).get(keypoint);
     if (!p) return false;
-    this.setClick(this.view.id, keypoint, { x: p.x, y: p.y, visibility: "visible" }, "accept");
+    this.setClick(this.view.id, keypoint, { x: p.x, y: p.y, visibility: "visible", from: p.source,
+      confidence: p.confidence }, "accept");
     if (advance) this.advance();
     return true;
   }
 
   acceptAllInView() {
-    const pending = [...this.proposals.get(this.view.id).keys()];
-    for (const k of pending) this.acceptProposal(k, { advance: false });
-    if (pending.length === 0) toast("no proposals left in this view", "info", 1500);
-    this.advance();
+    const all = [...this.proposals.get(this.view.id)];
+    const sure = all.filter(([, p]) => confident(p)).map(([k]) => k);
+    for (const k of sure) this.acceptProposal(k, { advance: false });
+    this.justPlaced = null;
+    const left = all.length - sure.length;
+    if (all.length === 0) toast("no proposals left in this view", "info", 1500);
+    else if (left) toast(`accepted ${sure.length}; ${left} below ${ACCEPT_CONF} ringed orange: have a look (A accepts one)`,
+      "info", 3000);
+    if (left) {
+      // Stay on the first doubtful one, so the next key is about it.
+      this.keypoint = all.find(([, p]) => !confident(p))[0];
+      this.renderSide();
+      this.requestRender();
+    } else {
+      this.advance();
+    }
+  }
+
+  // What O and N apply to: the point just placed (while it is still set), else the picked keypoint here.
+  target() {
+    const j = this.justPlaced;
+    if (j && this.annotation.get(j.viewId, j.keypoint)) return { ...j, justPlaced: true };
+    return { viewId: this.view.id, keypoint: this.keypoint, justPlaced: false };
+  }
+
+  // An explicit choice of keypoint or view: O and N follow it from now on.
+  pick(keypoint) {
+    this.justPlaced = null;
+    this.keypoint = keypoint;
+    this.requestRender();
+    this.renderSide();
   }
 
   toggleOccluded() {
-    const click = this.annotation.get(this.view.id, this.keypoint);
+    const { viewId, keypoint } = this.target();
+    const click = this.annotation.get(viewId, keypoint);
     if (!click || click.visibility === "not_annotated") {
-      const p = this.proposals.get(this.view.id).get(this.keypoint);
+      const p = this.proposals.get(viewId).get(keypoint);
       if (!p) return toast("place the keypoint first (its best guess), then mark it occluded", "info", 2500);
-      return this.setClick(this.view.id, this.keypoint, { x: p.x, y: p.y, visibility: "occluded" }, "occlude");
+      return this.setClick(viewId, keypoint, { x: p.x, y: p.y, visibility: "occluded" }, "occlude");
     }
     const visibility = click.visibility === "occluded" ? "visible" : "occluded";
-    this.setClick(this.view.id, this.keypoint, { ...click, visibility }, "occlude");
+    this.setClick(viewId, keypoint, { ...click, visibility }, "occlude");
   }
 
   markNotAnnotated() {
-    this.setClick(this.view.id, this.keypoint, { x: null, y: null, visibility: "not_annotated" }, "not_annotated");
-    this.advance();
+    const { viewId, keypoint, justPlaced } = this.target();
+    this.setClick(viewId, keypoint, { x: null, y: null, visibility: "not_annotated" }, "not_annotated");
+    this.justPlaced = null;
+    if (!justPlaced) this.advance(); // after a placement the selection has already moved on
   }
 
   clearKeypoint() {
@@ -312,6 +397,101 @@ class AnnotatePage {
       view.overlay = new MaskOverlay(view.mask);
     }
     return view.mask;
+  }
+
+  // --- drafts and leases --------------------------------------------------------------------------
+
+  // The page's state as a draft (PUT .../draft): the clicks set so far, the corrected masks, where the
+  // annotator is, the time spent and the submission id (a submit retried after a reload stays idempotent).
+  draftBody() {
+    if (!this.task) return null;
+    const clicks = [];
+    for (const [viewId, byKeypoint] of this.annotation.clicks) {
+      for (const [keypoint, c] of byKeypoint) {
+        clicks.push(c.visibility === "not_annotated" ? { view_id: viewId, keypoint, visibility: "not_annotated" }
+          : { view_id: viewId, keypoint, x: c.x, y: c.y, visibility: c.visibility, from_proposal: Boolean(c.from) });
+      }
+    }
+    const masks = this.views.filter((v) => v.maskEdited && v.mask)
+      .map((v) => ({ view_id: v.id, width: v.width, height: v.height, rle: v.mask.toRLE() }));
+    return { lease_token: this.task.lease_token, submission_id: this.submissionId,
+      time_spent_s: Math.round(this.timer.spentSeconds() * 1000) / 1000, clicks, masks,
+      view_index: this.viewIndex, keypoint: this.keypoint };
+  }
+
+  // Restore a saved draft over the freshly shown task (it holds the whole state: it replaces previous clicks).
+  applyDraft(draft) {
+    const p = draft.payload;
+    for (const byKeypoint of this.annotation.clicks.values()) byKeypoint.clear();
+    for (const c of p.clicks) {
+      if (!this.annotation.clicks.has(c.view_id) || !this.annotation.keypoints.includes(c.keypoint)) continue;
+      const value = { x: c.x ?? null, y: c.y ?? null, visibility: c.visibility };
+      if (c.from_proposal) value.from = "proposal"; // accepted, not placed by hand (its source is not kept)
+      this.annotation.set(c.view_id, c.keypoint, value);
+    }
+    for (const m of p.masks) {
+      const view = this.views.find((v) => v.id === m.view_id);
+      if (!view || view.width !== m.width || view.height !== m.height) continue;
+      view.mask = MaskLayer.fromRLE(m.rle, m.width, m.height);
+      view.overlay = new MaskOverlay(view.mask);
+      view.maskEdited = true;
+    }
+    this.viewIndex = Math.min(p.view_index, this.views.length - 1);
+    if (this.annotation.keypoints.includes(p.keypoint)) this.keypoint = p.keypoint;
+    this.submissionId = p.submission_id;
+    this.timer.carriedMs = p.time_spent_s * 1000;
+    window.__handloop.marks.draftRestored = performance.now();
+    toast(`restored your work on sample ${this.task.sample_id} (saved ${new Date(draft.updated_at).toLocaleTimeString()})`,
+      "info", 2500);
+  }
+
+  draftStatus(state, detail) {
+    document.body.dataset.draftState = state;
+    if (state === "saved") document.body.dataset.draftSaved = String(detail.revision);
+    if (state === "error" && detail && detail.status && detail.status < 500 && detail.status !== 403 &&
+        detail.status !== 409) toast(`work in progress not saved: ${detail.message}`, "warn", 5000);
+    const el = this.side.querySelector(".draft-state");
+    if (el) el.textContent = draftLabel(state);
+  }
+
+  leaseRetaken(sampleId, token) {
+    if (this.prepared && this.prepared.task.sample_id === sampleId) this.prepared.task.lease_token = token;
+    if (!this.task || this.task.sample_id !== sampleId) return;
+    this.task.lease_token = token;
+    this.hideBanner();
+    this.drafts.resume();
+    toast(`your lease on sample ${sampleId} had lapsed: taken again, nothing lost`, "info", 3000);
+  }
+
+  leaseLost(sampleId, error) {
+    if (this.prepared && this.prepared.task.sample_id === sampleId) {
+      this.prepared = null; // the prefetched sample went to someone else: fetch another when needed
+      return;
+    }
+    if (!this.task || this.task.sample_id !== sampleId) return;
+    this.lostLease = true;
+    fill(this.banner, h("strong", {}, `Sample ${sampleId} is no longer yours. `),
+      h("span", {}, `${error.message}. Your work on it cannot be submitted; it stays saved as your draft.`),
+      h("button", { class: "primary next-task", onclick: () => this.giveUp() }, "Take the next task"));
+    this.banner.hidden = false;
+    document.body.dataset.lease = "lost";
+    this.renderSide();
+  }
+
+  hideBanner() {
+    this.lostLease = false;
+    this.banner.hidden = true;
+    fill(this.banner, );
+    delete document.body.dataset.lease;
+  }
+
+  async giveUp() {
+    if (!this.task) return;
+    this.drafts.forget();
+    this.leases.drop(this.task.sample_id, false);
+    this.hideBanner();
+    this.task = null;
+    await this.loadNext();
   }
 
   // --- pointer ------------------------------------------------------------------------------------
@@ -495,10 +675,16 @@ class AnnotatePage {
     } else if (ctrl) {
       handled = false;
     } else if (key >= "1" && key <= "6") {
-      this.keypoint = SPARSE[Number(key) - 1];
+      this.pick(SPARSE[Number(key) - 1]);
+    } else if (key === "Escape") {
+      // Keys back to the view from whatever has the focus (a button, the list); a drag in progress ends.
+      this.drag = null;
+      if (document.activeElement && document.activeElement !== this.canvas) document.activeElement.blur();
+      this.canvas.focus();
+      this.side.querySelector(".help").removeAttribute("open");
       this.requestRender();
-      this.renderSide();
     } else if (key === "Tab") {
+      this.justPlaced = null;
       this.selectView((this.viewIndex + (e.shiftKey ? this.views.length - 1 : 1)) % this.views.length);
     } else if (key === "a" || key === "A") {
       if (!this.acceptProposal(this.keypoint)) toast("no proposal for this keypoint here", "info", 1500);
@@ -560,11 +746,13 @@ class AnnotatePage {
   }
 
   undo() {
+    this.justPlaced = null;
     const c = this.history.undo();
     if (c) this.timer.mark("undo");
   }
 
   redo() {
+    this.justPlaced = null;
     const c = this.history.redo();
     if (c) this.timer.mark("redo");
   }
@@ -591,6 +779,7 @@ class AnnotatePage {
 
   async submit() {
     if (!this.task || this.submitting) return;
+    if (this.lostLease) return toast("this sample is no longer yours: take the next task", "warn", 3000);
     const task = this.task;
     const masks = this.views.filter((v) => v.maskEdited && v.mask)
       .map((v) => ({ view_id: v.id, width: v.width, height: v.height, rle: v.mask.toRLE() }));
@@ -604,7 +793,17 @@ class AnnotatePage {
     this.submitting = true;
     this.renderSide();
     try {
-      const result = await this.api.post(`/api/annotate/samples/${task.sample_id}/submissions`, body);
+      const url = `/api/annotate/samples/${task.sample_id}/submissions`;
+      let result;
+      try {
+        result = await this.api.post(url, body);
+      } catch (error) {
+        if (error.status !== 403 && error.status !== 409) throw error;
+        // The lease lapsed (or the token is stale): take it again while the sample is free, then submit.
+        body.lease_token = await this.leases.retake(task.sample_id);
+        result = await this.api.post(url, body);
+      }
+      this.drafts.forget(); // the server deleted the draft with the submission
       this.leases.drop(task.sample_id, false);
       const log = {
         context: "annotate", sample_id: task.sample_id, submission_id: result.submission_id,
@@ -664,7 +863,22 @@ class AnnotatePage {
       ctx.font = "14px system-ui, sans-serif";
       ctx.fillText(`loading ${view.camera}…`, 16, 24);
     }
+    if (this.mode === "points" && !this.annotation.get(view.id, this.keypoint)) this.drawEpipolar(ctx, view);
     this.drawPoints(ctx, view, this.vp, { labels: true, selected: this.keypoint });
+    const target = this.target();
+    const tc = target.viewId === view.id ? this.annotation.get(view.id, target.keypoint) : null;
+    if (tc && tc.x !== null && target.justPlaced) {
+      // The point O and N will change, when it is not the picked one: a white ring around it.
+      const [tx, ty] = this.vp.toScreen(tc.x, tc.y);
+      ctx.save();
+      ctx.strokeStyle = "#fff";
+      ctx.lineWidth = 1.5;
+      ctx.setLineDash([2, 2]);
+      ctx.beginPath();
+      ctx.arc(tx, ty, 14, 0, 2 * Math.PI);
+      ctx.stroke();
+      ctx.restore();
+    }
     if (this.mode === "mask" && this.hover) {
       ctx.save();
       ctx.strokeStyle = this.tool === "brush" ? "#4cc9f0" : "#ff6b6b";
@@ -677,7 +891,32 @@ class AnnotatePage {
     ctx.restore();
     if (dirty) return;
     this.hud.textContent = `${view.camera} · ${view.width}×${view.height} · ${Math.round(this.vp.scale * 100)}% · ` +
-      (this.mode === "mask" ? `mask: ${this.tool} r=${Math.round(this.radius)} px` : `points: ${labelFor(this.keypoint)}`);
+      (this.mode === "mask" ? `mask: ${this.tool} r=${Math.round(this.radius)} px` : `points: ${labelFor(this.keypoint)}` +
+        ` · O/N: ${labelFor(target.keypoint)}${target.justPlaced ? " (just placed)" : ""}`);
+  }
+
+  // While the picked keypoint is being placed here: the epipolar curve of each view where it was placed by
+  // hand (the point lies on all of them; lens distortion bends them slightly).
+  drawEpipolar(ctx, view) {
+    const camTo = this.cameras.get(view.id);
+    if (!camTo) return;
+    ctx.save();
+    ctx.strokeStyle = colorOf(this.keypoint);
+    ctx.globalAlpha = 0.7;
+    ctx.lineWidth = 1;
+    ctx.setLineDash([6, 4]);
+    for (const other of this.views) {
+      const c = other.id === view.id ? null : this.annotation.get(other.id, this.keypoint);
+      if (!c || c.from || c.x === null) continue;
+      const curve = epipolarCurve([c.x, c.y], this.cameras.get(other.id), camTo);
+      ctx.beginPath();
+      curve.forEach(([u, v], i) => {
+        const [sx, sy] = this.vp.toScreen(u, v);
+        if (i === 0) ctx.moveTo(sx, sy); else ctx.lineTo(sx, sy);
+      });
+      ctx.stroke();
+    }
+    ctx.restore();
   }
 
   // Clicks, proposals and the dragged point of one view, on a 2D context in screen units.
@@ -696,8 +935,8 @@ class AnnotatePage {
     for (const [k, p] of this.proposals.get(view.id)) {
       if (drag && drag.keypoint === k) continue;
       const [x, y] = vp.toScreen(p.x, p.y);
-      marker(ctx, x, y, k, { style: "proposal", r, label: labels ? SOURCE_LETTER[p.source] : null,
-        selected: labels && selected === k });
+      marker(ctx, x, y, k, { style: "proposal", r, label: labels ? proposalLabel(p) : null,
+        selected: labels && selected === k, look: !confident(p) });
     }
     for (const [k, c] of clicks) {
       if (c.x === null) continue;
@@ -715,7 +954,7 @@ class AnnotatePage {
     fill(this.thumbs, ...this.views.map((view, i) => {
       const canvas = h("canvas", { class: "thumb-canvas" });
       const el = h("button", { class: `thumb${i === this.viewIndex ? " active" : ""}`, title: `${view.camera} (Tab)`,
-        onclick: () => this.selectView(i) }, canvas, h("span", { class: "thumb-label" }, ""));
+        onclick: () => { this.justPlaced = null; this.selectView(i); } }, canvas, h("span", { class: "thumb-label" }, ""));
       view.thumb = { el, canvas };
       return el;
     }));
@@ -748,6 +987,7 @@ class AnnotatePage {
     if (!el || !this.task) return;
     const expires = this.leases.expiresAt(this.task.sample_id);
     const left = expires ? Math.max(0, Math.round((expires - Date.now()) / 1000)) : null;
+    if (expires && expires <= Date.now() && !this.lostLease) this.leases.retake(this.task.sample_id).catch(() => null);
     el.textContent = `time ${fmt(this.timer.spentSeconds(), 0, " s")} · lease ${left === null ? "–" : `${left} s`}`;
   }
 
@@ -758,9 +998,10 @@ class AnnotatePage {
     const rows = SPARSE.map((k, i) => {
       const status = this.annotation.status(view.id, k);
       const p = props.get(k);
-      const text = status === "unset" ? (p ? `proposal (${p.source})` : "–") : status.replace("_", " ");
+      const text = status === "unset" ? (p ? `proposal ${proposalLabel(p)}${confident(p) ? "" : " · look"}` : "–")
+        : status.replace("_", " ") + (this.annotation.get(view.id, k).from ? " (accepted)" : "");
       return h("li", { class: `kp-row${k === this.keypoint ? " current" : ""} status-${status}`,
-        onclick: () => { this.keypoint = k; this.requestRender(); this.renderSide(); } },
+        onclick: () => this.pick(k) },
       h("kbd", {}, String(i + 1)), h("span", { class: "swatch", style: { background: colorOf(k) } }),
       h("span", { class: "kp-name" }, SPARSE_LABELS[i]), h("span", { class: "kp-status" }, text));
     });
@@ -770,8 +1011,9 @@ class AnnotatePage {
     fill(this.side, 
       h("div", { class: "sample-head" },
         h("h2", {}, `Sample ${t.sample_id}`),
-        h("div", { class: "muted" }, `sequence ${t.sequence_id} · frame ${t.frame_index}`),
-        h("div", { class: "clock muted" }, "")),
+        h("div", { class: "muted" }, `${t.sequence ?? `sequence ${t.sequence_id}`} · frame ${t.frame_index}`),
+        h("div", { class: "clock muted" }, ""),
+        h("div", { class: "draft-state muted" }, draftLabel(document.body.dataset.draftState))),
       this.reviewNote ? h("div", { class: "callout" }, h("strong", {}, "Reviewer: "), this.reviewNote) : null,
       h("div", { class: "mode-switch", role: "group" },
         h("button", { class: this.mode === "points" ? "on" : "", onclick: () => this.setMode("points") }, "Points (P)"),
@@ -783,7 +1025,8 @@ class AnnotatePage {
       h("h3", {}, `View ${this.viewIndex + 1}/${this.views.length} · ${view.camera}`),
       h("ul", { class: "kp-list" }, rows),
       h("div", { class: "button-row" },
-        h("button", { onclick: () => this.acceptAllInView(), disabled: props.size === 0 }, `Accept ${props.size} proposals (Enter)`),
+        h("button", { class: "accept-all", onclick: () => this.acceptAllInView(), disabled: props.size === 0 },
+          `Accept ${[...props.values()].filter(confident).length} of ${props.size} proposals (Enter)`),
         h("button", { onclick: () => this.toggleOccluded() }, "Occluded (O)"),
         h("button", { onclick: () => this.markNotAnnotated() }, "Not annotated (N)")),
       h("div", { class: "button-row" },
@@ -792,7 +1035,8 @@ class AnnotatePage {
       h("div", { class: "totals" }, `${total}/${this.views.length * this.annotation.keypoints.length} keypoints · ${masks} mask(s) corrected`),
       h("button", { class: "primary submit", onclick: () => this.submit(), disabled: this.submitting },
         this.submitting ? "Submitting…" : "Submit (Ctrl+Enter)"),
-      h("div", { class: "muted legend" }, "proposals: T triangulated from your clicks, F current fit, M MVNet"),
+      h("div", { class: "muted legend" }, "proposals: T triangulated from your clicks, F current fit, M MVNet, " +
+        `D detector; the number is its confidence (orange: below ${ACCEPT_CONF}, Enter leaves it)`),
       this.sources.map((source) => h("div", { class: source.label.includes("not MANO") ? "badge warn" : "badge" },
         `${SOURCE_LETTER[source.kind]}: ${source.label}`)),
       this.lastSubmission ? h("div", { class: "muted" },
@@ -807,4 +1051,19 @@ class AnnotatePage {
 function labelFor(keypoint) {
   const i = SPARSE.indexOf(keypoint);
   return i >= 0 ? SPARSE_LABELS[i] : String(keypoint);
+}
+
+function draftLabel(state) {
+  return { unsaved: "draft: unsaved changes", saving: "draft: saving…", saved: "draft: saved",
+    error: "draft: not saved yet (retrying)" }[state] || "draft: nothing to save";
+}
+
+function confident(p) {
+  return p.confidence !== null && p.confidence !== undefined && p.confidence >= ACCEPT_CONF;
+}
+
+// "T 0.92": source letter and confidence ("F ?" for a fit, which has none).
+function proposalLabel(p) {
+  const conf = p.confidence === null || p.confidence === undefined ? "?" : p.confidence.toFixed(2);
+  return `${SOURCE_LETTER[p.source] || "?"} ${conf}`;
 }

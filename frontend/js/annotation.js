@@ -1,6 +1,11 @@
-// One sample's annotation in progress: per view and sparse keypoint a click {x, y, visibility} or
-// nothing, and the proposals offered where nothing is set yet.
+// One sample's annotation in progress: per view and sparse keypoint a click {x, y, visibility, from?} or
+// nothing (`from`: the proposal source it was accepted from; absent when placed by hand), and the
+// proposals offered where nothing is set yet, each with its source and confidence.
 import { projectPoint, triangulate } from "./geometry.js";
+
+// A triangulated point's confidence falls linearly with its worst reprojection error in the clicked views:
+// 1 at 0 px, 0 at this many px (the outlier threshold of triangulate()).
+export const TRIANGULATION_ZERO_CONF_PX = 12;
 
 export class Annotation {
   constructor(viewIds, keypoints) {
@@ -10,7 +15,8 @@ export class Annotation {
   }
 
   get(viewId, keypoint) {
-    return this.clicks.get(viewId).get(keypoint) || null;
+    const view = this.clicks.get(viewId);
+    return (view && view.get(keypoint)) || null; // null for a view of another sample too
   }
 
   // Set (or with null, clear) a click; returns the previous value for undo.
@@ -48,7 +54,8 @@ export class Annotation {
       for (const keypoint of this.keypoints) {
         const c = this.get(viewId, keypoint);
         if (c && c.visibility !== "not_annotated") {
-          out.push({ view_id: viewId, keypoint, x: round2(c.x), y: round2(c.y), visibility: c.visibility });
+          out.push({ view_id: viewId, keypoint, x: round2(c.x), y: round2(c.y), visibility: c.visibility,
+            from_proposal: Boolean(c.from) });
         } else {
           out.push({ view_id: viewId, keypoint, visibility: "not_annotated" });
         }
@@ -62,32 +69,46 @@ function round2(v) {
   return Math.round(v * 100) / 100;
 }
 
+export function inside(p, cam) {
+  return Boolean(p) && p[0] >= -0.5 && p[1] >= -0.5 && p[0] <= cam.width - 0.5 && p[1] <= cam.height - 0.5;
+}
+
+// The keypoint triangulated from the views where it was placed by hand (never from accepted proposals,
+// which would only confirm themselves), with its confidence; null with fewer than two such views.
+export function triangulateClicked(annotation, cameras, keypoint) {
+  const observed = annotation.viewIds
+    .map((v) => ({ v, c: annotation.get(v, keypoint) }))
+    .filter(({ c }) => c && c.visibility !== "not_annotated" && !c.from);
+  if (observed.length < 2) return null;
+  const tri = triangulate(observed.map(({ v, c }) => ({ cam: cameras.get(v), pixel: [c.x, c.y] })));
+  if (!tri) return null;
+  const worst = Math.max(...tri.errors_px);
+  return { ...tri, confidence: Math.max(0, 1 - worst / TRIANGULATION_ZERO_CONF_PX) };
+}
+
 // Proposals for the keypoints not set in a view, best source first: a point triangulated from the
-// annotator's own clicks in the other views, then the current fit, then MVNet (confidence >= minConf).
-// cameras: view id -> camera; sources: the API's proposal sources. Returns view id -> keypoint -> {x, y, source}.
+// annotator's own clicks in the other views, then the current fit, then the networks' sources (MVNet,
+// a detector: any source with per-keypoint confidences, those >= minConf). A fit has no confidence (null).
+// cameras: view id -> camera; sources: the API's proposal sources.
+// Returns view id -> keypoint -> {x, y, source, confidence (0..1 or null)}.
 export function proposals(annotation, cameras, sources, { minConf = 0.3 } = {}) {
   const out = new Map(annotation.viewIds.map((v) => [v, new Map()]));
-  const inside = (p, cam) => p && p[0] >= -0.5 && p[1] >= -0.5 && p[0] <= cam.width - 0.5 && p[1] <= cam.height - 0.5;
   for (const keypoint of annotation.keypoints) {
-    const observed = annotation.viewIds
-      .map((v) => ({ v, c: annotation.get(v, keypoint) }))
-      .filter(({ c }) => c && c.visibility !== "not_annotated");
-    const tri = observed.length >= 2
-      ? triangulate(observed.map(({ v, c }) => ({ cam: cameras.get(v), pixel: [c.x, c.y] })))
-      : null;
+    const tri = triangulateClicked(annotation, cameras, keypoint);
     for (const viewId of annotation.viewIds) {
       if (annotation.get(viewId, keypoint) !== null) continue;
       const cam = cameras.get(viewId);
       let proposal = null;
       if (tri) {
         const p = projectPoint(tri.point, cam);
-        if (inside(p, cam)) proposal = { x: p[0], y: p[1], source: "triangulated" };
+        if (inside(p, cam)) proposal = { x: p[0], y: p[1], source: "triangulated", confidence: tri.confidence };
       }
       for (const source of sources) {
         if (proposal) break;
-        if (source.kind === "mvnet" && source.confidences && source.confidences[keypoint] < minConf) continue;
+        const confidence = source.confidences ? source.confidences[keypoint] : null;
+        if (confidence !== null && confidence < minConf) continue;
         const p = (source.views[String(viewId)] || [])[keypoint];
-        if (inside(p, cam)) proposal = { x: p[0], y: p[1], source: source.kind };
+        if (inside(p, cam)) proposal = { x: p[0], y: p[1], source: source.kind, confidence };
       }
       if (proposal) out.get(viewId).set(keypoint, proposal);
     }

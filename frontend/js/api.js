@@ -41,8 +41,9 @@ export class Api {
     return this.token ? { Authorization: `Bearer ${this.token}`, ...extra } : extra;
   }
 
-  async fetch(method, path, { body, signal, headers } = {}) {
-    const init = { method, headers: this.headers(headers), signal };
+  // keepalive: the request outlives the page (a draft saved while it unloads; bodies up to 64 KiB).
+  async fetch(method, path, { body, signal, headers, keepalive } = {}) {
+    const init = { method, headers: this.headers(headers), signal, keepalive: Boolean(keepalive) };
     if (body !== undefined) {
       init.body = JSON.stringify(body);
       init.headers["Content-Type"] = "application/json";
@@ -65,6 +66,10 @@ export class Api {
 
   post(path, body, options) {
     return this.json("POST", path, body, options);
+  }
+
+  put(path, body, options) {
+    return this.json("PUT", path, body, options);
   }
 
   patch(path, body, options) {

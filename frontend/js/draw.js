@@ -1,11 +1,20 @@
-// Drawing helpers shared by the pages; all coordinates are screen (CSS) pixels.
+// Drawing helpers shared by the pages; all coordinates are screen (CSS) pixels. Markers carry a dark and a
+// light ring, so every keypoint colour (the grey wrist, the blue fingers) stands out on skin, mask and
+// background alike.
 import { colorOf } from "./keypoints.js";
 
-export function marker(ctx, x, y, keypoint, { style = "solid", r = 6, label = null, selected = false } = {}) {
+// look: a proposal to check before accepting (below the confidence Enter accepts): an orange ring.
+export function marker(ctx, x, y, keypoint, { style = "solid", r = 6, label = null, selected = false, look = false } = {}) {
   const color = colorOf(keypoint);
   ctx.save();
   ctx.lineWidth = selected ? 3 : 2;
   if (style === "proposal") {
+    ctx.strokeStyle = "rgba(0, 0, 0, 0.75)";
+    ctx.lineWidth = 4;
+    ctx.beginPath();
+    ctx.arc(x, y, r + 2, 0, 2 * Math.PI);
+    ctx.stroke();
+    ctx.lineWidth = selected ? 3 : 2;
     ctx.setLineDash([3, 3]);
     ctx.strokeStyle = color;
     ctx.beginPath();
@@ -14,6 +23,13 @@ export function marker(ctx, x, y, keypoint, { style = "solid", r = 6, label = nu
     ctx.setLineDash([]);
     ctx.fillStyle = color;
     ctx.fillRect(x - 1, y - 1, 2, 2);
+    if (look) {
+      ctx.strokeStyle = "#ff9f1c";
+      ctx.lineWidth = 2;
+      ctx.beginPath();
+      ctx.arc(x, y, r + 6, 0, 2 * Math.PI);
+      ctx.stroke();
+    }
   } else if (style === "occluded") {
     ctx.strokeStyle = "#fff";
     ctx.fillStyle = color;
@@ -38,6 +54,13 @@ export function marker(ctx, x, y, keypoint, { style = "solid", r = 6, label = nu
     ctx.arc(x, y, r, 0, 2 * Math.PI);
     ctx.fill();
     ctx.stroke();
+    if (r > 3) {
+      ctx.strokeStyle = "rgba(0, 0, 0, 0.85)"; // the contrasting outer ring
+      ctx.lineWidth = 1.5;
+      ctx.beginPath();
+      ctx.arc(x, y, r + 1.75, 0, 2 * Math.PI);
+      ctx.stroke();
+    }
   }
   if (selected) {
     ctx.strokeStyle = "#ffd60a";

@@ -130,3 +130,20 @@ export function triangulate(observations, outlierPx = 12) {
   }
   return null;
 }
+
+// The epipolar curve in camTo of pixel `uv` in camFrom: the ray through that pixel, sampled at depths
+// (metres along camFrom's optical axis, geometric steps) and projected with distortion. [[u, v], ...] px,
+// points behind camTo left out.
+export function epipolarCurve(uv, camFrom, camTo, { nearM = 0.05, farM = 5.0, steps = 48 } = {}) {
+  const [x, y] = undistortPixel(uv, camFrom);
+  const { R, t } = camFrom;
+  const out = [];
+  for (let i = 0; i <= steps; i++) {
+    const z = nearM * Math.pow(farM / nearM, i / steps);
+    const c = [x * z - t[0], y * z - t[1], z - t[2]]; // X_c - t, then R^T: the world point
+    const X = [0, 1, 2].map((j) => R[0][j] * c[0] + R[1][j] * c[1] + R[2][j] * c[2]);
+    const p = projectPoint(X, camTo);
+    if (p && Number.isFinite(p[0]) && Number.isFinite(p[1])) out.push(p);
+  }
+  return out;
+}

@@ -2,6 +2,7 @@
 // per-view IoU and residuals; the sample's 3D scene in viser's client; accept / reject / needs annotation
 // with one key (a reason for the last two); the next sample is prefetched and drawn ahead.
 import { fitCanvas, fmt, h, isTyping, toast, fill } from "./dom.js";
+import { DraftSaver } from "./drafts.js";
 import { marker, segment } from "./draw.js";
 import { loadViews } from "./images.js";
 import { colorOf, fingerOf, FINGER_COLORS } from "./keypoints.js";
@@ -20,6 +21,16 @@ const LAYERS = [
   ["outline", "O", "outline"], ["silhouette", "S", "silhouette"], ["wireframe", "W", "wireframe"],
   ["keypoints", "K", "keypoints and skeleton"], ["clicks", "C", "annotators' clicks and residuals"],
   ["mvnet", "P", "MVNet prediction"],
+];
+const HELP = [
+  ["A", "accept"],
+  ["R / N", "reject / needs annotation: then 1-5 a common reason (or type one), Enter sends, Esc cancels"],
+  ["O S W K C P", "outline, silhouette, wireframe, keypoints, annotators' clicks, MVNet"],
+  ["1 … 8", "enlarge a view"],
+  ["Esc", "back to the grid; gives the keys back to the page (from the 3D view too)"],
+  ["Z", "crop to the hand / whole images"],
+  ["V", "show / hide the 3D view"],
+  ["?", "open / close this list"],
 ];
 const IOU_LOW = 0.5;
 const VIEWER_DELAY_MS = 350;
@@ -61,6 +72,15 @@ class ReviewPage {
     this.api = api;
     this.root = root;
     this.leases = new LeaseKeeper(api, "review");
+    this.leases.onretaken = (sampleId, token) => this.leaseRetaken(sampleId, token);
+    this.leases.onlost = (sampleId, error) => this.leaseLost(sampleId, error);
+    // The reviewer's note in progress (decision picked, reason typed) survives a reload like annotations.
+    this.drafts = new DraftSaver(api, "review", { snapshot: () => this.draftBody(),
+      onstatus: (state, detail) => {
+        document.body.dataset.draftState = state;
+        if (state === "saved") document.body.dataset.draftSaved = String(detail.revision);
+      },
+      onlease: () => this.current && this.leases.retake(this.current.task.sample_id).catch(() => null) });
     this.layers = { outline: true, silhouette: false, wireframe: false, keypoints: true, clicks: true, mvnet: false };
     this.show3d = initialShow3d();
     this.cropToHand = true;
@@ -70,9 +90,11 @@ class ReviewPage {
     this.preparing = null;
     this.metrics = { decisions: [] };
     this.build();
-    this.onKey = (e) => this.keydown(e);
+    this.onKey = (e) => { this.firstAct(); this.keydown(e); };
     this.onResize = () => this.renderViews();
+    this.onAct = () => this.firstAct();
     window.addEventListener("keydown", this.onKey);
+    for (const kind of ["pointerdown", "pointermove", "wheel"]) root.addEventListener(kind, this.onAct, { passive: true });
     window.addEventListener("resize", this.onResize);
     this.clock = setInterval(() => this.renderClock(), 1000);
   }
@@ -82,8 +104,9 @@ class ReviewPage {
     this.grid = h("div", { class: "review-grid" });
     this.side = h("aside", { class: "side review-side" });
     this.viewer = h("div", { class: "viewer3d" });
+    this.leaseBanner = h("div", { class: "lease-banner", role: "alert", hidden: true });
     this.root.append(h("div", { class: "review-page" },
-      h("section", { class: "review-main" }, this.banner, this.grid), this.side));
+      h("section", { class: "review-main" }, this.leaseBanner, this.banner, this.grid), this.side));
   }
 
   async start() {
@@ -96,11 +119,13 @@ class ReviewPage {
     clearInterval(this.clock);
     clearTimeout(this.emptyTimer);
     clearTimeout(this.viewerTimer);
+    this.drafts.stop();
     if (this.prepared) this.leases.drop(this.prepared.task.sample_id, true);
     this.leases.dropAll(false);
   }
 
   async releaseAll() {
+    await this.drafts.settle();
     await this.leases.dropAll(true);
   }
 
@@ -108,9 +133,10 @@ class ReviewPage {
 
   async prepare(task) {
     this.leases.hold(task);
-    const [overlay, views] = await Promise.all([
+    const [overlay, views, draft] = await Promise.all([
       this.api.get(`/api/review/samples/${task.sample_id}/overlay`),
       loadViews(this.api, task, { masks: false }),
+      this.drafts.load(task.sample_id),
     ]);
     const mesh = overlay.mesh ? decodeMesh(overlay.mesh) : null;
     const byId = new Map(overlay.views.map((v) => [v.view_id, v]));
@@ -120,7 +146,7 @@ class ReviewPage {
       return { ...v, info, projected, contour: projected ? contourEdges(projected, mesh) : null,
         crop: handCrop(projected, info) };
     });
-    return { task, overlay, mesh, views: prepared };
+    return { task, overlay, mesh, views: prepared, draft };
   }
 
   async loadNext() {
@@ -164,8 +190,23 @@ class ReviewPage {
   show(prepared) {
     this.current = prepared;
     this.timer = new ActionTimer();
+    // The clock runs from the reviewer's first act (a key, the pointer), not from when the page opened; right
+    // after a decision the reviewer is acting already, so the next sample's clock starts at once.
+    this.clockWaits = !this.justDecided;
+    this.justDecided = false;
     this.reason = null;
     this.focus = null;
+    this.hideLeaseBanner();
+    delete document.body.dataset.draftState;
+    delete document.body.dataset.draftSaved;
+    const draft = prepared.draft;
+    this.drafts.track(prepared.task.sample_id, draft ? draft.revision : 0);
+    if (draft && draft.payload.decision && draft.payload.decision !== "accept") {
+      this.reason = { kind: draft.payload.decision, text: draft.payload.reason };
+      this.timer.carriedMs = draft.payload.time_spent_s * 1000;
+      window.__handloop.marks.draftRestored = performance.now();
+    }
+    document.body.dataset.draft = draft ? String(draft.revision) : "none";
     this.buildGrid();
     this.renderViews();
     this.renderSide();
@@ -182,16 +223,25 @@ class ReviewPage {
     const { task } = this.current;
     this.deciding = true;
     try {
-      const result = await this.api.post(`/api/review/samples/${task.sample_id}/decision`,
-        { decision, reason, lease_token: task.lease_token });
+      const url = `/api/review/samples/${task.sample_id}/decision`;
+      let result;
+      try {
+        result = await this.api.post(url, { decision, reason, lease_token: task.lease_token });
+      } catch (error) {
+        if (error.status !== 403 && error.status !== 409) throw error;
+        const token = await this.leases.retake(task.sample_id); // lapsed: taken again while still free
+        result = await this.api.post(url, { decision, reason, lease_token: token });
+      }
+      this.drafts.forget(); // the server deleted the draft with the decision
       const decidedAt = performance.now();
       this.timer.mark("decide");
       this.leases.drop(task.sample_id, false);
       this.api.post("/api/activity", { context: "review", sample_id: task.sample_id, decision_id: result.id,
-        time_spent_s: Math.round(this.timer.spentSeconds() * 1000) / 1000, actions: this.timer.actions })
+        time_spent_s: Math.round(this.spentSeconds() * 1000) / 1000, actions: this.timer.actions })
         .catch((error) => toast(`time log not saved: ${error.message}`, "warn"));
       toast(`sample ${task.sample_id}: ${decision}${result.stream ? ` (joins D as ${result.stream})` : ""}`, "ok", 2000);
       this.deciding = false;
+      this.justDecided = true;
       const prefetched = Boolean(this.prepared);
       await this.loadNext();
       const drawnAt = performance.now();
@@ -205,11 +255,76 @@ class ReviewPage {
     }
   }
 
+  pickReason(index) {
+    this.reason.text = QUICK_REASONS[this.reason.kind][index];
+    this.timer.mark("reason");
+    this.drafts.changed();
+    this.renderSide();
+    const input = this.side.querySelector(".reason-input");
+    if (input) {
+      input.focus();
+      input.setSelectionRange(input.value.length, input.value.length); // typing goes on after the reason
+    }
+  }
+
+  cancelReason() {
+    this.reason = null;
+    this.drafts.changed();
+    this.renderSide();
+    if (document.activeElement && document.activeElement !== document.body) document.activeElement.blur();
+  }
+
   openReason(kind) {
     this.reason = { kind, text: "" };
+    this.drafts.changed();
     this.renderSide();
     const input = this.side.querySelector(".reason-input");
     if (input) input.focus();
+  }
+
+  // --- leases -------------------------------------------------------------------------------------
+
+  // The note in progress as a draft (PUT .../draft): the decision picked and the reason typed so far.
+  draftBody() {
+    if (!this.current) return null;
+    return { lease_token: this.current.task.lease_token, decision: this.reason ? this.reason.kind : null,
+      reason: this.reason ? this.reason.text.slice(0, 2000) : "",
+      time_spent_s: Math.round(this.spentSeconds() * 1000) / 1000 };
+  }
+
+  leaseRetaken(sampleId, token) {
+    if (this.prepared && this.prepared.task.sample_id === sampleId) this.prepared.task.lease_token = token;
+    if (!this.current || this.current.task.sample_id !== sampleId) return;
+    this.current.task.lease_token = token;
+    this.hideLeaseBanner();
+    this.drafts.resume();
+  }
+
+  leaseLost(sampleId, error) {
+    if (this.prepared && this.prepared.task.sample_id === sampleId) {
+      this.prepared = null;
+      return;
+    }
+    if (!this.current || this.current.task.sample_id !== sampleId) return;
+    fill(this.leaseBanner, h("strong", {}, `Sample ${sampleId} is no longer yours. `), h("span", {}, `${error.message}.`),
+      h("button", { class: "primary next-task", onclick: () => this.giveUp() }, "Take the next sample"));
+    this.leaseBanner.hidden = false;
+    document.body.dataset.lease = "lost";
+  }
+
+  hideLeaseBanner() {
+    this.leaseBanner.hidden = true;
+    fill(this.leaseBanner, );
+    delete document.body.dataset.lease;
+  }
+
+  async giveUp() {
+    if (!this.current) return;
+    this.drafts.forget();
+    this.leases.drop(this.current.task.sample_id, false);
+    this.hideLeaseBanner();
+    this.current = null;
+    await this.loadNext();
   }
 
   // --- keys ---------------------------------------------------------------------------------------
@@ -219,8 +334,7 @@ class ReviewPage {
     const key = e.key;
     if (this.reason) {
       if (key === "Escape") {
-        this.reason = null;
-        this.renderSide();
+        this.cancelReason();
         e.preventDefault();
       } else if (key === "Enter") {
         e.preventDefault();
@@ -228,12 +342,17 @@ class ReviewPage {
         if (!text) return toast("give a reason (type it, or press 1-5 for a common one)", "warn", 2500);
         this.keyAt = performance.now();
         this.decide(this.reason.kind, text);
-      } else if (!isTyping(e) && key >= "1" && key <= "5") {
+      } else if (key >= "1" && key <= "5" && !e.ctrlKey && !e.metaKey && !e.altKey) {
+        // A digit picks a common reason, even while the text box has focus (never typed into it).
         e.preventDefault();
-        this.reason.text = QUICK_REASONS[this.reason.kind][Number(key) - 1];
-        this.renderSide();
+        this.pickReason(Number(key) - 1);
       }
       return;
+    }
+    if (key === "Escape") {
+      // Esc always brings the keys back to the page (out of a text box, the 3D view's iframe, a button).
+      if (document.activeElement && document.activeElement !== document.body) document.activeElement.blur();
+      window.focus();
     }
     if (isTyping(e) || e.ctrlKey || e.metaKey || e.altKey) return;
     const lower = key.toLowerCase();
@@ -256,6 +375,9 @@ class ReviewPage {
       this.renderSide();
     } else if (lower === "v") {
       this.toggle3d();
+    } else if (key === "?") {
+      this.helpOpen = !this.helpOpen;
+      this.renderSide();
     } else {
       const layer = LAYERS.find(([, k]) => k.toLowerCase() === lower);
       if (layer) {
@@ -433,16 +555,51 @@ class ReviewPage {
       const url = this.viewerUrl();
       this.viewerTimer = setTimeout(() => {
         if (this.viewerSample !== sample) return;
-        fill(this.viewer, h("iframe", { class: "viewer-frame", title: "3D view of this sample (viser)", src: url }));
+        const frame = h("iframe", { class: "viewer-frame", title: "3D view of this sample (viser)", src: url });
+        frame.addEventListener("load", () => this.listenInFrame(frame));
+        fill(this.viewer, frame);
       }, VIEWER_DELAY_MS);
     }
     return this.viewer;
   }
 
+  // The 3D view keeps the keyboard focus after a drag in it: listen there too (same origin), so every
+  // review key still works; Esc hands the focus back to the page.
+  listenInFrame(frame) {
+    let win;
+    try {
+      win = frame.contentWindow;
+      win.addEventListener("keydown", (e) => {
+        if (e.key === "Escape") {
+          frame.blur();
+          window.focus();
+        }
+        this.onKey(e);
+        if (e.defaultPrevented) e.stopPropagation();
+      }, true);
+    } catch {
+      // another origin: nothing to listen to (the viewer is served by this backend, so not expected)
+    }
+  }
+
+  firstAct() {
+    if (!this.clockWaits || !this.timer) return;
+    this.clockWaits = false;
+    const carried = this.timer.carriedMs;
+    this.timer.start();
+    this.timer.carriedMs = carried;
+    this.renderClock();
+  }
+
+  // Active seconds on this sample so far (0 until the first act).
+  spentSeconds() {
+    return this.clockWaits ? this.timer.carriedMs / 1000 : this.timer.spentSeconds();
+  }
+
   renderClock() {
     const el = this.side.querySelector(".clock");
     if (!el || !this.current) return;
-    el.textContent = `time ${fmt(this.timer.spentSeconds(), 0, " s")}`;
+    el.textContent = this.clockWaits ? "time starts when you act" : `time ${fmt(this.timer.spentSeconds(), 0, " s")}`;
   }
 
   renderSide() {
@@ -454,7 +611,7 @@ class ReviewPage {
     fill(this.side, 
       h("div", { class: "sample-head" },
         h("h2", {}, `Sample ${task.sample_id}`),
-        h("div", { class: "muted" }, `sequence ${task.sequence_id} · frame ${task.frame_index} · fit ${overlay.fit_id}`),
+        h("div", { class: "muted" }, `${task.sequence ?? `sequence ${task.sequence_id}`} · frame ${task.frame_index} · fit ${overlay.fit_id}`),
         h("div", { class: "clock muted" }, "")),
       h("div", { class: overlay.hand_model.stand_in ? "callout warn" : "callout" }, overlay.hand_model.label),
       h("dl", { class: "facts" },
@@ -474,6 +631,8 @@ class ReviewPage {
         } }), ` ${label} (${key})`))),
       h("div", { class: "muted" }, `1-8 enlarge a view, Esc back · Z ${this.cropToHand ? "whole images" : "zoom to the hand"} · V 3D view`),
       this.render3d(),
+      h("details", { class: "help", open: this.helpOpen }, h("summary", {}, "Keys (?)"),
+        h("table", {}, HELP.map(([k, d]) => h("tr", {}, h("td", {}, h("kbd", {}, k)), h("td", {}, d))))),
     );
     this.renderClock();
   }
@@ -481,13 +640,11 @@ class ReviewPage {
   reasonBox() {
     const kind = this.reason.kind;
     const input = h("input", { class: "reason-input", type: "text", placeholder: "reason (Enter to send, Esc to cancel)",
-      value: this.reason.text, oninput: (e) => { this.reason.text = e.target.value; } });
+      value: this.reason.text, oninput: (e) => { this.reason.text = e.target.value; this.drafts.changed(); } });
     return h("div", { class: `reason-box ${kind}` },
       h("h3", {}, kind === "reject" ? "Reject: why?" : "Needs annotation: what is wrong?"),
-      h("ol", {}, QUICK_REASONS[kind].map((r, i) => h("li", { onclick: () => {
-        this.reason.text = r;
-        this.renderSide();
-      } }, h("kbd", {}, String(i + 1)), ` ${r}`))),
+      h("ol", {}, QUICK_REASONS[kind].map((r, i) => h("li", { onclick: () => this.pickReason(i) },
+        h("kbd", {}, String(i + 1)), ` ${r}`))),
       input,
       h("div", { class: "button-row" },
         h("button", { class: "primary", onclick: () => {
@@ -495,7 +652,7 @@ class ReviewPage {
           this.keyAt = performance.now();
           this.decide(kind, this.reason.text.trim());
         } }, "Send (Enter)"),
-        h("button", { onclick: () => { this.reason = null; this.renderSide(); } }, "Cancel (Esc)")));
+        h("button", { onclick: () => this.cancelReason() }, "Cancel (Esc)")));
   }
 }
 

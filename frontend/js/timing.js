@@ -4,6 +4,7 @@ export class ActionTimer {
   constructor({ idleCapMs = 30000, now = () => performance.now() } = {}) {
     this.idleCapMs = idleCapMs;
     this.now = now;
+    this.carriedMs = 0; // time spent before a reload, from the restored draft
     this.start();
   }
 
@@ -26,9 +27,10 @@ export class ActionTimer {
     return action;
   }
 
-  // Active seconds so far: the capped durations plus the (capped) time since the last action.
+  // Active seconds so far: the capped durations plus the (capped) time since the last action (plus the
+  // time carried over from a restored draft).
   spentSeconds() {
     const logged = this.actions.reduce((sum, a) => sum + a.duration_ms, 0);
-    return (logged + Math.min(this.now() - this.last, this.idleCapMs)) / 1000;
+    return (this.carriedMs + logged + Math.min(this.now() - this.last, this.idleCapMs)) / 1000;
   }
 }

@@ -168,6 +168,53 @@ def test_proposals_prefer_triangulation_then_fit_then_confident_mvnet(js):
     assert out["clicks"] == 8 * 4
 
 
+def test_epipolar_curves_pass_through_the_point_in_every_other_view(js):
+    cams = default_rig(640)
+    point = np.array([0.03, -0.02, 0.05])
+    pixels, _ = project_points(point[None], cams)  # (C, 1, 2)
+    curves = js("""const g = await import('/js/geometry.js');
+                   return arg.cams.slice(1).map((c) => g.epipolarCurve(arg.uv, arg.cams[0], c, {steps: 4000}));""",
+                {"cams": _cameras(), "uv": pixels[0, 0].tolist()})
+    for c, curve in enumerate(curves, start=1):
+        distance = np.nanmin(np.linalg.norm(np.asarray(curve, dtype=float) - pixels[c, 0], axis=1))
+        assert distance < 0.5, (c, distance)  # sampled finely, the curve passes within half a pixel
+    other = np.array([0.08, 0.05, -0.04])
+    far, _ = project_points(other[None], cams)
+    assert np.nanmin(np.linalg.norm(np.asarray(curves[0], dtype=float) - far[1, 0], axis=1)) > 2.0  # not on it
+
+
+def test_proposals_carry_confidence_and_accepted_ones_never_triangulate(js):
+    cams = default_rig(640)
+    cameras = _cameras()
+    kp = np.zeros((21, 3))
+    pixels, _ = project_points(kp, cams)
+    out = js("""const a = await import('/js/annotation.js');
+                const ann = new a.Annotation(arg.cameras.map((c) => c.view_id), [0, 4]);
+                const cams = new Map(arg.cameras.map((c) => [c.view_id, c]));
+                const at = (v, dx = 0) => ({x: arg.px[v - 1][0][0] + dx, y: arg.px[v - 1][0][1],
+                                             visibility: 'visible'});
+                ann.set(1, 0, at(1));
+                ann.set(2, 0, {...at(2), from: 'mvnet'});  // accepted, not clicked: no triangulation from it
+                const one = a.proposals(ann, cams, []).get(3).get(0) || null;
+                ann.set(2, 0, at(2));
+                const exact = a.proposals(ann, cams, []).get(3).get(0);
+                ann.set(2, 0, at(2, 0));
+                ann.set(4, 0, at(4, 6));  // a 6 px slip in a third view: the worst error lowers the confidence
+                const slipped = a.triangulateClicked(ann, cams, 0);
+                const mv = a.proposals(new a.Annotation([1], [0, 4]), cams, [{kind: 'mvnet', views: {'1': arg.mv},
+                  confidences: arg.conf}]).get(1);
+                return {one, exact, slipped: slipped.confidence, mv: Object.fromEntries(mv),
+                        flags: ann.toClicks().filter((c) => c.keypoint === 0 && c.x !== undefined)
+                          .map((c) => c.from_proposal)};""",
+             {"cameras": cameras, "px": pixels.tolist(), "mv": [[30.0 + k, 40.0] for k in range(21)],
+              "conf": [0.45 if k == 4 else 0.9 for k in range(21)]})
+    assert out["one"] is None
+    assert out["exact"]["source"] == "triangulated" and out["exact"]["confidence"] > 0.99
+    assert 0.0 < out["slipped"] < 0.9
+    assert out["mv"]["0"]["confidence"] == 0.9 and out["mv"]["4"]["confidence"] == 0.45
+    assert out["flags"] == [False, False, False]
+
+
 def test_mesh_edges_and_contour(js):
     out = js("""const m = await import('/js/mesh.js');
                 const cube = Int32Array.from([0,1,2, 0,2,3, 4,6,5, 4,7,6, 0,4,5, 0,5,1, 1,5,6, 1,6,2, 2,6,7, 2,7,3,

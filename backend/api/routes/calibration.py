@@ -5,13 +5,14 @@ from typing import Any
 from fastapi import APIRouter
 
 from backend.api.deps import AdminUser, SessionDep
+from backend.schemas.base import Id
 from backend.services.calibration_check import calibration_check
 
 router = APIRouter(prefix="/admin/projects", tags=["admin: calibration"])
 
 
 @router.get("/{project_id}/calibration-check")
-def project_calibration_check(project_id: int, session: SessionDep, admin: AdminUser) -> dict[str, Any]:
+def project_calibration_check(project_id: Id, session: SessionDep, admin: AdminUser) -> dict[str, Any]:
     """Per camera and camera pair, how well the annotators' visible clicks agree with the calibration;
     `flagged` names cameras that disagree with the others (read-only)."""
     return calibration_check(session, project_id)

@@ -4,7 +4,7 @@ from typing import Any
 
 from fastapi import APIRouter
 
-from backend.api.deps import AdminUser, SessionDep
+from backend.api.deps import AdminUser, SessionDep, SettingsDep
 from backend.schemas.ui import DashboardPublic
 from backend.services import dashboard
 
@@ -12,6 +12,7 @@ router = APIRouter(prefix="/admin/dashboard", tags=["admin: dashboard"])
 
 
 @router.get("", response_model=DashboardPublic)
-def get_dashboard(session: SessionDep, _admin: AdminUser) -> dict[str, Any]:
-    """Queue lengths, MVNet confidence histogram, sparsification curve, human time per action."""
-    return dashboard.dashboard(session)
+def get_dashboard(session: SessionDep, settings: SettingsDep, _admin: AdminUser) -> dict[str, Any]:
+    """Queue lengths (free and leased), whether a round can be launched, MVNet confidence histogram,
+    sparsification curve, human time per action."""
+    return dashboard.dashboard(session, settings.round_min_training_samples)

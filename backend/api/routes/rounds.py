@@ -18,9 +18,12 @@ def list_rounds(session: SessionDep, _admin: AdminUser) -> list[Round]:
 
 
 @router.post("", response_model=RoundLaunched, status_code=201)
-def launch_round(body: RoundCreate, session: SessionDep, queue: JobQueueDep, admin: AdminUser) -> RoundLaunched:
-    """Complete the open round and launch the next: its job trains, predicts, fits and verifies."""
-    round_, job = rounds.launch(session, queue, admin.id, body.mvnet_version, body.handsegnet_version, body.note)
+def launch_round(body: RoundCreate, session: SessionDep, settings: SettingsDep, queue: JobQueueDep,
+                 admin: AdminUser) -> RoundLaunched:
+    """Complete the open round and launch the next: its job trains, predicts, fits and verifies. 409 (nothing
+    written) while fewer labels are accepted than a round trains on (HANDLOOP_ROUND_MIN_TRAINING_SAMPLES)."""
+    round_, job = rounds.launch(session, queue, admin.id, body.mvnet_version, body.handsegnet_version, body.note,
+                                settings.round_min_training_samples)
     return RoundLaunched(round=RoundPublic.model_validate(round_), job_id=job.id)
 
 

@@ -4,14 +4,21 @@ from __future__ import annotations
 
 from fastapi import Response
 from pydantic import BaseModel
+from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from backend.models.capture import Sequence
 from backend.models.enums import SampleState
 from backend.models.fits import Fit
 from backend.schemas.tasks import TaskPublic, ViewPublic
 from backend.services.queues import Lease
 from backend.services.samples import get_sample, views_of
 from workers.handmodel.keypoints import SPARSE_KEYPOINTS
+
+
+def sequence_name(session: Session, sequence_id: int) -> str | None:
+    """The sequence's name in the capture and in exports ("seq000"): one primary-key lookup."""
+    return session.execute(select(Sequence.external_id).where(Sequence.id == sequence_id)).scalar_one_or_none()
 
 
 def task_of(session: Session, lease: Lease, with_fit: bool = False) -> TaskPublic:
@@ -32,7 +39,8 @@ def task_of(session: Session, lease: Lease, with_fit: bool = False) -> TaskPubli
                    "heuristic": row.heuristic, "pose_distance": row.pose_distance, "model_file": row.model_file}
     return TaskPublic.model_construct(
         sample_id=sample.id, state=SampleState(sample.state), lease_token=lease.token,
-        lease_expires_at=lease.expires_at, sequence_id=sample.sequence_id, frame_index=sample.frame_index,
+        lease_expires_at=lease.expires_at, sequence_id=sample.sequence_id,
+        sequence=sequence_name(session, sample.sequence_id), frame_index=sample.frame_index,
         time_s=sample.time_s, keypoints_to_click=list(SPARSE_KEYPOINTS), views=views, fit=fit)
 
 

@@ -14,6 +14,14 @@ the capture's ground truth, as a worker would record them, since UI speed does n
   renders viser's WebGL scene in software (SwiftShader) on the same CPU.
 - brush_event_ms: annotate page, brush on a 1280x1024 view: one pointer event handled (mask bits, overlay
   upload of the changed rectangle) and the view redrawn; mean over the events (p95 and max reported).
+- scripted annotator working from proposals, per sample: pointer clicks, key presses and wall seconds
+  (no think time: what the UI itself asks of a person and costs), twice: from its own clicks' triangulation
+  ("T": wrist and tips clicked by hand in two views, Enter in the others) and from a network's proposals
+  ("M": an MVNet-like source injected into the proposals answer, the true keypoints with 3 px noise,
+  one in five below the accept threshold; Enter in every view). Either way, every accepted point more than
+  4 px from the truth is corrected by hand (pick, Del, click), so the result is as good as all-clicked.
+- never losing work: clicks lost by a reload, by the Back button and by a lapsed lease on a free sample
+  (targets 0), and restore_ms: navigation start of the reload -> the draft applied on screen.
 """
 
 from __future__ import annotations
@@ -49,20 +57,22 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         frames: int = typer.Option(13, min=7, max=200, help="Frames (samples) in the capture."),
         repeats: int = typer.Option(3, min=1, max=50, help="Cold page loads per page."),
         brush_events: int = typer.Option(300, min=10, max=100_000, help="Pointer events in the brush test."),
+        scripted: int = typer.Option(3, min=1, max=50, help="Samples per scripted-annotator run (T, M)."),
         chromium: str = typer.Option(CHROMIUM, help="Chromium executable."),
     ) -> None:
         """Page interactive, next sample after a decision, brush event handling: in a real browser."""
         from backend.bench.common import emit
 
         if quick:
-            frames, repeats, brush_events = min(frames, 7), 1, min(brush_events, 150)
+            frames, repeats, brush_events, scripted = min(frames, 7), 1, min(brush_events, 150), min(scripted, 1)
         if not Path(chromium).exists():
             raise typer.BadParameter(f"Chromium not found at {chromium} (apt-get install -y chromium)")
         started = time.perf_counter()
         with tempfile.TemporaryDirectory(prefix="handloop-bench-ui-") as tmp:
             result = run(Path(tmp), width=width, frames=frames, repeats=repeats, brush_events=brush_events,
-                         chromium=chromium)
+                         chromium=chromium, scripted=scripted)
         emit("ui", result, {"width": width, "frames": frames, "repeats": repeats, "brush_events": brush_events,
+                            "scripted_samples": scripted,
                             "chromium": chromium, "chromium_args": CHROMIUM_ARGS, "quick": quick,
                             "load_average": [round(v, 2) for v in os.getloadavg()]}, started)
         del json_out  # the JSON line is always the last stdout line; progress goes to stderr
@@ -73,11 +83,14 @@ def _progress(message: str) -> None:
     sys.stderr.flush()
 
 
-def run(tmp: Path, *, width: int, frames: int, repeats: int, brush_events: int, chromium: str) -> dict[str, Any]:
+def run(tmp: Path, *, width: int, frames: int, repeats: int, brush_events: int, chromium: str,
+        scripted: int = 3) -> dict[str, Any]:
     from backend.runtime import start_stack
     from backend.settings import Settings
 
-    capture = _synthesise(tmp / "capture", width, frames)
+    # `frames` samples as before (all but one reviewed), plus the scripted annotator's (2 runs of `scripted`,
+    # and one for the work-loss checks), left in the annotation queue after them.
+    capture = _synthesise(tmp / "capture", width, frames + 2 * scripted + 1)
     settings = Settings(data_dir=tmp / "data", environment="test", secret_key=uuid.uuid4().hex * 2)
     _prepare_database(settings, capture)
     _share_hand_model(settings.data_dir)
@@ -100,6 +113,12 @@ def run(tmp: Path, *, width: int, frames: int, repeats: int, brush_events: int, 
                 next_3d = _next_sample(browser, base, tokens["reviewer"], reviewable - half, with_3d=True,
                                        warm_up=False)
                 brush = _brush(browser, base, tokens["annotator"], brush_events)
+                truth = _truth_by_frame(capture)
+                losses = _work_loss(browser, base, tokens["annotator"], settings, truth)
+                frame_of = _frames_of(settings)
+                by_triangulation = _scripted_annotator(browser, base, tokens["annotator"], truth, scripted, "T",
+                                                       frame_of)
+                by_network = _scripted_annotator(browser, base, tokens["annotator"], truth, scripted, "M", frame_of)
             finally:
                 browser.close()
     worst_page = max(interactive, key=lambda p: interactive[p])
@@ -122,7 +141,18 @@ def run(tmp: Path, *, width: int, frames: int, repeats: int, brush_events: int, 
         "brush_event_max_ms": brush["max_ms"],
         "brush_image_px": brush["image_px"],
         "brush_pixels_painted": brush["painted"],
-        "targets": {"interactive_ms": 1000, "next_sample_ms": 200, "brush_event_ms": 16},
+        "scripted_from_triangulation": by_triangulation,
+        "scripted_from_network_proposals": by_network,
+        "clicks_per_sample_T": by_triangulation["clicks_per_sample"],
+        "clicks_per_sample_M": by_network["clicks_per_sample"],
+        "seconds_per_sample_T": by_triangulation["seconds_per_sample"],
+        "seconds_per_sample_M": by_network["seconds_per_sample"],
+        "reload_clicks_lost": losses["reload_clicks_lost"],
+        "back_clicks_lost": losses["back_clicks_lost"],
+        "lapsed_lease_clicks_lost": losses["lapsed_lease_clicks_lost"],
+        "restore_ms": losses["restore_ms"],
+        "targets": {"interactive_ms": 1000, "next_sample_ms": 200, "brush_event_ms": 16, "reload_clicks_lost": 0,
+                    "back_clicks_lost": 0, "lapsed_lease_clicks_lost": 0},
         "chromium_version": version,
     }
 
@@ -336,7 +366,9 @@ def _brush(browser, base: str, token: str, events: int) -> dict[str, Any]:
     page.evaluate(BRUSH_SCRIPT, 20)  # warm-up (JIT, first overlay upload)
     page.keyboard.press("Control+z")
     out = page.evaluate(BRUSH_SCRIPT, events)
-    page.evaluate("() => window.__handloop.page.releaseAll()")
+    # The strokes were saved as a draft: thrown away (the user's say) so the next runs start clean.
+    page.evaluate("""async () => { const p = window.__handloop.page; await p.drafts.settle(); p.drafts.forget();
+      await p.api.fetch('DELETE', `/api/annotate/samples/${p.task.sample_id}/draft`); await p.releaseAll(); }""")
     context.close()
     times = sorted(out["times"])
     mean = statistics.fmean(times)
@@ -344,3 +376,197 @@ def _brush(browser, base: str, token: str, events: int) -> dict[str, Any]:
     _progress(f"brush on {out['width']}x{out['height']}: mean {mean:.2f} ms, p95 {p95:.2f} ms per event")
     return {"mean_ms": round(mean, 3), "p95_ms": round(p95, 3), "max_ms": round(times[-1], 3),
             "image_px": [out["width"], out["height"]], "painted": out["painted"]}
+
+
+# --- annotation from proposals, and work that must never be lost ---------------------------------------------
+
+SCREEN_OF = """([u, v]) => { const p = window.__handloop.page; const r = p.canvas.getBoundingClientRect();
+  const s = p.vp.toScreen(u, v); return [r.left + s[0], r.top + s[1]]; }"""
+TASK = """() => { const p = window.__handloop.page; return {sample_id: p.task.sample_id,
+  frame_index: p.task.frame_index,
+  views: p.views.map((v) => ({id: v.id, camera: v.camera, width: v.width, height: v.height}))}; }"""
+SET = """() => { const p = window.__handloop.page; const out = [];
+  for (const [view, m] of p.annotation.clicks) for (const [k, c] of m) out.push([view, k, c.x, c.y, c.from || null]);
+  return out; }"""
+SPARSE = (0, 4, 8, 12, 16, 20)
+CORRECT_PX = 4.0  # an accepted point farther than this from the truth is corrected by hand
+NOISE_PX = 3.0
+
+
+def _truth_by_frame(capture: Path) -> dict[int, Any]:
+    from workers.capture import load_ground_truth, read_capture
+
+    frames = read_capture(capture, check_images=False).sequences[0].frames
+    return {i: load_ground_truth(f) for i, f in enumerate(frames)}
+
+
+def _true_uv(truth: dict[int, Any], task: dict[str, Any], view_index: int, keypoint: int) -> list[float] | None:
+    gt = truth[task["frame_index"]]
+    view = task["views"][view_index]
+    x, y = (float(v) for v in gt.keypoints_2d[list(gt.camera_names).index(view["camera"]), keypoint])
+    return [x, y] if -0.5 <= x <= view["width"] - 0.5 and -0.5 <= y <= view["height"] - 0.5 else None
+
+
+def _annotate_page(browser, base: str, token: str, route=None):
+    context = _context(browser, token)
+    page = context.new_page()
+    if route is not None:
+        page.route("**/proposals", route)
+    page.goto(f"{base}/#/annotate")
+    page.wait_for_selector("body[data-ready=annotate]", state="attached", timeout=60_000)
+    return context, page
+
+
+def _click(page, view_index: int, keypoint: int, uv: list[float]) -> None:
+    if page.evaluate("() => window.__handloop.page.viewIndex") != view_index:
+        page.click(f".thumb >> nth={view_index}")
+    page.keyboard.press(str(SPARSE.index(keypoint) + 1))
+    page.mouse.click(*page.evaluate(SCREEN_OF, uv))
+
+
+def _scripted_annotator(browser, base: str, token: str, truth: dict[int, Any], samples: int, source: str,
+                        frame_of: dict[int, int]) -> dict[str, Any]:
+    """Annotate `samples` samples from proposals ("T": two views by hand, Enter in the rest; "M": Enter in
+    every view on a network's proposals), correcting every accepted point more than CORRECT_PX off.
+    Counts pointer clicks (placements and thumbnail clicks) and key presses; wall seconds per sample."""
+    import json
+
+    import numpy as np
+
+    rng = np.random.default_rng(11)
+
+    def network(route) -> None:
+        # Proposals are fetched ahead (prefetch): the frame is that of the sample in the URL.
+        response = route.fetch()
+        body = response.json()
+        gt = truth[frame_of[int(route.request.url.rsplit("/samples/", 1)[1].split("/")[0])]]
+        names = list(gt.camera_names)
+        views = {}
+        for camera in body["cameras"]:
+            uv = gt.keypoints_2d[names.index(camera["camera"])] + rng.normal(0, NOISE_PX, (21, 2))
+            views[str(camera["view_id"])] = uv.round(2).tolist()
+        conf = np.where(rng.random(21) < 0.2, 0.45, 0.9).tolist()
+        body["sources"].append({"kind": "mvnet", "label": "MVNet-like (bench)", "confidences": conf, "views": views})
+        route.fulfill(response=response, body=json.dumps(body))
+
+    context, page = _annotate_page(browser, base, token, network if source == "M" else None)
+    clicks = keys = 0
+    seconds = []
+    for _ in range(samples):
+        task = page.evaluate(TASK)
+        t0 = time.perf_counter()
+        n_views = len(task["views"])
+        for v in range(n_views):
+            if page.evaluate("() => window.__handloop.page.viewIndex") != v:
+                page.click(f".thumb >> nth={v}")
+                clicks += 1
+            if source == "T" and v < 2:
+                for k in SPARSE:
+                    uv = _true_uv(truth, task, v, k)
+                    if uv is not None:
+                        _click(page, v, k, uv)
+                        clicks, keys = clicks + 1, keys + 1
+                continue
+            page.keyboard.press("Enter")
+            keys += 1
+            # Look at each keypoint: a wrong or missing one is placed by hand.
+            got = {(view, k): (x, y) for view, k, x, y, _ in page.evaluate(SET) if view == task["views"][v]["id"]}
+            for k in SPARSE:
+                uv = _true_uv(truth, task, v, k)
+                have = got.get((task["views"][v]["id"], k))
+                if uv is None or (have is not None and have[0] is not None
+                                  and np.hypot(have[0] - uv[0], have[1] - uv[1]) <= CORRECT_PX):
+                    continue
+                if have is not None:
+                    page.keyboard.press(str(SPARSE.index(k) + 1))
+                    page.keyboard.press("Delete")
+                    keys += 2
+                _click(page, v, k, uv)
+                clicks, keys = clicks + 1, keys + 1
+        before = task["sample_id"]
+        page.keyboard.press("Control+Enter")
+        keys += 1
+        page.wait_for_function(f"() => document.body.dataset.sample !== '{before}' || "
+                               "document.body.dataset.ready === 'annotate-empty'", timeout=60_000)
+        seconds.append(time.perf_counter() - t0)
+    context.close()
+    out = {"samples": samples, "clicks_per_sample": round(clicks / samples, 2),
+           "keys_per_sample": round(keys / samples, 2), "seconds_per_sample": round(statistics.fmean(seconds), 2),
+           "all_clicked_would_be": 6 * n_views}
+    _progress(f"scripted annotator from {'triangulation' if source == 'T' else 'network proposals'}: "
+              f"{out['clicks_per_sample']} clicks, {out['keys_per_sample']} keys, {out['seconds_per_sample']} s per "
+              f"sample (all clicked by hand: {6 * n_views} clicks)")
+    return out
+
+
+def _frames_of(settings) -> dict[int, int]:
+    """sample id -> frame index (the capture has one sequence)."""
+    from sqlalchemy import text
+
+    from backend.db.session import create_engine_from_url, make_session_factory
+
+    engine = create_engine_from_url(settings.resolved_database_url)
+    with make_session_factory(engine)() as session:
+        rows = session.execute(text("SELECT id, frame_index FROM samples")).all()
+    engine.dispose()
+    return {int(i): int(f) for i, f in rows}
+
+
+def _work_loss(browser, base: str, token: str, settings, truth: dict[int, Any]) -> dict[str, Any]:
+    """Clicks lost by a reload, by the Back button and by a lapsed lease on a free sample (each should be 0),
+    and the reload's time to the draft restored."""
+    from datetime import timedelta
+
+    from sqlalchemy import text
+
+    from backend.db.base import utcnow
+    from backend.db.session import create_engine_from_url, make_session_factory
+
+    context, page = _annotate_page(browser, base, token)
+    task = page.evaluate(TASK)
+    placed = 0
+    for k in SPARSE:
+        uv = _true_uv(truth, task, 0, k)
+        if uv is not None:
+            _click(page, 0, k, uv)
+            placed += 1
+    page.wait_for_selector("body[data-draft-state=saved]", state="attached", timeout=60_000)
+    before = sorted(map(tuple, page.evaluate(SET)))
+    page.reload()
+    page.wait_for_selector("body[data-ready=annotate]", state="attached", timeout=60_000)
+    restore_ms = page.evaluate("() => window.__handloop.marks.draftRestored ?? null")
+    reload_lost = len(set(before) - set(map(tuple, page.evaluate(SET))))
+    _click(page, 1, 0, _true_uv(truth, task, 1, 0) or [10.0, 10.0])
+    before = sorted(map(tuple, page.evaluate(SET)))
+    # The Back button within the app, at once, with the last click not yet saved: an entry pushed after this
+    # page, then Back to it (hashchange: the page is unmounted and mounted again, as after any Back).
+    page.evaluate("() => history.pushState(null, '', '#/elsewhere')")
+    page.go_back()
+    page.wait_for_function("() => window.__handloop.page && window.__handloop.page.task && "
+                           "document.body.dataset.draft !== undefined && document.body.dataset.ready === 'annotate'",
+                           timeout=60_000)
+    back_lost = len(set(before) - set(map(tuple, page.evaluate(SET))))
+    engine = create_engine_from_url(settings.resolved_database_url)
+    with make_session_factory(engine).begin() as session:
+        session.execute(text("UPDATE samples SET lease_expires_at = :t WHERE id = :i"),
+                        {"t": utcnow() - timedelta(seconds=5), "i": task["sample_id"]})
+    engine.dispose()
+    _click(page, 2, 0, _true_uv(truth, task, 2, 0) or [10.0, 10.0])  # saved under a re-taken lease
+    page.wait_for_function("() => document.body.dataset.draftState === 'saved'", timeout=60_000)
+    before = sorted(map(tuple, page.evaluate(SET)))
+    page.keyboard.press("Control+Enter")
+    page.wait_for_function(f"() => document.body.dataset.sample !== '{task['sample_id']}' || "
+                           "document.body.dataset.ready === 'annotate-empty'", timeout=60_000)
+    engine = create_engine_from_url(settings.resolved_database_url)
+    with make_session_factory(engine)() as session:
+        stored = session.execute(text("SELECT count(*) FROM clicks WHERE sample_id = :s AND visibility != "
+                                      "'not_annotated'"), {"s": task["sample_id"]}).scalar_one()
+    engine.dispose()
+    lapsed_lost = len(before) - stored
+    page.evaluate("() => window.__handloop.page.releaseAll()")
+    context.close()
+    _progress(f"work lost: reload {reload_lost}, Back {back_lost}, lapsed lease {lapsed_lost} clicks; draft restored "
+              f"{restore_ms:.0f} ms after the reload's navigation start" if restore_ms is not None else
+              "draft not restored after the reload")
+    return {"reload_clicks_lost": reload_lost, "back_clicks_lost": back_lost, "lapsed_lease_clicks_lost": lapsed_lost,
+            "restore_ms": None if restore_ms is None else round(restore_ms, 1), "clicks_before_reload": placed}

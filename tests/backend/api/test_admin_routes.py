@@ -41,7 +41,34 @@ def test_last_admin_cannot_be_demoted(sqlite_env):
     assert response.status_code == 409 and "last active admin" in response.json()["detail"]
 
 
+def _accept(env, h, n: int = 2) -> list[int]:
+    """n samples accepted by the heuristic (confident predictions, a good fit): round 0's D^h."""
+    ids = h.seed(env, frames=n, cameras=1, state="fitting")
+    for sample_id in ids:
+        h.record_fit(env, sample_id, prediction={"confidences": [0.95] * 21})
+    return ids
+
+
+def test_a_round_is_refused_below_the_minimum_of_accepted_labels_and_writes_nothing(env, h):
+    _accept(env, h, 1)  # the test settings' minimum is 2
+    before = {t: h.count(env, t) for t in ("rounds", "jobs", "audit_events")}
+    refused = env.client.post("/api/admin/rounds", headers=env.headers(ADMIN), json={})
+    assert refused.status_code == 409
+    assert "1 accepted so far, at least 2 needed" in refused.json()["detail"]
+    assert {t: h.count(env, t) for t in before} == before and env.queue.enqueued == []
+    launch = env.client.get("/api/admin/dashboard", headers=env.headers(ADMIN)).json()["launch"]
+    assert (launch["accepted"], launch["minimum"]) == (1, 2) and "Accept 1 more" in launch["refusal"]
+
+
+def test_the_dashboard_counts_leased_samples_apart_from_free_ones(env, h):
+    h.seed(env, frames=3, cameras=1)
+    h.next_task(env)
+    queues = env.client.get("/api/admin/dashboard", headers=env.headers(ADMIN)).json()["queues"]
+    assert (queues["annotate"], queues["annotate_leased"]) == (2, 1)
+
+
 def test_rounds_launch_cancel_and_jobs(env, h):
+    _accept(env, h)
     launched = env.client.post("/api/admin/rounds", headers=env.headers(ADMIN), json={"mvnet_version": "mv-1"})
     assert launched.status_code == 201, launched.text
     body = launched.json()
@@ -62,6 +89,7 @@ def test_rounds_launch_cancel_and_jobs(env, h):
 
 def test_job_progress_stream(sqlite_env, h):
     env = sqlite_env
+    _accept(env, h)
     job_id = env.client.post("/api/admin/rounds", headers=env.headers(ADMIN), json={}).json()["job_id"]
     with env.session() as s, s.begin():
         jobs.update_progress(s, job_id, 0.5, "training")

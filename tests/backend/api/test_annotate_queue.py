@@ -198,3 +198,27 @@ def test_too_many_clicks_is_422(sqlite_url, tmp_path, h, env_with):
     response = env.client.post(f"/api/annotate/samples/{ids[0]}/submissions", json=h.body(h.next_task(env)),
                                headers=env.headers(Role.annotator))
     assert response.status_code == 422 and "at most 5" in response.json()["detail"]
+
+
+def test_a_task_names_its_sequence_as_the_exports_do(env, h):
+    h.seed(env, frames=1, cameras=1)
+    task = h.next_task(env)
+    assert task["sequence"] == "seq000" and isinstance(task["sequence_id"], int)
+
+
+def test_keypoints_accepted_from_proposals_are_stored_as_such(env, h):
+    ids = h.seed(env, frames=1, cameras=2)
+    task = h.next_task(env)
+    body = h.body(task)
+    for click in body["clicks"][:3]:
+        click["from_proposal"] = True
+    response = env.client.post(f"/api/annotate/samples/{ids[0]}/submissions", json=body,
+                               headers=env.headers(Role.annotator))
+    assert response.status_code == 201, response.text
+    with env.session() as s:
+        flags = s.execute(text("SELECT from_proposal, count(*) FROM clicks GROUP BY from_proposal")).all()
+    assert {bool(f): n for f, n in flags} == {True: 3, False: 9}
+    bad = h.body(task)
+    bad["clicks"][0]["from_proposal"] = "maybe"
+    assert env.client.post(f"/api/annotate/samples/{ids[0]}/submissions", json=bad,
+                           headers=env.headers(Role.annotator)).status_code == 422

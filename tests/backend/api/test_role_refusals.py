@@ -44,6 +44,15 @@ ROUTES = [
     ("POST", "/api/activity", Role.annotator),
     ("GET", "/api/admin/dashboard", Role.admin),
     ("GET", "/api/admin/projects/1/calibration-check", Role.admin),
+    # Drafts and lapsed leases (tests/backend/api/test_drafts.py).
+    ("POST", "/api/annotate/samples/1/lease/retake", Role.annotator),
+    ("GET", "/api/annotate/samples/1/draft", Role.annotator),
+    ("PUT", "/api/annotate/samples/1/draft", Role.annotator),
+    ("DELETE", "/api/annotate/samples/1/draft", Role.annotator),
+    ("POST", "/api/review/samples/1/lease/retake", Role.reviewer),
+    ("GET", "/api/review/samples/1/draft", Role.reviewer),
+    ("PUT", "/api/review/samples/1/draft", Role.reviewer),
+    ("DELETE", "/api/review/samples/1/draft", Role.reviewer),
 ]
 # The 3D scene takes a scene ticket instead of a bearer token (tests/backend/api/ui/test_viewer_scene.py).
 OPEN = {("GET", "/api/health"), ("POST", "/api/auth/token"), ("GET", "/api/viewer/samples/{x}/scene")}

@@ -84,5 +84,6 @@ def test_review_log_and_dashboard_figures(env, h):
     assert hist["n"] == 3 and sum(hist["counts"]) == 3 and sum(hist["accepted"]) == 2  # heuristic + manual
     sp = data["sparsification"]
     assert sp["n"] == 2 and sp["curve_mm"][0] > 0 and len(sp["fractions"]) == 20
-    assert data["queues"] == {"annotate": 0, "review": 1} and data["fits"] == 3
+    assert data["queues"] == {"annotate": 0, "review": 1, "annotate_leased": 0, "review_leased": 0}
+    assert data["fits"] == 3
     assert data["fits_by_hand_model"] == {"built-in stand-in hand, not MANO": 3}  # conftest fits say "builtin"

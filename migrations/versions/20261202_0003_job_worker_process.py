@@ -3,7 +3,7 @@
 The operating-system process of a job's current attempt (services.worker_processes), so that a claimant on
 the same machine takes over a job whose process is gone without waiting for its heartbeat to grow old.
 
-Revision ID: 0003_job_recovery
+Revision ID: 0003
 Revises: 0002
 Create Date: 2026-12-02 07:40:00
 """
@@ -15,7 +15,7 @@ from collections.abc import Sequence
 import sqlalchemy as sa
 from alembic import op
 
-revision: str = '0003_job_recovery'
+revision: str = '0003'
 down_revision: str | None = '0002'
 branch_labels: str | Sequence[str] | None = None
 depends_on: str | Sequence[str] | None = None

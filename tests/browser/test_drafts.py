@@ -1,0 +1,168 @@
+"""Work is never lost: what an annotator did is restored after a reload, the Back button and a new login in
+another tab; leaving with unsaved work asks first; a lapsed lease is re-taken when the sample is still free
+(and the work submits), and when someone else took it a banner says so, with one button to go on, and the
+new holder never sees the old work. Real browser, real API process (no worker needed)."""
+
+from __future__ import annotations
+
+import pytest
+from sqlalchemy import text
+
+from backend.db.base import utcnow
+from tests.browser.conftest import sign_in
+
+pytestmark = [pytest.mark.browser, pytest.mark.slow]
+
+SCREEN_OF = """([u, v]) => { const p = window.__handloop.page; const r = p.canvas.getBoundingClientRect();
+  const s = p.vp.toScreen(u, v); return [r.left + s[0], r.top + s[1]]; }"""
+CLICKS = """() => { const p = window.__handloop.page; const out = [];
+  for (const [view, m] of p.annotation.clicks) for (const [k, c] of m) out.push([view, k, c.x, c.y, c.visibility]);
+  return out.sort((a, b) => a[0] - b[0] || a[1] - b[1]); }"""
+SAMPLE = "() => window.__handloop.page.task.sample_id"
+
+
+def place(page, view_index: int, count: int) -> None:
+    """Click `count` keypoints (wrist, thumb, ...) in one view, 12 image px apart along a row."""
+    page.click(f".thumb >> nth={view_index}")
+    for i in range(count):
+        page.keyboard.press(str(i + 1))
+        page.mouse.click(*page.evaluate(SCREEN_OF, [20.0 + 12.0 * i, 30.0 + 5.0 * view_index]))
+
+
+def wait_saved(page, revision: int | None = None) -> None:
+    page.wait_for_selector("body[data-draft-state=saved]", state="attached", timeout=30_000)
+    if revision is not None:
+        page.wait_for_function(f"() => Number(document.body.dataset.draftSaved) >= {revision}", timeout=30_000)
+
+
+def wait_shown(page) -> None:
+    page.wait_for_selector("body[data-ready=annotate]", state="attached", timeout=60_000)
+
+
+def lapse_lease(stack, sample_id: int) -> None:
+    from datetime import timedelta
+
+    with stack.session_factory().begin() as session:
+        session.execute(text("UPDATE samples SET lease_expires_at = :t WHERE id = :i"),
+                        {"t": utcnow() - timedelta(seconds=5), "i": sample_id})
+
+
+def sign_in_annotator(tab, stack) -> None:
+    user = stack.users["annotator"]
+    sign_in(tab, stack.base_url, user.email, user.password, "annotate")
+
+
+def test_a_reload_loses_no_click(live_stack, tab):
+    stack = live_stack(worker=False)
+    t = tab()
+    sign_in_annotator(t, stack)
+    page = t.page
+    place(page, 0, 6)
+    place(page, 1, 3)
+    page.keyboard.press("o")  # the last one placed, now occluded: state beyond positions survives too
+    wait_saved(page)
+    before, sample, submission = page.evaluate(CLICKS), page.evaluate(SAMPLE), page.evaluate(
+        "() => window.__handloop.page.submissionId")
+    assert len(before) == 9
+    page.reload()
+    wait_shown(page)
+    assert page.evaluate(SAMPLE) == sample
+    assert page.evaluate(CLICKS) == before
+    assert page.evaluate("() => window.__handloop.page.submissionId") == submission  # a retried submit stays one
+    assert page.get_attribute("body", "data-draft") not in (None, "none")
+    assert not t.errors, t.errors
+
+
+def test_back_and_a_new_login_in_another_tab_lose_no_click(live_stack, tab):
+    stack = live_stack(worker=False)
+    first = tab()
+    sign_in_annotator(first, stack)
+    page = first.page
+    place(page, 0, 4)
+    before, sample = page.evaluate(CLICKS), page.evaluate(SAMPLE)
+    page.go_back()  # at once, before the debounced save: leaving the page saves what is pending
+    page.wait_for_function(f"() => window.__handloop.page && window.__handloop.page.task && "
+                           f"window.__handloop.page.task.sample_id === {sample} && "
+                           "document.body.dataset.draft !== 'none'", timeout=60_000)
+    assert page.evaluate(CLICKS) == before
+    place(page, 1, 2)
+    wait_saved(page)
+    before = page.evaluate(CLICKS)
+    assert len(before) == 6
+    other = tab()  # another browser (its own session storage): a new login
+    sign_in_annotator(other, stack)
+    assert other.page.evaluate(SAMPLE) == sample
+    assert other.page.evaluate(CLICKS) == before
+    assert not first.errors and not other.errors, (first.errors, other.errors)
+
+
+def test_leaving_with_unsaved_work_asks_first(live_stack, tab):
+    stack = live_stack(worker=False)
+    t = tab()
+    sign_in_annotator(t, stack)
+    page = t.page
+    page.route("**/draft", lambda route: None if route.request.method == "PUT" else route.continue_())  # held
+    dialogs: list[str] = []
+
+    def answer(dialog) -> None:
+        dialogs.append(dialog.type)
+        dialog.accept()
+
+    page.on("dialog", answer)
+    place(page, 0, 1)
+    page.wait_for_selector("body[data-draft-state=saving]", state="attached", timeout=30_000)
+    page.reload()
+    wait_shown(page)
+    assert dialogs == ["beforeunload"]
+
+
+def test_a_lapsed_lease_on_a_free_sample_is_retaken_and_the_work_submits(live_stack, tab):
+    stack = live_stack(worker=False)
+    t = tab()
+    sign_in_annotator(t, stack)
+    page = t.page
+    place(page, 0, 3)
+    wait_saved(page, 1)
+    sample = page.evaluate(SAMPLE)
+    lapse_lease(stack, sample)
+    place(page, 0, 4)  # the save is refused (lease expired), the lease taken again, the save repeated
+    page.wait_for_function("() => Number(document.body.dataset.draftSaved) >= 2 && "
+                           "document.body.dataset.draftState === 'saved'", timeout=30_000)
+    assert page.get_attribute("body", "data-lease") is None
+    lapse_lease(stack, sample)
+    page.keyboard.press("Control+Enter")  # refused as expired, re-taken, submitted
+    page.wait_for_function(f"() => document.body.dataset.sample !== '{sample}' || "
+                           "document.body.dataset.ready === 'annotate-empty'", timeout=30_000)
+    with stack.session_factory()() as session:
+        placed = session.execute(text("SELECT count(*) FROM clicks WHERE sample_id = :s AND visibility != "
+                                      "'not_annotated'"), {"s": sample}).scalar_one()
+        drafts = session.execute(text("SELECT count(*) FROM drafts WHERE sample_id = :s"), {"s": sample}).scalar_one()
+    assert (placed, drafts) == (4, 0)  # 0 clicks lost; the draft went with the submission
+    assert not t.errors, t.errors
+
+
+def test_a_lease_taken_by_someone_else_shows_a_banner_and_their_page_stays_clean(live_stack, tab):
+    stack = live_stack(worker=False)
+    t = tab()
+    sign_in_annotator(t, stack)
+    page = t.page
+    place(page, 0, 2)
+    wait_saved(page, 1)
+    sample = page.evaluate(SAMPLE)
+    lapse_lease(stack, sample)
+    admin = tab()  # someone else (an admin may annotate) gets the lapsed sample
+    user = stack.users["admin"]
+    sign_in(admin, stack.base_url, user.email, user.password, "admin")
+    admin.page.goto(stack.base_url + "/#/annotate")
+    wait_shown(admin.page)
+    assert admin.page.evaluate(SAMPLE) == sample
+    assert admin.page.evaluate(CLICKS) == []  # the other annotator's draft is never applied to this work
+    place(page, 0, 3)  # the save is refused; the lease cannot be taken again
+    page.wait_for_selector(".lease-banner:not([hidden]) button.next-task", timeout=30_000)
+    assert "someone else" in page.inner_text(".lease-banner")
+    t.shot("drafts-lease-lost-banner")
+    page.click(".lease-banner button.next-task")
+    page.wait_for_function(f"() => document.body.dataset.sample !== '{sample}' || "
+                           "document.body.dataset.ready === 'annotate-empty'", timeout=30_000)
+    assert page.is_hidden(".lease-banner")
+    assert not t.errors and not admin.errors, (t.errors, admin.errors)

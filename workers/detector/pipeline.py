@@ -1,0 +1,116 @@
+"""detect_frame: every view's keypoints, a second look where a view found nothing, and the multi-view lift.
+
+Where a view finds no hand from its mask or the palm detector, the keypoints lifted from the others give a window:
+their 3D box projected into that view, with the 4 quarter turns tried.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from workers.detector.crops import Crop
+from workers.detector.landmark_model import landmark_model
+from workers.detector.lifting import lift
+from workers.detector.model_files import model_files_status
+from workers.detector.palm import palm_detector
+from workers.detector.types import DetectorInputError, Handedness, LiftedKeypoints, ViewKeypoints
+from workers.detector.view import detect_view, start_crops
+from workers.geometry.camera import Camera
+from workers.geometry.projection import project_points
+
+# Side of the window projected from the other views over the projected hand's box (longer side).
+HINT_SCALE = 1.5
+
+
+def detector_status() -> str | None:
+    """None when the model files are present and verified, else a sentence saying why not."""
+    status = model_files_status()
+    if status is not None:
+        return status
+    try:
+        import ai_edge_litert.interpreter  # noqa: F401
+    except ImportError as exc:
+        return f"the detector's runtime ai-edge-litert is not installed ({exc}); install handloop's dependencies"
+    return None
+
+
+def check_image(image: np.ndarray, where: str) -> np.ndarray:
+    """An (H, W, 3) uint8 image, or DetectorInputError naming `where`."""
+    image = np.asarray(image)
+    if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8 or min(image.shape[:2]) < 8:
+        raise DetectorInputError(f"{where}: expected an (H, W, 3) uint8 RGB image of at least 8 x 8 pixels, "
+                                 f"got shape {image.shape} {image.dtype}")
+    return image
+
+
+def _check_inputs(images: Sequence[np.ndarray], cameras: Sequence[Camera],
+                  masks: Sequence[np.ndarray | None] | None) -> list[np.ndarray | None]:
+    if len(cameras) < 2:
+        raise DetectorInputError(f"multi-view detection needs at least 2 calibrated views, got {len(cameras)}")
+    if len(images) != len(cameras):
+        raise DetectorInputError(f"{len(images)} images for {len(cameras)} cameras")
+    for image, cam in zip(images, cameras, strict=True):
+        image = check_image(image, f"view {cam.name}")
+        if image.shape[:2] != (cam.height, cam.width):
+            raise DetectorInputError(f"view {cam.name}: image is {image.shape[1]}x{image.shape[0]}, its calibration "
+                                     f"says {cam.width}x{cam.height}")
+    masks = list(masks) if masks is not None else [None] * len(cameras)
+    if len(masks) != len(cameras):
+        raise DetectorInputError(f"{len(masks)} masks for {len(cameras)} cameras")
+    for mask, cam in zip(masks, cameras, strict=True):
+        if mask is not None and np.shape(mask) != (cam.height, cam.width):
+            raise DetectorInputError(f"view {cam.name}: mask has shape {np.shape(mask)}, expected "
+                                     f"({cam.height}, {cam.width})")
+    return [None if m is None else np.asarray(m, dtype=bool) for m in masks]
+
+
+def hint_crop(lifted: LiftedKeypoints, camera: Camera) -> Crop | None:
+    """A window in `camera` around the projection of the lifted keypoints, or None when too few were lifted."""
+    finite = np.isfinite(lifted.points_world).all(axis=1)
+    if finite.sum() < 4:
+        return None
+    uv, depth = project_points(lifted.points_world[finite], [camera])
+    uv, depth = uv[0], depth[0]
+    if np.any(depth <= 0) or not np.all(np.isfinite(uv)):
+        return None
+    lo, hi = uv.min(axis=0), uv.max(axis=0)
+    center = (lo + hi) / 2
+    inside = -0.5 <= center[0] <= camera.width - 0.5 and -0.5 <= center[1] <= camera.height - 0.5
+    return Crop((float(center[0]), float(center[1])), float(max(hi - lo).max() * HINT_SCALE)) if inside else None
+
+
+def detect_frame(images: Sequence[np.ndarray], cameras: Sequence[Camera],
+                 masks: Sequence[np.ndarray | None] | None = None, *,
+                 handedness: Handedness = "right") -> LiftedKeypoints:
+    """Detect and lift the hand of one multi-view frame.
+
+    Args:
+        images: C (H, W, 3) uint8 RGB images in calibration order.
+        cameras: the C cameras.
+        masks: per view an (H, W) bool mask locating the hand (chroma key, HandSegNet) or None.
+        handedness: which hand (a left hand is shown to the model mirrored).
+    Raises:
+        DetectorInputError: fewer than 2 views, mismatched lists, malformed arrays.
+        DetectorUnavailableError: model files missing or corrupt.
+    """
+    if handedness not in ("right", "left"):
+        raise DetectorInputError(f"handedness must be 'right' or 'left', got {handedness!r}")
+    mask_list = _check_inputs(images, cameras, masks)
+    model, palms = landmark_model(), palm_detector()
+    views: list[ViewKeypoints | None] = [
+        detect_view(model, image, start_crops(image, mask, palms), handedness)
+        for image, mask in zip(images, mask_list, strict=True)]
+    lifted = lift(views, cameras)
+    missing = [c for c, v in enumerate(views) if v is None]
+    if missing and sum(v is not None for v in views) >= 2:
+        found = False
+        for c in missing:
+            hint = hint_crop(lifted, cameras[c])
+            if hint is not None:
+                views[c] = detect_view(model, images[c], start_crops(images[c], None, None, hint), handedness)
+                found = found or views[c] is not None
+        if found:
+            lifted = lift(views, cameras)
+    return lifted

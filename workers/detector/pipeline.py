@@ -16,7 +16,7 @@ from workers.detector.lifting import lift
 from workers.detector.model_files import model_files_status
 from workers.detector.palm import palm_detector
 from workers.detector.types import DetectorInputError, Handedness, LiftedKeypoints, ViewKeypoints
-from workers.detector.view import detect_view, start_crops
+from workers.detector.view import StartCrop, detect_view, start_crops
 from workers.geometry.camera import Camera
 from workers.geometry.projection import project_points
 
@@ -114,3 +114,49 @@ def detect_frame(images: Sequence[np.ndarray], cameras: Sequence[Camera],
         if found:
             lifted = lift(views, cameras)
     return lifted
+
+
+# Side of the window around a user's box over the box's longer side.
+BOX_SCALE = 1.2
+
+
+def detect_image(image: np.ndarray, box_px: Sequence[float] | None = None, *,
+                 handedness: Handedness = "right") -> ViewKeypoints | None:
+    """One photo, no calibration: the hand's 21 keypoints, or None when no hand is found.
+
+    Args:
+        image: (H, W, 3) uint8 RGB.
+        box_px: optional x, y, width, height in pixels saying where the hand is (inside the image). The palm detector
+            looks inside it first, then the box itself is tried at 4 quarter turns. Without it the palm detector
+            searches the whole image, then the whole image's centred square is tried.
+    Raises:
+        DetectorInputError: a malformed image or a box that is not inside it.
+        DetectorUnavailableError: model files missing or corrupt.
+    """
+    image = check_image(image, "image")
+    if handedness not in ("right", "left"):
+        raise DetectorInputError(f"handedness must be 'right' or 'left', got {handedness!r}")
+    height, width = image.shape[:2]
+    model, palms = landmark_model(), palm_detector()
+    if box_px is not None:
+        x, y, w, h = check_box(box_px, width, height)
+        box = Crop((x + w / 2 - 0.5, y + h / 2 - 0.5), max(w, h) * BOX_SCALE)
+        starts = [StartCrop(p.crop, False, "box+palm") for p in palms.detect(image, box, max_palms=1)]
+        starts.append(StartCrop(box, True, "box"))
+    else:
+        starts = start_crops(image, None, palms)
+        starts.append(StartCrop(Crop(((width - 1) / 2, (height - 1) / 2), float(min(width, height))), True, "image"))
+    return detect_view(model, image, starts, handedness)
+
+
+def check_box(box_px: Sequence[float], width: int, height: int) -> tuple[float, float, float, float]:
+    """x, y, w, h of a box inside a width x height image (edges at 0 and width), or DetectorInputError saying why."""
+    values = [float(v) for v in box_px]
+    if len(values) != 4 or not all(np.isfinite(values)):
+        raise DetectorInputError(f"a box is 4 finite numbers x, y, width, height; got {list(box_px)}")
+    x, y, w, h = values
+    if w <= 0 or h <= 0:
+        raise DetectorInputError(f"box width and height must be positive, got {w:g} x {h:g}")
+    if x < 0 or y < 0 or x + w > width or y + h > height:
+        raise DetectorInputError(f"box {x:g},{y:g},{w:g},{h:g} is not inside the {width}x{height} image")
+    return x, y, w, h

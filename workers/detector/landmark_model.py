@@ -72,7 +72,12 @@ class LandmarkModel:
                               float(handedness.ravel()[0]))
 
 
-@lru_cache(maxsize=1)
 def landmark_model() -> LandmarkModel:
-    """The process's landmark model, loaded once from the verified file."""
-    return LandmarkModel(model_path(HAND_LANDMARK))
+    """The process's model, loaded once per verified file (the file is checked on every call: a stat, and a hash
+    only when it changed, so files removed or replaced later give DetectorUnavailableError, not a stale model)."""
+    return _load(model_path(HAND_LANDMARK))
+
+
+@lru_cache(maxsize=2)
+def _load(path: Path) -> LandmarkModel:
+    return LandmarkModel(path)

@@ -126,6 +126,12 @@ def _nms(boxes: np.ndarray, scores: np.ndarray, iou: float) -> list[int]:
     return kept
 
 
-@lru_cache(maxsize=1)
 def palm_detector() -> PalmDetector:
-    return PalmDetector(model_path(PALM_DETECTION))
+    """The process's model, loaded once per verified file (the file is checked on every call: a stat, and a hash
+    only when it changed, so files removed or replaced later give DetectorUnavailableError, not a stale model)."""
+    return _load(model_path(PALM_DETECTION))
+
+
+@lru_cache(maxsize=2)
+def _load(path: Path) -> PalmDetector:
+    return PalmDetector(path)

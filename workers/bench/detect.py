@@ -165,6 +165,18 @@ def run(*, quick: bool = False, emit_json: bool = True, width: int | None = None
         confidence.append(lifted.confidence)
         vertex_mm.append(np.nan if fit is None else
                          1000 * float(np.linalg.norm(fit.vertices - gt.vertices, axis=1).mean()))
+    # Frames without a chroma key (cluttered backgrounds, held objects): the palm detector alone, no mask, no fit.
+    no_mask_refs = [ref for seq in capture.sequences if not seq.green_screen for ref in seq.frames]
+    no_mask_found = no_mask_total = 0
+    no_mask_mm: list[np.ndarray] = []
+    for ref in tqdm(no_mask_refs, unit="frame", desc="bench detect, no mask", file=sys.stderr):
+        images, gt = load_frame_images(ref, cameras), load_ground_truth(ref)
+        lifted = detect_frame([images[c.name] for c in cameras], cameras)
+        for c, view in enumerate(lifted.views):
+            if gt.visibility[c].any():
+                no_mask_total += 1
+                no_mask_found += view is not None
+        no_mask_mm.append(1000 * np.linalg.norm(lifted.points_world - gt.keypoints_3d, axis=1))
     load_after = os.getloadavg()
     px, frac = np.concatenate(kp2d_px), np.concatenate(kp2d_frac)
     mm = np.concatenate(kp3d_mm)
@@ -194,6 +206,8 @@ def run(*, quick: bool = False, emit_json: bool = True, width: int | None = None
         "fits": int(np.isfinite(vertex).sum()),
         ("fit_vertex_median_mm_2d_only" if FIT_WITH_3D else "fit_vertex_median_mm_with_3d"):
             r(np.nanmedian(other_vertex_mm)) if np.isfinite(other_vertex_mm).any() else None,
+        "detection_rate_no_mask": r(no_mask_found / max(no_mask_total, 1), 4),
+        "kp3d_lifted_fraction_no_mask": r(np.isfinite(np.concatenate(no_mask_mm)).mean(), 4) if no_mask_mm else None,
         "s_per_frame": r(np.median(seconds)),
         "p90_s_per_frame": r(np.percentile(seconds, 90)),
         "cpu_s_per_frame": r(np.median(cpu_seconds)),
@@ -205,7 +219,7 @@ def run(*, quick: bool = False, emit_json: bool = True, width: int | None = None
         "quick": quick, "frames": len(refs), "views": views_total, "capture_seed": BENCH_SEED, "width_px": width,
         "hand_model": arrays.name, "torch_threads": torch.get_num_threads(), "fit_weights": vars(config.weights),
         "fit_with_lifted_3d": FIT_WITH_3D, "fit_start_candidates": config.start_candidates,
-        "masks": "chroma_key",
+        "masks": "chroma_key", "frames_no_mask": len(no_mask_refs),
     }
     if emit_json:
         return emit("detect", record, bench_settings, started)

@@ -50,7 +50,7 @@ class PalmDetection:
 
 
 class PalmDetector:
-    def __init__(self, path: Path, num_threads: int = 2) -> None:
+    def __init__(self, path: Path, num_threads: int = 1) -> None:
         try:
             from ai_edge_litert.interpreter import Interpreter
         except ImportError as exc:

@@ -19,6 +19,9 @@ NUM_KEYPOINTS = 21
 # Reprojection inlier threshold as a fraction of the median hand size (longer side of the keypoints' box) over views.
 OUTLIER_FRACTION = 0.12
 MIN_OUTLIER_PX = 3.0
+# No keypoint of a human hand lies farther than this from the median of its keypoints (mid-palm; a long adult hand's
+# middle fingertip is ~12 cm from it). Two nearly parallel rays that agree by chance triangulate metres away.
+HAND_RADIUS_M = 0.15
 
 
 def keypoint_confidence(inlier_count: np.ndarray, residual_px: np.ndarray, mean_score: np.ndarray,
@@ -34,7 +37,10 @@ def keypoint_confidence(inlier_count: np.ndarray, residual_px: np.ndarray, mean_
 
 
 def lift(views: Sequence[ViewKeypoints | None], cameras: Sequence[Camera]) -> LiftedKeypoints:
-    """Triangulate 21 keypoints from C views (None where no hand was found) into the world frame (metres)."""
+    """Triangulate 21 keypoints from C views (None where no hand was found) into the world frame (metres).
+
+    A keypoint farther than HAND_RADIUS_M from the median of the lifted keypoints is not lifted (NaN, no inliers).
+    """
     C = len(cameras)
     pixels = np.full((C, NUM_KEYPOINTS, 2), np.nan)
     weights = np.zeros((C, NUM_KEYPOINTS))
@@ -53,7 +59,10 @@ def lift(views: Sequence[ViewKeypoints | None], cameras: Sequence[Camera]) -> Li
     if len(sizes) >= 2:
         outlier_px = max(MIN_OUTLIER_PX, OUTLIER_FRACTION * float(np.median(sizes)))
         tri = triangulate(pixels, list(cameras), weights, outlier_px=outlier_px, refine=True)
-        valid = tri.valid
+        valid = tri.valid.copy()
+        if valid.sum() >= 3:
+            center = np.median(tri.points_world[valid], axis=0)
+            valid &= np.linalg.norm(tri.points_world - center, axis=1) <= HAND_RADIUS_M
         points[valid] = tri.points_world[valid]
         inliers = tri.inliers.T & valid[:, None]
         residual[valid] = tri.median_reprojection_px[valid]

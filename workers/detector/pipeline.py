@@ -1,7 +1,8 @@
-"""detect_frame: every view's keypoints, a second look where a view found nothing, and the multi-view lift.
+"""detect_frame: every view's keypoints, a second look where a view found nothing or disagrees, and the lift.
 
-Where a view finds no hand from its mask or the palm detector, the keypoints lifted from the others give a window:
-their 3D box projected into that view, with the 4 quarter turns tried.
+Where a view finds no hand from its mask or the palm detector, or one that the lift does not use (an inlier for
+fewer than MIN_INLIER_KEYPOINTS keypoints), the keypoints lifted from the other views give a window: their
+projection into that view, turned upright by the projected wrist -> middle MCP.
 """
 
 from __future__ import annotations
@@ -11,17 +12,19 @@ from collections.abc import Sequence
 import numpy as np
 
 from workers.detector.crops import Crop
-from workers.detector.landmark_model import landmark_model
+from workers.detector.landmark_model import LandmarkModel, landmark_model
 from workers.detector.lifting import lift
 from workers.detector.model_files import model_files_status
 from workers.detector.palm import palm_detector
 from workers.detector.types import DetectorInputError, Handedness, LiftedKeypoints, ViewKeypoints
-from workers.detector.view import StartCrop, detect_view, start_crops
+from workers.detector.view import StartCrop, detect_view, refined_crop, start_crops
 from workers.geometry.camera import Camera
 from workers.geometry.projection import project_points
 
-# Side of the window projected from the other views over the projected hand's box (longer side).
-HINT_SCALE = 1.5
+# A second look needs this many lifted keypoints (the wrist and middle MCP among them) to place its window.
+MIN_LIFTED = 12
+# A view whose detection is an inlier for fewer keypoints than this disagrees with the others: it looks again.
+MIN_INLIER_KEYPOINTS = 3
 
 
 def detector_status() -> str | None:
@@ -66,19 +69,42 @@ def _check_inputs(images: Sequence[np.ndarray], cameras: Sequence[Camera],
     return [None if m is None else np.asarray(m, dtype=bool) for m in masks]
 
 
-def hint_crop(lifted: LiftedKeypoints, camera: Camera) -> Crop | None:
-    """A window in `camera` around the projection of the lifted keypoints, or None when too few were lifted."""
+def projected_keypoints(lifted: LiftedKeypoints, camera: Camera) -> np.ndarray | None:
+    """(21, 2) pixels of the lifted keypoints in `camera` (unlifted ones at the mean of the rest), or None when too
+    few were lifted (fewer than MIN_LIFTED, or no wrist or middle MCP to orient a crop by) or any lies behind it."""
     finite = np.isfinite(lifted.points_world).all(axis=1)
-    if finite.sum() < 4:
+    if finite.sum() < MIN_LIFTED or not finite[[0, 9]].all():
         return None
     uv, depth = project_points(lifted.points_world[finite], [camera])
-    uv, depth = uv[0], depth[0]
-    if np.any(depth <= 0) or not np.all(np.isfinite(uv)):
+    if np.any(depth[0] <= 0) or not np.all(np.isfinite(uv)):
         return None
-    lo, hi = uv.min(axis=0), uv.max(axis=0)
-    center = (lo + hi) / 2
-    inside = -0.5 <= center[0] <= camera.width - 0.5 and -0.5 <= center[1] <= camera.height - 0.5
-    return Crop((float(center[0]), float(center[1])), float(max(hi - lo).max() * HINT_SCALE)) if inside else None
+    out = np.empty((21, 2))
+    out[finite] = uv[0]
+    out[~finite] = uv[0].mean(axis=0)
+    return out
+
+
+def _second_look(model: LandmarkModel, image: np.ndarray, camera: Camera, view: ViewKeypoints | None,
+                 lifted: LiftedKeypoints, handedness: Handedness) -> ViewKeypoints | None:
+    """A new detection in the window the other views' lift gives (turned upright by the projected wrist -> middle MCP),
+    kept when it lies nearer that projection than `view` does; otherwise `view`."""
+    expected = projected_keypoints(lifted, camera)
+    if expected is None:
+        return view
+    crop = refined_crop(expected, handedness == "left")
+    cx, cy = crop.center_px
+    if not (-0.5 <= cx <= camera.width - 0.5 and -0.5 <= cy <= camera.height - 0.5):
+        return view  # the hand is outside this view
+    again = detect_view(model, image, [StartCrop(crop, False, "lifted"), StartCrop(crop, True, "lifted")], handedness)
+    if again is None:
+        return view
+    if view is None:
+        return again
+    return again if _median_distance(again, expected) < _median_distance(view, expected) else view
+
+
+def _median_distance(view: ViewKeypoints, expected_px: np.ndarray) -> float:
+    return float(np.median(np.linalg.norm(view.keypoints_px - expected_px, axis=1)))
 
 
 def detect_frame(images: Sequence[np.ndarray], cameras: Sequence[Camera],
@@ -103,15 +129,15 @@ def detect_frame(images: Sequence[np.ndarray], cameras: Sequence[Camera],
         detect_view(model, image, start_crops(image, mask, palms), handedness)
         for image, mask in zip(images, mask_list, strict=True)]
     lifted = lift(views, cameras)
-    missing = [c for c, v in enumerate(views) if v is None]
-    if missing and sum(v is not None for v in views) >= 2:
-        found = False
-        for c in missing:
-            hint = hint_crop(lifted, cameras[c])
-            if hint is not None:
-                views[c] = detect_view(model, images[c], start_crops(images[c], None, None, hint), handedness)
-                found = found or views[c] is not None
-        if found:
+    # Views that found nothing, or a hand the others disagree with, look again where the others put it.
+    doubtful = [c for c, v in enumerate(views) if v is None or lifted.inliers[:, c].sum() < MIN_INLIER_KEYPOINTS]
+    if doubtful and sum(v is not None for v in views) >= 2:
+        changed = False
+        for c in doubtful:
+            again = _second_look(model, images[c], cameras[c], views[c], lifted, handedness)
+            changed = changed or again is not views[c]
+            views[c] = again
+        if changed:
             lifted = lift(views, cameras)
     return lifted
 

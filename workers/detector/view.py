@@ -1,6 +1,6 @@
 """One view's 21 keypoints from the landmark model: crop, orientation, mirroring, and per-keypoint scores.
 
-The search per view: the start crop (from a mask, the palm detector, or a hint from the other views) is shown at 4
+The search per view: the start crop (from a mask, the palm detector, or the other views' lift) is shown at 4
 rotations and the one with the highest presence is kept; its keypoints then give a tighter crop turned so wrist ->
 middle MCP points up, which is run again, as shown and mirrored. The two refined runs are averaged (weighted by their
 presence); the refined crop replaces the start crop only where its presence is not lower.
@@ -65,14 +65,13 @@ class StartCrop:
     source: str
 
 
-def start_crops(image: np.ndarray, mask: np.ndarray | None, palms: PalmDetector | None,
-                hint: Crop | None = None) -> list[StartCrop]:
+def start_crops(image: np.ndarray, mask: np.ndarray | None, palms: PalmDetector | None) -> list[StartCrop]:
     """Windows to look for the hand in, best first.
 
     A chroma-key mask continues into the forearm and sleeve, so its box is much larger than the hand (at 320 px the
     hand was ~1/4 of it and the landmark model found nothing there): the palm detector looks inside the mask's box
     first, then the box itself is tried (right for hand-only masks). Without a mask the palm detector sees the whole
-    image. `hint` (a window projected from the other views) comes last.
+    image. (pipeline.py gives a view a second look from the other views' lift.)
     """
     out: list[StartCrop] = []
     window = crop_from_mask(mask, MASK_SCALE) if mask is not None else None
@@ -83,8 +82,6 @@ def start_crops(image: np.ndarray, mask: np.ndarray | None, palms: PalmDetector 
         out.append(StartCrop(box, True, "mask"))
     elif palms is not None:
         out += [StartCrop(p.crop, False, "palm") for p in palms.detect(image, max_palms=1)]
-    if hint is not None:
-        out.append(StartCrop(hint, True, "hint"))
     return out
 
 

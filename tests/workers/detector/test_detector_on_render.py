@@ -67,3 +67,22 @@ def test_left_hand_by_mirroring(frames: tuple[list, list]) -> None:
     box = np.ptp(truth, axis=0).max()
     assert np.median(np.linalg.norm(right.keypoints_px - truth, axis=1)) < 0.2 * box
     assert np.median(np.linalg.norm(back - truth, axis=1)) < 0.2 * box
+
+
+def test_a_view_that_finds_nothing_looks_again_where_the_others_put_the_hand(
+        frames: tuple[list, list], monkeypatch: pytest.MonkeyPatch) -> None:
+    from workers.detector import pipeline
+
+    cameras, refs = frames
+    images, chroma, gt = load_frame_images(refs[0], cameras), load_frame_masks(refs[0]), load_ground_truth(refs[0])
+    c = int(np.argmax([gt.hand_masks[cam.name].sum() for cam in cameras]))
+    blind = images[cameras[c].name]
+    real_start_crops = pipeline.start_crops
+    # The view's own search (mask, palm detector) finds nothing: only the other views' lift can place its window.
+    monkeypatch.setattr(pipeline, "start_crops",
+                        lambda image, mask, palms: [] if image is blind else real_start_crops(image, mask, palms))
+    lifted = detect_frame([images[cam.name] for cam in cameras], cameras, [chroma[cam.name] for cam in cameras])
+    view = lifted.views[c]
+    assert view is not None, "the second look found nothing"
+    assert _in_mask_fraction(view.keypoints_px, gt.hand_masks[cameras[c].name], 4) >= 0.7
+    assert lifted.inliers[:, c].sum() >= 10

@@ -80,3 +80,18 @@ def test_confidence_grows_with_support_and_falls_with_residual() -> None:
     c = keypoint_confidence(np.array([2, 4, 8, 8]), np.array([0.0, 0.0, 0.0, 5.0]), np.full(4, 0.8), outlier_px=5.0)
     assert c[0] < c[1] < c[2] and c[3] < c[2]
     assert c[2] == pytest.approx(0.8 * (1 - 0.5**7))
+
+
+def test_a_keypoint_two_views_agree_on_far_from_the_hand_is_not_lifted() -> None:
+    rng = np.random.default_rng(11)
+    truth = _hand_points(rng)
+    pixels, _ = project_points(truth, RIG)
+    far = truth[5] + np.array([0.0, 0.0, 0.4])  # 40 cm off: two views that agree by chance
+    far_px, _ = project_points(far[None], RIG[:2])
+    pixels[:2, 5] = far_px[:, 0]
+    pixels[2:, 5] += rng.uniform(60, 120, (6, 2)) * rng.choice([-1, 1], (6, 2))  # the others disagree with all
+    lifted = lift([_view(p) for p in pixels], RIG)
+    assert np.isnan(lifted.points_world[5]).all() and np.isnan(lifted.confidence[5])
+    assert not lifted.inliers[5].any()
+    others = np.delete(np.arange(21), 5)
+    assert np.all(1000 * np.linalg.norm(lifted.points_world[others] - truth[others], axis=1) < 0.5)

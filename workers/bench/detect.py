@@ -124,6 +124,7 @@ def run(*, quick: bool = False, emit_json: bool = True, width: int | None = None
     other_vertex_mm: list[float] = []
     kp2d_px, kp2d_frac, kp3d_mm, vertex_mm, confidence = [], [], [], [], []
     seconds, cpu_seconds, detect_s, fit_s = [], [], [], []
+    frame_confidence: list[float] = []
     views_total = views_found = 0
     for ref in tqdm(refs, unit="frame", desc="bench detect", file=sys.stderr):
         images = load_frame_images(ref, cameras)
@@ -163,6 +164,7 @@ def run(*, quick: bool = False, emit_json: bool = True, width: int | None = None
         err3 = 1000 * np.linalg.norm(lifted.points_world - gt.keypoints_3d, axis=1)
         kp3d_mm.append(err3)
         confidence.append(lifted.confidence)
+        frame_confidence.append(lifted.frame_confidence)
         vertex_mm.append(np.nan if fit is None else
                          1000 * float(np.linalg.norm(fit.vertices - gt.vertices, axis=1).mean()))
     # Frames without a chroma key (cluttered backgrounds, held objects): the palm detector alone, no mask, no fit.
@@ -191,6 +193,12 @@ def run(*, quick: bool = False, emit_json: bool = True, width: int | None = None
     edges = np.nanquantile(conf[finite], [0, 0.25, 0.5, 0.75, 1.0]) if finite.any() else []
     by_conf = [r(np.median(mm[finite][(conf[finite] >= lo) & (conf[finite] <= hi)]), 2)
                for lo, hi in itertools.pairwise(edges)]
+    # Does the frame's confidence (the stand-in for MVNet's) rank the fits? Spearman's rho against the vertex error:
+    # negative = more confident frames fit better.
+    from scipy.stats import spearmanr
+
+    fitted = np.isfinite(vertex)
+    rho = spearmanr(np.asarray(frame_confidence)[fitted], vertex[fitted]).statistic if fitted.sum() >= 3 else None
     record = {
         "kp2d_median_px": r(np.median(px)),
         "kp2d_p90_px": r(np.percentile(px, 90)),
@@ -204,6 +212,7 @@ def run(*, quick: bool = False, emit_json: bool = True, width: int | None = None
         "fit_vertex_median_mm": r(np.nanmedian(vertex)) if np.isfinite(vertex).any() else None,
         "fit_vertex_mean_mm": r(np.nanmean(vertex)) if np.isfinite(vertex).any() else None,
         "fits": int(np.isfinite(vertex).sum()),
+        "frame_confidence_vs_fit_vertex_spearman": None if rho is None or not np.isfinite(rho) else r(rho),
         ("fit_vertex_median_mm_2d_only" if FIT_WITH_3D else "fit_vertex_median_mm_with_3d"):
             r(np.nanmedian(other_vertex_mm)) if np.isfinite(other_vertex_mm).any() else None,
         "detection_rate_no_mask": r(no_mask_found / max(no_mask_total, 1), 4),

@@ -23,7 +23,7 @@ START_ROTATIONS_RAD = (0.0, math.pi / 2, math.pi, 3 * math.pi / 2)
 # around palm landmarks; the whole hand's box needs less).
 REFINED_SCALE = 1.6
 # Per-keypoint score: presence times a Gaussian of the disagreement between the shown and mirrored runs, in units of
-# this fraction of the hand's size (the refined crop's side over REFINED_SCALE).
+# this fraction of the hand's size (the longer side of the keypoints' box).
 AGREEMENT_FRACTION = 0.05
 MIN_PRESENCE = 0.2
 ACCEPT_PRESENCE = 0.5
@@ -118,7 +118,7 @@ def detect_view(model: LandmarkModel, image: np.ndarray, starts: list[StartCrop]
     w_shown, w_flipped = shown.output.presence, flipped.output.presence
     kp_shown, kp_flipped = shown.keypoints_px, flipped.keypoints_px
     keypoints = (w_shown * kp_shown + w_flipped * kp_flipped) / max(w_shown + w_flipped, 1e-9)
-    hand_size = crop.side_px / REFINED_SCALE
+    hand_size = max(float(np.ptp(keypoints, axis=0).max()), 1.0)
     disagreement = np.linalg.norm(kp_shown - kp_flipped, axis=1)
     presence = shown.output.presence
     scores = presence * np.exp(-0.5 * (disagreement / (AGREEMENT_FRACTION * hand_size)) ** 2)

@@ -32,3 +32,15 @@ def rendered_capture(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("detector") / "capture"
     generate_capture(out, SynthConfig(num_sequences=1, frames_per_sequence=2, seed=RENDER_SEED, width_px=320))
     return out
+
+
+@pytest.fixture(scope="session")
+def rendered_left_capture(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The same with a left hand: one green-screen frame at 320 px."""
+    from workers.synth.generator import generate_capture
+    from workers.synth.plan import SynthConfig
+
+    out = tmp_path_factory.mktemp("detector-left") / "capture"
+    generate_capture(out, SynthConfig(num_sequences=1, frames_per_sequence=1, seed=RENDER_SEED, width_px=320,
+                                      side="left"))
+    return out

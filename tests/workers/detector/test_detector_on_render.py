@@ -86,3 +86,15 @@ def test_a_view_that_finds_nothing_looks_again_where_the_others_put_the_hand(
     assert view is not None, "the second look found nothing"
     assert _in_mask_fraction(view.keypoints_px, gt.hand_masks[cameras[c].name], 4) >= 0.7
     assert lifted.inliers[:, c].sum() >= 10
+
+
+@pytest.mark.usefixtures("require_detector")
+def test_a_left_hand_capture_lifts_near_the_truth(rendered_left_capture: Path) -> None:
+    capture = read_capture(rendered_left_capture)
+    cameras, ref = list(capture.cameras), capture.sequences[0].frames[0]
+    images, chroma, gt = load_frame_images(ref, cameras), load_frame_masks(ref), load_ground_truth(ref)
+    lifted = detect_frame([images[c.name] for c in cameras], cameras, [chroma[c.name] for c in cameras],
+                          handedness="left")
+    assert all(v is None or v.handedness == "left" for v in lifted.views)
+    assert sum(v is not None for v in lifted.views) >= 5
+    assert np.nanmedian(1000 * np.linalg.norm(lifted.points_world - gt.keypoints_3d, axis=1)) < 25.0

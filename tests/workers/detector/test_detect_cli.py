@@ -80,3 +80,16 @@ def test_missing_model_files_are_a_clear_error(tmp_path: Path, hand_photo: tuple
                          text=True)
     assert out.returncode == 2
     assert "hand_landmark_full.tflite is missing" in out.stderr and "--no-deps" in out.stderr
+
+
+@pytest.mark.usefixtures("require_detector")
+def test_left_flag_detects_a_mirrored_hand(tmp_path: Path, hand_photo: tuple[Path, np.ndarray, np.ndarray]) -> None:
+    path, truth, _ = hand_photo
+    image = cv2.imread(str(path))
+    mirrored = tmp_path / "left.png"
+    cv2.imwrite(str(mirrored), image[:, ::-1])
+    result = runner.invoke(app, ["detect", str(mirrored), "--left", "--json"])
+    assert result.exit_code == 0, result.output
+    keypoints = np.asarray(_last_json(result.stdout)[0]["keypoints"])
+    keypoints[:, 0] = image.shape[1] - 1 - keypoints[:, 0]
+    assert np.median(np.linalg.norm(keypoints - truth, axis=1)) < 0.2 * np.ptp(truth, axis=0).max()

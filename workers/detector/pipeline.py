@@ -25,6 +25,8 @@ from workers.geometry.projection import project_points
 MIN_LIFTED = 12
 # A view whose detection is an inlier for fewer keypoints than this disagrees with the others: it looks again.
 MIN_INLIER_KEYPOINTS = 3
+# Side of the window around a user's box (handloop detect --box) over the box's longer side.
+BOX_SCALE = 1.2
 
 
 def detector_status() -> str | None:
@@ -140,10 +142,6 @@ def detect_frame(images: Sequence[np.ndarray], cameras: Sequence[Camera],
         if changed:
             lifted = lift(views, cameras)
     return lifted
-
-
-# Side of the window around a user's box over the box's longer side.
-BOX_SCALE = 1.2
 
 
 def detect_image(image: np.ndarray, box_px: Sequence[float] | None = None, *,

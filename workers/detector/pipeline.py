@@ -1,0 +1,186 @@
+"""detect_frame: every view's keypoints, a second look where a view found nothing or disagrees, and the lift.
+
+Where a view finds no hand from its mask or the palm detector, or one that the lift does not use (an inlier for
+fewer than MIN_INLIER_KEYPOINTS keypoints), the keypoints lifted from the other views give a window: their
+projection into that view, turned upright by the projected wrist -> middle MCP.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from workers.detector.crops import Crop
+from workers.detector.landmark_model import LandmarkModel, landmark_model
+from workers.detector.lifting import lift
+from workers.detector.model_files import model_files_status
+from workers.detector.palm import palm_detector
+from workers.detector.types import DetectorInputError, Handedness, LiftedKeypoints, ViewKeypoints
+from workers.detector.view import StartCrop, detect_view, refined_crop, start_crops
+from workers.geometry.camera import Camera
+from workers.geometry.projection import project_points
+
+# A second look needs this many lifted keypoints (the wrist and middle MCP among them) to place its window.
+MIN_LIFTED = 12
+# A view whose detection is an inlier for fewer keypoints than this disagrees with the others: it looks again.
+MIN_INLIER_KEYPOINTS = 3
+# Side of the window around a user's box (handloop detect --box) over the box's longer side.
+BOX_SCALE = 1.2
+
+
+def detector_status() -> str | None:
+    """None when the model files are present and verified, else a sentence saying why not."""
+    status = model_files_status()
+    if status is not None:
+        return status
+    try:
+        import ai_edge_litert.interpreter  # noqa: F401
+    except ImportError as exc:
+        return f"the detector's runtime ai-edge-litert is not installed ({exc}); install handloop's dependencies"
+    return None
+
+
+def check_image(image: np.ndarray, where: str) -> np.ndarray:
+    """An (H, W, 3) uint8 image, or DetectorInputError naming `where`."""
+    image = np.asarray(image)
+    if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8 or min(image.shape[:2]) < 8:
+        raise DetectorInputError(f"{where}: expected an (H, W, 3) uint8 RGB image of at least 8 x 8 pixels, "
+                                 f"got shape {image.shape} {image.dtype}")
+    return image
+
+
+def _check_inputs(images: Sequence[np.ndarray], cameras: Sequence[Camera],
+                  masks: Sequence[np.ndarray | None] | None) -> list[np.ndarray | None]:
+    if len(cameras) < 2:
+        raise DetectorInputError(f"multi-view detection needs at least 2 calibrated views, got {len(cameras)}")
+    if len(images) != len(cameras):
+        raise DetectorInputError(f"{len(images)} images for {len(cameras)} cameras")
+    for image, cam in zip(images, cameras, strict=True):
+        image = check_image(image, f"view {cam.name}")
+        if image.shape[:2] != (cam.height, cam.width):
+            raise DetectorInputError(f"view {cam.name}: image is {image.shape[1]}x{image.shape[0]}, its calibration "
+                                     f"says {cam.width}x{cam.height}")
+    masks = list(masks) if masks is not None else [None] * len(cameras)
+    if len(masks) != len(cameras):
+        raise DetectorInputError(f"{len(masks)} masks for {len(cameras)} cameras")
+    for mask, cam in zip(masks, cameras, strict=True):
+        if mask is not None and np.shape(mask) != (cam.height, cam.width):
+            raise DetectorInputError(f"view {cam.name}: mask has shape {np.shape(mask)}, expected "
+                                     f"({cam.height}, {cam.width})")
+    return [None if m is None else np.asarray(m, dtype=bool) for m in masks]
+
+
+def projected_keypoints(lifted: LiftedKeypoints, camera: Camera) -> np.ndarray | None:
+    """(21, 2) pixels of the lifted keypoints in `camera` (unlifted ones at the mean of the rest), or None when too
+    few were lifted (fewer than MIN_LIFTED, or no wrist or middle MCP to orient a crop by) or any lies behind it."""
+    finite = np.isfinite(lifted.points_world).all(axis=1)
+    if finite.sum() < MIN_LIFTED or not finite[[0, 9]].all():
+        return None
+    uv, depth = project_points(lifted.points_world[finite], [camera])
+    if np.any(depth[0] <= 0) or not np.all(np.isfinite(uv)):
+        return None
+    out = np.empty((21, 2))
+    out[finite] = uv[0]
+    out[~finite] = uv[0].mean(axis=0)
+    return out
+
+
+def _second_look(model: LandmarkModel, image: np.ndarray, camera: Camera, view: ViewKeypoints | None,
+                 lifted: LiftedKeypoints, handedness: Handedness) -> ViewKeypoints | None:
+    """A new detection in the window the other views' lift gives (turned upright by the projected wrist -> middle MCP),
+    kept when it lies nearer that projection than `view` does; otherwise `view`."""
+    expected = projected_keypoints(lifted, camera)
+    if expected is None:
+        return view
+    crop = refined_crop(expected, handedness == "left")
+    cx, cy = crop.center_px
+    if not (-0.5 <= cx <= camera.width - 0.5 and -0.5 <= cy <= camera.height - 0.5):
+        return view  # the hand is outside this view
+    again = detect_view(model, image, [StartCrop(crop, False, "lifted"), StartCrop(crop, True, "lifted")], handedness)
+    if again is None:
+        return view
+    if view is None:
+        return again
+    return again if _median_distance(again, expected) < _median_distance(view, expected) else view
+
+
+def _median_distance(view: ViewKeypoints, expected_px: np.ndarray) -> float:
+    return float(np.median(np.linalg.norm(view.keypoints_px - expected_px, axis=1)))
+
+
+def detect_frame(images: Sequence[np.ndarray], cameras: Sequence[Camera],
+                 masks: Sequence[np.ndarray | None] | None = None, *,
+                 handedness: Handedness = "right") -> LiftedKeypoints:
+    """Detect and lift the hand of one multi-view frame.
+
+    Args:
+        images: C (H, W, 3) uint8 RGB images in calibration order.
+        cameras: the C cameras.
+        masks: per view an (H, W) bool mask locating the hand (chroma key, HandSegNet) or None.
+        handedness: which hand (a left hand is shown to the model mirrored).
+    Raises:
+        DetectorInputError: fewer than 2 views, mismatched lists, malformed arrays.
+        DetectorUnavailableError: model files missing or corrupt.
+    """
+    if handedness not in ("right", "left"):
+        raise DetectorInputError(f"handedness must be 'right' or 'left', got {handedness!r}")
+    mask_list = _check_inputs(images, cameras, masks)
+    model, palms = landmark_model(), palm_detector()
+    views: list[ViewKeypoints | None] = [
+        detect_view(model, image, start_crops(image, mask, palms), handedness)
+        for image, mask in zip(images, mask_list, strict=True)]
+    lifted = lift(views, cameras)
+    # Views that found nothing, or a hand the others disagree with, look again where the others put it.
+    doubtful = [c for c, v in enumerate(views) if v is None or lifted.inliers[:, c].sum() < MIN_INLIER_KEYPOINTS]
+    if doubtful and sum(v is not None for v in views) >= 2:
+        changed = False
+        for c in doubtful:
+            again = _second_look(model, images[c], cameras[c], views[c], lifted, handedness)
+            changed = changed or again is not views[c]
+            views[c] = again
+        if changed:
+            lifted = lift(views, cameras)
+    return lifted
+
+
+def detect_image(image: np.ndarray, box_px: Sequence[float] | None = None, *,
+                 handedness: Handedness = "right") -> ViewKeypoints | None:
+    """One photo, no calibration: the hand's 21 keypoints, or None when no hand is found.
+
+    Args:
+        image: (H, W, 3) uint8 RGB.
+        box_px: optional x, y, width, height in pixels saying where the hand is (inside the image). The palm detector
+            looks inside it first, then the box itself is tried at 4 quarter turns. Without it the palm detector
+            searches the whole image, then the whole image's centred square is tried.
+    Raises:
+        DetectorInputError: a malformed image or a box that is not inside it.
+        DetectorUnavailableError: model files missing or corrupt.
+    """
+    image = check_image(image, "image")
+    if handedness not in ("right", "left"):
+        raise DetectorInputError(f"handedness must be 'right' or 'left', got {handedness!r}")
+    height, width = image.shape[:2]
+    model, palms = landmark_model(), palm_detector()
+    if box_px is not None:
+        x, y, w, h = check_box(box_px, width, height)
+        box = Crop((x + w / 2 - 0.5, y + h / 2 - 0.5), max(w, h) * BOX_SCALE)
+        starts = [StartCrop(p.crop, False, "box+palm") for p in palms.detect(image, box, max_palms=1)]
+        starts.append(StartCrop(box, True, "box"))
+    else:
+        starts = start_crops(image, None, palms)
+        starts.append(StartCrop(Crop(((width - 1) / 2, (height - 1) / 2), float(min(width, height))), True, "image"))
+    return detect_view(model, image, starts, handedness)
+
+
+def check_box(box_px: Sequence[float], width: int, height: int) -> tuple[float, float, float, float]:
+    """x, y, w, h of a box inside a width x height image (edges at 0 and width), or DetectorInputError saying why."""
+    values = [float(v) for v in box_px]
+    if len(values) != 4 or not all(np.isfinite(values)):
+        raise DetectorInputError(f"a box is 4 finite numbers x, y, width, height; got {list(box_px)}")
+    x, y, w, h = values
+    if w <= 0 or h <= 0:
+        raise DetectorInputError(f"box width and height must be positive, got {w:g} x {h:g}")
+    if x < 0 or y < 0 or x + w > width or y + h > height:
+        raise DetectorInputError(f"box {x:g},{y:g},{w:g},{h:g} is not inside the {width}x{height} image")
+    return x, y, w, h

@@ -145,7 +145,7 @@ class FitInput:
 
     job_id: int
     sample_id: int
-    source: str  # "annotation" or "prediction"
+    source: str  # "annotation", "prediction" or "detector"
     rig: Rig
     view_ids: tuple[int, ...]
     observations: FrameObservations
@@ -169,6 +169,10 @@ def fit_input(ctx: WorkerContext, session: Session, job: Job, frames: dict[int, 
     source = str((job.payload or {}).get("source", "annotation"))
     if source == "prediction":
         return _from_prediction(ctx, session, job, frame, rig)
+    if source == "detector":  # pre-annotation (workers.tasks.preannotate): the detection is in the job's payload
+        from workers.tasks.preannotate import fit_input_from_detection
+
+        return fit_input_from_detection(ctx, session, job, frame, rig)
     return _from_annotation(ctx, session, job, frame, rig)
 
 

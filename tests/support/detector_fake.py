@@ -1,9 +1,9 @@
 """A stand-in for the pretrained detector in job-layer tests: the synthetic capture's ground truth plus noise.
 
-Per view, the true 2D keypoints plus Gaussian noise; `outlier_views` views per frame (or `outliers_by_frame`) are shifted far off (a
-wrong detection the triangulation must reject); views in `missing_views` find no hand. The lifting is the
-real robust triangulation (workers.geometry.triangulation). Frames are recognised by the bytes of their first
-view's image, so the fake needs nothing the real `detect_frame` is not given.
+Per view, the true 2D keypoints plus Gaussian noise; `outlier_views` views per frame (or `outliers_by_frame`)
+are shifted far off (a wrong detection the triangulation must reject); views in `missing_views` find no hand.
+The lifting is the real robust triangulation (workers.geometry.triangulation). Frames are recognised by the
+bytes of their first view's image, so the fake needs nothing the real `detect_frame` is not given.
 """
 
 from __future__ import annotations

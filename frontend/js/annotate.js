@@ -14,7 +14,7 @@ import { Viewport } from "./viewport.js";
 
 const HIT_PX = 12; // how close (screen px) a press must be to grab a point
 const DRAG_PX = 3; // movement below this is a click, not a drag
-const SOURCE_LETTER = { triangulated: "T", fit: "F", mvnet: "M" };
+const SOURCE_LETTER = { triangulated: "T", fit: "F", mvnet: "M", detector: "D" };
 const HELP = [
   ["1 … 6", "pick wrist, thumb, index, middle, ring, pinky"],
   ["click", "place the keypoint (then the next one is picked)"],
@@ -792,7 +792,7 @@ class AnnotatePage {
       h("div", { class: "totals" }, `${total}/${this.views.length * this.annotation.keypoints.length} keypoints · ${masks} mask(s) corrected`),
       h("button", { class: "primary submit", onclick: () => this.submit(), disabled: this.submitting },
         this.submitting ? "Submitting…" : "Submit (Ctrl+Enter)"),
-      h("div", { class: "muted legend" }, "proposals: T triangulated from your clicks, F current fit, M MVNet"),
+      h("div", { class: "muted legend" }, "proposals: T triangulated from your clicks, D detector, F current fit, M MVNet"),
       this.sources.map((source) => h("div", { class: source.label.includes("not MANO") ? "badge warn" : "badge" },
         `${SOURCE_LETTER[source.kind]}: ${source.label}`)),
       this.lastSubmission ? h("div", { class: "muted" },

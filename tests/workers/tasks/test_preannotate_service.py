@@ -251,8 +251,17 @@ def test_a_cancelled_job_stops_and_leaves_no_sample_fitting(world, monkeypatch):
     assert SampleState.fitting not in states and SampleState.unlabeled not in states, states
 
 
-def test_the_celery_task_calls_the_service(monkeypatch):
+def test_the_celery_task_calls_the_service(monkeypatch, tmp_path):
+    import sys
+
+    from backend.settings import get_settings
+
+    if "workers.tasks.app" not in sys.modules:  # its import makes the embedded broker's folders: not in the tree
+        monkeypatch.setenv("HANDLOOP_DATA_DIR", str(tmp_path))
+        get_settings.cache_clear()
     from workers.tasks import definitions
+
+    get_settings.cache_clear()  # the next reader sees the environment as it is after this test
 
     seen = []
     monkeypatch.setattr(definitions, "get_context", lambda: "ctx")

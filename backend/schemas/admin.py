@@ -114,6 +114,15 @@ class PreannotateLaunched(Public):
     samples: int
 
 
-class DetectorStatus(Public):
+class PreannotationProject(Public):
+    project_id: int
+    name: str
+    samples: int
+    unlabeled: int
+    running_job_id: int | None = Field(description="Its pre-annotation job still queued or running, if any.")
+
+
+class PreannotationOverview(Public):
     available: bool
     reason: str | None = Field(description="Why the detector cannot run (None when it can).")
+    projects: list[PreannotationProject]

@@ -70,6 +70,25 @@ def running_job(session: Session, project_id: int) -> Job | None:
     return None
 
 
+def overview(session: Session) -> dict[str, object]:
+    """Whether the detector can run, and per project its samples, how many are unlabeled, its running job."""
+    from sqlalchemy import case, func
+
+    problem = detector_problem()
+    rows = session.execute(
+        select(Project.id, Project.name, func.count(Sample.id),
+               func.coalesce(func.sum(case((Sample.state == SampleState.unlabeled, 1), else_=0)), 0))
+        .outerjoin(CaptureSequence, CaptureSequence.project_id == Project.id)
+        .outerjoin(Sample, Sample.sequence_id == CaptureSequence.id)
+        .group_by(Project.id, Project.name).order_by(Project.id)).all()
+    projects = []
+    for project_id, name, samples, unlabeled in rows:
+        job = running_job(session, project_id)
+        projects.append({"project_id": project_id, "name": name, "samples": int(samples), "unlabeled": int(unlabeled),
+                         "running_job_id": job.id if job is not None else None})
+    return {"available": problem is None, "reason": problem, "projects": projects}
+
+
 def launch(session: Session, queue: jobs.JobQueue, project_id: int, *, actor_id: int | None,
            sample_ids: Sequence[int] | None = None, rest: Rest = "annotate",
            handedness: Literal["right", "left"] = "right") -> Job:

@@ -1,6 +1,7 @@
 // The admin dashboard: samples per state, the dataset per round and stream (the paper's D_0 ... D_n
 // table), charts (growth per round, MVNet confidence, sparsification, human time per action), rounds
-// launched and cancelled with a live progress bar (server-sent events), jobs, users and roles, exports.
+// launched and cancelled with a live progress bar (server-sent events), round 0 pre-annotated by the detector,
+// jobs, users and roles, exports.
 import { histogram, lines, pairedBars, stackedBars } from "./charts.js";
 import { fmt, h, toast, fill } from "./dom.js";
 
@@ -40,7 +41,8 @@ class AdminPage {
   async start() {
     await this.refresh();
     this.timer = setInterval(() => this.refresh().catch(() => null), REFRESH_MS);
-    const running = (this.jobs || []).find((j) => j.kind === "round" && (j.state === "queued" || j.state === "running"));
+    const running = (this.jobs || []).find((j) => (j.kind === "round" || j.kind === "preannotate")
+      && (j.state === "queued" || j.state === "running"));
     if (running) this.watch(running.id);
     this.renderUsers();
     this.renderData();
@@ -53,13 +55,14 @@ class AdminPage {
   }
 
   async refresh() {
-    const [stats, rounds, dashboard, jobs] = await Promise.all([
+    const [stats, rounds, dashboard, jobs, preannotation] = await Promise.all([
       this.api.get("/api/admin/rounds/statistics"),
       this.api.get("/api/admin/rounds"),
       this.api.get("/api/admin/dashboard"),
       this.api.get("/api/admin/jobs?limit=25"),
+      this.api.get("/api/admin/preannotation"),
     ]);
-    Object.assign(this, { stats, rounds, dashboard, jobs });
+    Object.assign(this, { stats, rounds, dashboard, jobs, preannotation });
     this.renderOverview();
     this.renderRounds();
     this.renderCharts();
@@ -110,8 +113,41 @@ class AdminPage {
         note, h("button", { class: "primary launch-round", type: "submit" }, running ? `Complete D${sub(running.index)} and launch the next round` :
           "Launch a round"),
         h("button", { type: "button", onclick: () => this.buildReviewQueue() }, "Build review queue")),
+      this.preannotationForm(),
       this.progress,
     );
+  }
+
+  // Round 0 without clicks: the pretrained detector -> triangulation -> fit on a project's unlabeled samples.
+  preannotationForm() {
+    const p = this.preannotation;
+    if (!p) return null;
+    const candidates = p.projects.filter((x) => x.unlabeled > 0 && x.running_job_id === null);
+    const project = h("select", { name: "project", disabled: !p.available || !candidates.length },
+      candidates.map((x) => h("option", { value: String(x.project_id) }, `${x.name} (${x.unlabeled} unlabeled)`)));
+    const rest = h("select", { name: "rest", disabled: !p.available },
+      h("option", { value: "annotate" }, "the rest to annotators"), h("option", { value: "keep" }, "keep the rest"));
+    const busy = p.projects.filter((x) => x.running_job_id !== null)
+      .map((x) => `${x.name}: job ${x.running_job_id} running`).join(" · ");
+    return h("form", { class: "inline-form preannotate", onsubmit: (e) => { e.preventDefault();
+      this.preannotate(Number(project.value), rest.value); } },
+    project, rest,
+    h("button", { type: "submit", class: "preannotate-button", disabled: !p.available || !candidates.length,
+      title: p.available ? "detector -> triangulation -> fit; the fits go to the reviewers first" : p.reason },
+    "Pre-annotate with the detector (round 0)"),
+    h("span", { class: "muted" }, !p.available ? `detector unavailable: ${p.reason}`
+      : busy || (candidates.length ? "" : "no unlabeled samples")));
+  }
+
+  async preannotate(projectId, rest) {
+    try {
+      const launched = await this.api.post("/api/admin/preannotation", { project_id: projectId, rest });
+      toast(`pre-annotating ${launched.samples} samples (job ${launched.job_id})`, "ok");
+      this.watch(launched.job_id);
+      await this.refresh();
+    } catch (error) {
+      toast(`pre-annotation refused: ${error.message}`, "error", 10000);
+    }
   }
 
   renderCharts() {
@@ -208,7 +244,7 @@ class AdminPage {
     const bar = h("div", { class: "live", dataset: { job: String(jobId) } });
     fill(this.progress, bar);
     const draw = (job) => fill(bar, 
-      h("div", { class: "live-head" }, `round job ${job.id}: ${job.state}`, h("span", { class: "muted" },
+      h("div", { class: "live-head" }, `${job.kind || "round"} job ${job.id}: ${job.state}`, h("span", { class: "muted" },
         ` ${job.message || ""}`)), progressBar(job.progress, true), job.error ? h("div", { class: "error" }, job.error) : null);
     this.api.events(`/api/admin/jobs/${jobId}/events`, (name, job) => {
       if (!job) return;
@@ -280,7 +316,9 @@ class AdminPage {
       e.preventDefault();
       try {
         const r = await this.api.post("/api/admin/imports", { path: path.value, project: project.value || null });
-        toast(`imported ${r.project}: ${r.samples} samples, ${r.views} views`, "ok");
+        toast(`imported ${r.project}: ${r.samples} samples, ${r.views} views` +
+          (r.preannotation ? ` · pre-annotation: ${r.preannotation}` : ""), "ok");
+        if (r.preannotation_job_id) this.watch(r.preannotation_job_id);
         this.refresh();
       } catch (error) {
         toast(`import failed: ${error.message}`, "error", 10000);

@@ -5,17 +5,16 @@ from __future__ import annotations
 from fastapi import APIRouter
 
 from backend.api.deps import AdminUser, JobQueueDep, SessionDep
-from backend.schemas.admin import DetectorStatus, PreannotateLaunched, PreannotateRequest
+from backend.schemas.admin import PreannotateLaunched, PreannotateRequest, PreannotationOverview
 from backend.services import preannotation
 
 router = APIRouter(prefix="/admin/preannotation", tags=["admin: pre-annotation"])
 
 
-@router.get("/detector", response_model=DetectorStatus)
-def detector_status(_admin: AdminUser) -> DetectorStatus:
-    """Whether the pretrained hand detector's model files are installed and verified."""
-    reason = preannotation.detector_problem()
-    return DetectorStatus(available=reason is None, reason=reason)
+@router.get("", response_model=PreannotationOverview)
+def overview(session: SessionDep, _admin: AdminUser) -> dict[str, object]:
+    """Whether the pretrained hand detector's model files are installed and verified; the projects it could run on."""
+    return preannotation.overview(session)
 
 
 @router.post("", response_model=PreannotateLaunched, status_code=202)

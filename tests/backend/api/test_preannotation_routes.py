@@ -76,16 +76,20 @@ def test_only_admins_see_the_detector_and_launch_pre_annotation(make_world):
     client, headers, queue, ctx, _, _ = make_world()
     body = {"project_id": _project_id(ctx)}
     for role in ("reviewer", "annotator"):
-        assert client.get("/api/admin/preannotation/detector", headers=headers[role]).status_code == 403
+        assert client.get("/api/admin/preannotation", headers=headers[role]).status_code == 403
         assert client.post("/api/admin/preannotation", json=body, headers=headers[role]).status_code == 403
     assert client.post("/api/admin/preannotation", json=body).status_code == 401
-    status = client.get("/api/admin/preannotation/detector", headers=headers["admin"])
-    assert status.status_code == 200 and status.json() == {"available": True, "reason": None}
+    status = client.get("/api/admin/preannotation", headers=headers["admin"])
+    assert status.status_code == 200, status.text
+    assert status.json() == {"available": True, "reason": None, "projects": [
+        {"project_id": body["project_id"], "name": "live", "samples": 4, "unlabeled": 4, "running_job_id": None}]}
     launched = client.post("/api/admin/preannotation", json=body, headers=headers["admin"])
     assert launched.status_code == 202, launched.text
     assert launched.json()["samples"] == 4 and queue.enqueued == [(launched.json()["job_id"], "preannotate")]
     again = client.post("/api/admin/preannotation", json=body, headers=headers["admin"])
     assert again.status_code == 409 and "already being pre-annotated" in again.json()["detail"]
+    listed = client.get("/api/admin/preannotation", headers=headers["admin"]).json()["projects"]
+    assert listed[0]["running_job_id"] == launched.json()["job_id"]
 
 
 def test_bad_requests_are_refused_with_what_is_wrong(make_world):
@@ -105,8 +109,8 @@ def test_bad_requests_are_refused_with_what_is_wrong(make_world):
 def test_without_the_detector_the_action_is_refused_with_its_sentence(make_world, monkeypatch):
     client, headers, queue, ctx, _, _ = make_world()
     monkeypatch.setattr(preannotate, "detector_problem", lambda: MISSING)
-    status = client.get("/api/admin/preannotation/detector", headers=headers["admin"]).json()
-    assert status == {"available": False, "reason": MISSING}
+    status = client.get("/api/admin/preannotation", headers=headers["admin"]).json()
+    assert (status["available"], status["reason"]) == (False, MISSING)
     refused = client.post("/api/admin/preannotation", json={"project_id": _project_id(ctx)}, headers=headers["admin"])
     assert refused.status_code == 503 and MISSING in refused.json()["detail"]
     assert queue.enqueued == [] and _states(ctx) == {"unlabeled": 4}

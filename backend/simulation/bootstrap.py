@@ -52,7 +52,8 @@ class BootstrapConfig:
         round_timeout_s: longest wait for one round's job (and for the fits queued by people).
         poll_s: job polling interval.
         project: name of the project the capture is imported as.
-        detector: round 0 pre-annotated by the pretrained detector (the server must have its model files).
+        detector: round 0 pre-annotated by the pretrained detector (the server must have its model files);
+            None: when the server can run it.
     """
 
     rounds: int = 4
@@ -65,7 +66,7 @@ class BootstrapConfig:
     round_timeout_s: float = 3600.0
     poll_s: float = 1.0
     project: str = "sim"
-    detector: bool = False
+    detector: bool | None = False
 
     def __post_init__(self) -> None:
         if not 0 <= self.rounds <= 50:
@@ -154,6 +155,7 @@ class BootstrapSimulation:
         self.truth: GroundTruthIndex | None = None
         self.initial_set: list[int] = []
         self.project_id: int | None = None
+        self.detector_on = bool(config.detector)  # settled by `prepare` when config.detector is None
         self.preannotation: dict[str, Any] | None = None
         self._errors: dict[int, tuple[float, float]] = {}  # fit id -> (vertex mm, keypoint mm)
         self._previous_size = 0
@@ -183,17 +185,20 @@ class BootstrapSimulation:
             raise ValueError(f"initial_every must be at least 2 (all frames in D_0 leave nothing to bootstrap), "
                              f"not {initial_every}")
         project = self.config.project
-        if self.config.detector:  # refused before anything is imported where the server cannot run it
+        if self.config.detector is not False:  # refused before anything is imported where the server cannot run it
             status = self.admin.preannotation()
-            if not status["available"]:
+            if self.config.detector and not status["available"]:
                 raise ValueError(f"the simulation with the detector needs it on the server: {status['reason']}")
+            self.detector_on = bool(status["available"])
+            if not self.detector_on:
+                log.info("detector off: %s", status["reason"])
         imported = self.admin.import_capture(str(capture_dir), project, queue_for_annotation=False)
         self.project_id = int(imported["project_id"])
         samples = self.admin.sample_index(project=project)["samples"]
         initial = [s["sample_id"] for s in samples if s["split"] == "train" and s["frame_index"] % initial_every == 0]
         if not initial:
             raise ValueError(f"{capture_dir}: no training frames for the initial set")
-        self.initial_set = initial if self.config.detector else self.admin.queue_for_annotation(initial)
+        self.initial_set = initial if self.detector_on else self.admin.queue_for_annotation(initial)
         self.truth = GroundTruthIndex({project: read_capture(capture_dir, check_images=False)}, samples)
         return self._people(self.truth)
 
@@ -224,6 +229,7 @@ class BootstrapSimulation:
                     launched = self.admin.launch_round(note=f"bootstrap simulation round {index}")
                     job = self.run_round(launched["job_id"])
                     job_info = {k: job.get(k) for k in ("id", "state", "message", "error")}
+                    job_info["heuristic"] = (job.get("result") or {}).get("heuristic")  # evaluated, accepted
                     if job["state"] != "succeeded":
                         failure = (f"round {index}: the round job ended '{job['state']}': "
                                    f"{job.get('error') or job['message']}")
@@ -231,7 +237,7 @@ class BootstrapSimulation:
                         break
                     self.wait_for_workers()
                     self.admin.build_review_queue()  # the round job built it; this adds fits that finished later
-                elif self.config.detector:
+                elif self.detector_on:
                     job = self.preannotate()  # reported as the round's `preannotation`, not as a round job
                     if job["state"] != "succeeded":
                         failure = (f"round 0: the pre-annotation job ended '{job['state']}': "
@@ -348,10 +354,10 @@ class BootstrapSimulation:
             "minutes": seconds / 60,
             "bookkeeping_ok": all(r.bookkeeping_ok for r in reports),
             "failure": failure,
-            "detector": self.config.detector,
+            "detector": self.detector_on,
             "d0_verified_share": reports[0].verified_share if reports else None,
             "config": {"rounds": self.config.rounds, "annotators": self.config.annotators,
                        "reviewers": self.config.reviewers, "annotator": asdict(self.config.annotator),
                        "reviewer": asdict(self.config.reviewer), "costs": asdict(self.config.costs),
-                       "auto_accept_max_mm": self.config.auto_accept_max_mm, "detector": self.config.detector},
+                       "auto_accept_max_mm": self.config.auto_accept_max_mm, "detector": self.detector_on},
         }

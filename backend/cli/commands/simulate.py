@@ -50,6 +50,9 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         mask_s: float = typer.Option(12.0, help="Seconds per mask correction."),
         verify_s: float = typer.Option(5.0, help="Seconds per verification."),
         seed: int = typer.Option(0),
+        detector: str | None = typer.Option(None, "--detector", help="on: round 0 pre-annotated by the pretrained "
+                                            "detector (the initial set goes to reviewers first); off: clicked "
+                                            "from nothing (the paper). Default: on where the server can run it."),
         nets: str = typer.Option("cpu-small", help="Networks trained each round: tiny, cpu-small or paper."),
         set_: list[str] = typer.Option([], "--set", help="Another server setting, KEY=VALUE (e.g. "
                                                          "round_mvnet_budget_s=300); repeatable."),
@@ -84,6 +87,14 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
             fail(f"capture rejected: {exc}")
         if not any(seq.has_ground_truth for seq in parsed.sequences):
             fail(f"{capture} has no ground truth: the simulated people need a synthetic capture")
+        if detector not in (None, "on", "off"):
+            fail(f"--detector must be on or off, not {detector!r}")
+        if detector == "on" and url is None:  # the started stack shares this install: refuse before starting it
+            from backend.services.preannotation import detector_problem
+
+            problem = detector_problem()
+            if problem is not None:
+                fail(f"--detector on needs the pretrained detector: {problem}")
         try:
             config = BootstrapConfig(
                 rounds=rounds, annotators=annotators, reviewers=reviewers,
@@ -93,7 +104,7 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
                                           boundary_noise_px=boundary_noise_px, seed=seed),
                 reviewer=ReviewerConfig(accept_below_mm=accept_below_mm, error_rate=review_error_rate, seed=seed),
                 costs=UnitCosts(click_s=click_s, mask_correction_s=mask_s, verification_s=verify_s),
-                round_timeout_s=round_timeout_s)
+                round_timeout_s=round_timeout_s, detector=None if detector is None else detector == "on")
             server = ServerOptions(url=url, admin_email=admin_email, admin_password=admin_password,
                                    settings={"nets_config": nets, **_parse_settings(set_)},
                                    worker_concurrency=worker_concurrency)
@@ -120,6 +131,8 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
                        f"+{r['added']['manual']} manual +{r['added']['annotated']} annotated  "
                        f"{r['human_hours']:.2f} h  accepted {_mm(r['accepted_vertex_mm'])}  "
                        f"MVNet {_mm(r['mvnet_keypoint_mm'])}")
+        typer.echo(f"detector {'on' if summary['detector'] else 'off'}; D_0 verified alone: "
+                   f"{summary['d0_verified_share']}")
         typer.echo(f"labels per human hour: {summary['labels_per_human_hour']}; report in {work}")
         if summary["failure"]:
             typer.echo(f"stopped early: {summary['failure']}", err=True)

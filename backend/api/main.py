@@ -18,6 +18,7 @@ from backend.api.routes import (
     overlays,
     preannotation,
     prefetch,
+    reliability,
     review,
     rounds,
     users,
@@ -28,5 +29,5 @@ api_router = APIRouter(prefix="/api")
 # The service's own resources, then the admin's choice of what people annotate (e.g. D_0) or the detector
 # pre-annotates, then the routes the browser UI needs (prefetch, overlays, 3D scenes, activity timing, dashboard).
 for module in (health, auth, users, annotate, review, files, rounds, jobs, exports, imports, annotation_set,
-               preannotation, prefetch, overlays, viewer, activity, dashboard):
+               preannotation, prefetch, overlays, viewer, activity, dashboard, reliability):
     api_router.include_router(module.router)

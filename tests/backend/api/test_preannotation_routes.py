@@ -191,3 +191,24 @@ def test_sent_back_detector_fits_reach_annotators_with_d_proposals_and_accepted_
     dataset = client.get("/api/admin/exports/dataset", headers=headers["admin"]).json()
     assert dataset["count"] == 3
     assert {(s["round"], s["stream"], s["fit"]["source"]) for s in dataset["samples"]} == {(0, "manual", "detector")}
+
+
+def test_reliability_of_the_detector_and_triangulation_confidences_against_the_ground_truth(make_world):
+    client, headers, _, ctx, _, _ = make_world()
+    empty = client.get("/api/admin/reliability", headers=headers["admin"]).json()
+    assert empty["rounds"] == [] and empty["references"] == {"ground_truth": 0, "accepted_fit": 0}
+    launched = client.post("/api/admin/preannotation", json={"project_id": _project_id(ctx)},
+                           headers=headers["admin"]).json()
+    preannotate.run_preannotation_job(ctx, launched["job_id"])
+    out = client.get("/api/admin/reliability?bins=10", headers=headers["admin"]).json()
+    assert out["references"] == {"ground_truth": 4, "accepted_fit": 0} and [r["index"] for r in out["rounds"]] == [0]
+    sources = out["rounds"][0]["sources"]
+    detector, triangulation = sources["detector"], sources["triangulation"]
+    assert detector["n"] == 4 * 8 * 21 and detector["counts"][9] == detector["n"]  # the fake scores every point 0.9
+    # 7 views within ~1 px and one 40 px off in x and y: a mean of (7 * 1.25 + 56.6) / 8 px or so.
+    assert 5.0 < detector["mean_error"][9] < 12.0
+    # mm, at 160 px wide views (4.5 mm when written): the triangulation left the 40 px outlier view out.
+    assert triangulation["n"] == 4 * 21 and triangulation["mean_error"][9] < 8.0
+    assert sources["mvnet"]["n"] == 0 and out["units"] == {"detector": "px", "triangulation": "mm", "mvnet": "mm"}
+    bad = client.get("/api/admin/reliability?bins=0", headers=headers["admin"])
+    assert bad.status_code == 422

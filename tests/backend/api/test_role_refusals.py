@@ -37,6 +37,7 @@ ROUTES = [
     ("POST", "/api/admin/imports", Role.admin),
     ("GET", "/api/admin/preannotation", Role.admin),
     ("POST", "/api/admin/preannotation", Role.admin),
+    ("GET", "/api/admin/reliability", Role.admin),
     ("POST", "/api/admin/samples/queue-for-annotation", Role.admin),
     # The browser UI's routes (tests/backend/api/ui/).
     ("POST", "/api/annotate/prefetch", Role.annotator),

@@ -1,8 +1,8 @@
 // The admin dashboard: samples per state, the dataset per round and stream (the paper's D_0 ... D_n
 // table), charts (growth per round, MVNet confidence, sparsification, human time per action), rounds
 // launched and cancelled with a live progress bar (server-sent events), round 0 pre-annotated by the detector,
-// jobs, users and roles, exports.
-import { histogram, lines, pairedBars, stackedBars } from "./charts.js";
+// jobs, users and roles, exports, and the reliability of the confidences per round.
+import { histogram, lines, pairedBars, reliability, stackedBars } from "./charts.js";
 import { fmt, h, toast, fill } from "./dom.js";
 
 const STATES = ["unlabeled", "needs_annotation", "annotated", "fitting", "fitted", "in_review", "accepted", "rejected"];
@@ -12,6 +12,12 @@ const STREAMS = [
   { name: "annotated", label: "Dˡ annotated", color: "#e76f51" },
 ];
 const ROLES = ["annotator", "reviewer", "admin"];
+const ROUND_COLORS = ["#e76f51", "#f4a261", "#e9c46a", "#2a9d8f", "#457b9d", "#6d597a"];
+const CONFIDENCES = [
+  { name: "detector", title: "Detector keypoint score vs 2D error" },
+  { name: "triangulation", title: "Triangulation confidence vs 3D error" },
+  { name: "mvnet", title: "MVNet confidence vs 3D error" },
+];
 const REFRESH_MS = 4000;
 
 export async function mountAdmin(root, ctx) {
@@ -33,6 +39,7 @@ class AdminPage {
       jobs: h("section", { class: "card", id: "jobs" }),
       users: h("section", { class: "card", id: "users" }),
       data: h("section", { class: "card", id: "data" }),
+      reliability: h("section", { class: "card wide", id: "reliability" }),
     };
     this.progress = h("div", { class: "round-progress" });
     root.append(h("div", { class: "admin-page" }, ...Object.values(this.sections)));
@@ -46,6 +53,8 @@ class AdminPage {
     if (running) this.watch(running.id);
     this.renderUsers();
     this.renderData();
+    this.renderReliability().catch((error) => fill(this.sections.reliability, h("h2", {}, "Reliability"),
+      h("p", { class: "error" }, `reliability: ${error.message}`)));
     document.body.dataset.ready = "admin";
   }
 
@@ -123,10 +132,15 @@ class AdminPage {
     const p = this.preannotation;
     if (!p) return null;
     const candidates = p.projects.filter((x) => x.unlabeled > 0 && x.running_job_id === null);
-    const project = h("select", { name: "project", disabled: !p.available || !candidates.length },
-      candidates.map((x) => h("option", { value: String(x.project_id) }, `${x.name} (${x.unlabeled} unlabeled)`)));
-    const rest = h("select", { name: "rest", disabled: !p.available },
-      h("option", { value: "annotate" }, "the rest to annotators"), h("option", { value: "keep" }, "keep the rest"));
+    // The section is redrawn at each refresh: the admin's choice is kept across redraws.
+    const chosen = this.preannotateChoice || (this.preannotateChoice = { project: null, rest: "annotate" });
+    const project = h("select", { name: "project", disabled: !p.available || !candidates.length,
+      onchange: (e) => { chosen.project = e.target.value; } },
+    candidates.map((x) => h("option", { value: String(x.project_id), selected: String(x.project_id) === chosen.project },
+      `${x.name} (${x.unlabeled} unlabeled)`)));
+    const rest = h("select", { name: "rest", disabled: !p.available, onchange: (e) => { chosen.rest = e.target.value; } },
+      h("option", { value: "annotate", selected: chosen.rest === "annotate" }, "the rest to annotators"),
+      h("option", { value: "keep", selected: chosen.rest === "keep" }, "keep the rest"));
     const busy = p.projects.filter((x) => x.running_job_id !== null)
       .map((x) => `${x.name}: job ${x.running_job_id} running`).join(" · ");
     return h("form", { class: "inline-form preannotate", onsubmit: (e) => { e.preventDefault();
@@ -179,6 +193,29 @@ class AdminPage {
         `${fmt(sp.ause_mm, 2)} mm)` : "Sparsification curve")),
       h("figure", {}, time, h("figcaption", {}, `Human time per action (${ht.annotations} annotations, ` +
         `${ht.verifications} verifications)`))));
+  }
+
+  // Do the confidences mean something? Mean true error per confidence bin, a line per round; read on demand
+  // (it reads every detection and prediction), not at each refresh.
+  async renderReliability() {
+    const r = await this.api.get("/api/admin/reliability?bins=10");
+    const refs = r.references;
+    const figures = CONFIDENCES.map(({ name, title }) => {
+      const series = r.rounds.map((round, i) => {
+        const b = round.sources[name];
+        const points = b.mean_error.map((m, k) => (m === null ? null : [(b.edges[k] + b.edges[k + 1]) / 2, m, b.counts[k]]))
+          .filter(Boolean);
+        return { label: `D${sub(round.index)}`, color: ROUND_COLORS[i % ROUND_COLORS.length], points, n: b.n };
+      }).filter((s) => s.n > 0);
+      const unit = r.units[name];
+      return h("figure", { dataset: { source: name } }, series.length ? reliability(series, { yLabel: unit })
+        : h("p", { class: "muted" }, "no data yet"), h("figcaption", {}, `${title} (${unit})`));
+    });
+    fill(this.sections.reliability, h("h2", {}, "Reliability of the confidences"),
+      h("p", { class: "muted" }, `Reference: ground truth for ${refs.ground_truth} samples, accepted fits for ` +
+        `${refs.accepted_fit}. The error should fall as the confidence rises.`),
+      h("div", { class: "charts" }, figures),
+      h("button", { class: "small", onclick: () => this.renderReliability() }, "Refresh"));
   }
 
   renderJobs() {

@@ -78,7 +78,8 @@ def detector_problem() -> str | None:
     try:
         from workers.detector import detector_status
     except ImportError as exc:
-        return f"the pretrained hand detector is not installed in this build ({exc}); the paper-only path runs"
+        log.info("detector core not importable: %s", exc)
+        return "the pretrained hand detector's code (workers.detector.pipeline) is not in this build"
     return detector_status()
 
 

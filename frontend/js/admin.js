@@ -172,7 +172,7 @@ class AdminPage {
     const hist = d.confidence_histogram;
     const conf = hist.n
       ? histogram(hist.edges, [{ values: hist.counts, color: "#6c757d", label: "all" },
-        { values: hist.accepted, color: "#2a9d8f", label: "accepted" }], { xLabel: "mean MVNet confidence" })
+        { values: hist.accepted, color: "#2a9d8f", label: "accepted" }], { xLabel: "mean confidence (MVNet; the detector's until MVNet predicts)" })
       : h("p", { class: "muted" }, "no MVNet predictions yet");
     const sp = d.sparsification;
     const spars = sp
@@ -188,7 +188,7 @@ class AdminPage {
     ], { labels: ["handloop", "paper"] });
     fill(this.sections.charts, h("h2", {}, "Charts"), h("div", { class: "charts" },
       h("figure", {}, growth, h("figcaption", {}, "Dataset growth per round and stream")),
-      h("figure", {}, conf, h("figcaption", {}, `MVNet confidence (${hist.n} samples)`)),
+      h("figure", {}, conf, h("figcaption", {}, `Sample confidence: MVNet's, the detector's in round 0 (${hist.n} samples)`)),
       h("figure", {}, spars, h("figcaption", {}, sp ? `Sparsification vs accepted fits (n=${sp.n}, AUSE ` +
         `${fmt(sp.ause_mm, 2)} mm)` : "Sparsification curve")),
       h("figure", {}, time, h("figcaption", {}, `Human time per action (${ht.annotations} annotations, ` +

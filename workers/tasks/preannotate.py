@@ -239,7 +239,8 @@ def _states(session: Session, sample_ids: Sequence[int]) -> dict[int, str]:
 
 def _detect_sample(ctx: WorkerContext, frame: SampleFrame, rig: Rig, handedness: Handedness
                    ) -> tuple[dict[str, Any] | None, str]:
-    """(detection record, "") or (None, why there is nothing to fit). DetectorUnavailableError propagates."""
+    """(detection record, "") or (None, why there is nothing to fit: bad input, no hand, or the detector failing
+    on this frame). DetectorUnavailableError propagates: it ends the job."""
     from workers.capture.reader import load_frame_images
 
     try:
@@ -251,6 +252,11 @@ def _detect_sample(ctx: WorkerContext, frame: SampleFrame, rig: Rig, handedness:
         record = detection_record(lifted, frame.view_ids)
     except (DetectorInputError, CaptureError, InputError, KeyError) as exc:
         return None, f"detector input: {exc}"
+    except DetectorUnavailableError:
+        raise  # the model files went missing or corrupt: no other sample can be detected either
+    except Exception as exc:  # one frame that breaks the detector must not sink the others (as for the fits)
+        log.exception("detector failed on sample %s", frame.sample_id)
+        return None, f"detector failed: {exc.__class__.__name__}: {exc}"
     lifted_n = lifted_count(record)
     if lifted_n < MIN_LIFTED_KEYPOINTS:
         found = sum(v is not None for v in record["views"])

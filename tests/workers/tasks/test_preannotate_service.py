@@ -272,3 +272,40 @@ def test_the_celery_task_calls_the_service(monkeypatch, tmp_path):
 
 def test_the_settings_default_is_off():
     assert Settings(environment="test", secret_key="x" * 20).preannotate_on_import is False
+
+
+def test_a_frame_that_breaks_the_detector_goes_to_the_annotators_and_the_others_are_fitted(world, monkeypatch):
+    ctx, queue, project_id, fake = world
+
+    def flaky(images, *args, **kwargs):
+        if fake.calls == 1:  # the second frame
+            fake.calls += 1
+            raise RuntimeError("interpreter tensor 3 has the wrong size")
+        return fake(images, *args, **kwargs)
+
+    monkeypatch.setattr(preannotate, "detect", flaky)
+    result = preannotate.run_preannotation_job(ctx, _launch(ctx, queue, project_id))
+    assert result["fitted"] == 3 and result["no_detection"] == 1, result
+    assert any("detector failed: RuntimeError: interpreter tensor 3" in e for e in result["errors"].values())
+    _, _, states = _counts(ctx)
+    assert states.get(SampleState.needs_annotation, 0) >= 1 and SampleState.unlabeled not in states
+
+
+def test_model_files_vanishing_mid_job_fail_it_with_the_reason_and_leave_no_sample_between(world, monkeypatch):
+    ctx, queue, project_id, fake = world
+
+    def vanishing(images, *args, **kwargs):
+        if fake.calls == 2:
+            raise preannotate.DetectorUnavailableError("hand_landmark_full.tflite: checksum mismatch")
+        return fake(images, *args, **kwargs)
+
+    monkeypatch.setattr(preannotate, "detect", vanishing)
+    job_id = _launch(ctx, queue, project_id)
+    result = preannotate.run_preannotation_job(ctx, job_id)
+    assert result["failed"] == "hand_landmark_full.tflite: checksum mismatch"
+    with ctx.session_factory() as session:
+        job = session.get(Job, job_id)
+        assert job.state == JobState.failed and "checksum mismatch" in job.error
+    fits, _, states = _counts(ctx)
+    # The two detected samples' fits were queued but not run: cancelled, and every sample is with the annotators.
+    assert fits == 0 and states == {SampleState.needs_annotation: 4}, states

@@ -78,13 +78,16 @@ def _capture(root: Path, sequences: int, frames: int, width: int) -> Path:
     return out
 
 
-def _simulate(capture: Path, work: Path, plan: dict[str, Any], detector: bool) -> dict[str, Any]:
+def _simulate(capture: Path, work: Path, plan: dict[str, Any], detector: bool,
+              accept_proposals_px: float | None) -> dict[str, Any]:
     from tqdm import tqdm
 
+    from backend.simulation.annotator import AnnotatorConfig
     from backend.simulation.bootstrap import BootstrapConfig
     from backend.simulation.runner import ServerOptions, run_simulation
 
-    config = BootstrapConfig(rounds=plan["rounds"], detector=detector)
+    config = BootstrapConfig(rounds=plan["rounds"], detector=detector,
+                             annotator=AnnotatorConfig(accept_proposals_within_px=accept_proposals_px))
     label = f"bootstrap, detector {'on' if detector else 'off'}"
     with tqdm(total=plan["rounds"] + 1, unit="round", desc=label, file=sys.stderr) as bar:
         def on_round(report) -> None:
@@ -111,7 +114,7 @@ def _detector_met(summary: dict[str, Any]) -> dict[str, bool]:
 
 
 def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = None,
-        detector: str | None = None) -> dict[str, Any]:
+        detector: str | None = None, accept_proposals_px: float | None = None) -> dict[str, Any]:
     """One run (`detector` "on" or "off") or both on the same capture and seed ("both"); None: both where the
     detector can run, else off. The record's top level is the run with the detector when it ran, else without."""
     from backend.settings import get_settings
@@ -130,7 +133,8 @@ def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = 
     load_before = os.getloadavg()
     runs: dict[str, dict[str, Any]] = {}
     for name in (("off", "on") if mode == "both" else (mode,)):
-        runs[name] = _simulate(capture, work / f"detector-{name}", plan, detector=name == "on")
+        runs[name] = _simulate(capture, work / f"detector-{name}", plan, detector=name == "on",
+                               accept_proposals_px=accept_proposals_px)
     load_after = os.getloadavg()
     summary = runs.get("on") or runs["off"]
     met = {
@@ -150,7 +154,7 @@ def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = 
         result["detector_targets"] = DETECTOR_TARGETS
         result["detector_targets_met"] = _detector_met(runs["on"])
     settings = {"plan": {k: v for k, v in plan.items() if k != "settings"}, "stack_settings": plan["settings"],
-                "capture": str(capture), "seed": SEED, "detector": mode}
+                "capture": str(capture), "seed": SEED, "detector": mode, "accept_proposals_px": accept_proposals_px}
     if emit_json:
         return emit("sim", result, settings, started)
     return result

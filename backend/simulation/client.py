@@ -72,6 +72,9 @@ class ApiClient:
         return self.request("POST", f"/api/annotate/samples/{sample_id}/submissions", expect=(200, 201),
                             json=body).json()
 
+    def proposals(self, sample_id: int) -> dict[str, Any]:
+        return self.get_json(f"/api/annotate/samples/{sample_id}/proposals")
+
     def release_annotation(self, sample_id: int, lease_token: str) -> None:
         self.request("POST", f"/api/annotate/samples/{sample_id}/lease/release", expect=(204,),
                      json={"lease_token": lease_token})

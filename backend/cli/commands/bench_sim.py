@@ -13,6 +13,9 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         detector: str | None = typer.Option(
             None, "--detector", help="on, off, or both (the same capture and seed side by side). Default: both "
             "where the pretrained detector can run, else off."),
+        accept_proposals_px: float | None = typer.Option(
+            None, help="Simulated annotators accept a shown proposal within this many pixels of the true point "
+            "(one key per view) instead of clicking it; default: they click every point."),
     ) -> None:
         """200-frame synthetic capture, cpu-small networks, 4 rounds through the real server and workers:
         minutes, accepted labels' vertex error, auto-accept precision, labels per human hour; with the
@@ -26,7 +29,7 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
             raise typer.Exit(code=2)
         logging.getLogger("httpx").setLevel(logging.WARNING)  # one line per request drowns the progress
         try:
-            record = run(quick=quick, emit_json=json_out, detector=detector)
+            record = run(quick=quick, emit_json=json_out, detector=detector, accept_proposals_px=accept_proposals_px)
         except ValueError as exc:
             typer.echo(f"error: {exc}", err=True)
             raise typer.Exit(code=2) from exc

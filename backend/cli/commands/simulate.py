@@ -49,6 +49,11 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         click_s: float = typer.Option(2.0, help="Seconds per click."),
         mask_s: float = typer.Option(12.0, help="Seconds per mask correction."),
         verify_s: float = typer.Option(5.0, help="Seconds per verification."),
+        accept_proposals_px: float | None = typer.Option(
+            None, help="Annotators accept a shown proposal (detector, MVNet, fit) within this many pixels of the "
+            "true point instead of clicking it (default: they click every point)."),
+        proposal_s: float = typer.Option(1.0, help="Seconds to accept a view's proposals (one key; an assumption, "
+                                                   "not a figure of the paper)."),
         seed: int = typer.Option(0),
         detector: str | None = typer.Option(None, "--detector", help="on: round 0 pre-annotated by the pretrained "
                                             "detector (the initial set goes to reviewers first); off: clicked "
@@ -101,9 +106,11 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
                 annotator=AnnotatorConfig(click_sigma_px=click_sigma_px, swap_probability=swap_probability,
                                           mask_iou_threshold=mask_iou_threshold,
                                           max_mask_corrections=max_mask_corrections,
-                                          boundary_noise_px=boundary_noise_px, seed=seed),
+                                          boundary_noise_px=boundary_noise_px,
+                                          accept_proposals_within_px=accept_proposals_px, seed=seed),
                 reviewer=ReviewerConfig(accept_below_mm=accept_below_mm, error_rate=review_error_rate, seed=seed),
-                costs=UnitCosts(click_s=click_s, mask_correction_s=mask_s, verification_s=verify_s),
+                costs=UnitCosts(click_s=click_s, mask_correction_s=mask_s, verification_s=verify_s,
+                                proposal_view_s=proposal_s),
                 round_timeout_s=round_timeout_s, detector=None if detector is None else detector == "on")
             server = ServerOptions(url=url, admin_email=admin_email, admin_password=admin_password,
                                    settings={"nets_config": nets, **_parse_settings(set_)},

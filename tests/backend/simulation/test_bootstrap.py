@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -195,7 +196,7 @@ def test_a_timeout_keeps_the_rounds_measured_so_far(env_with, sqlite_url, captur
     assert summary["dataset_size"] == 4 and summary["bookkeeping_ok"]
 
 
-def _detector_sim(env, capture_dir, monkeypatch, *, rounds: int = 1):
+def _detector_sim(env, capture_dir, monkeypatch, *, rounds: int = 1, accept_proposals_px: float | None = None):
     """The simulation with the detector on: the pre-annotation job runs in-process with the ground-truth fake."""
     from tests.support.detector_fake import FakeDetector
     from workers.tasks import preannotate
@@ -207,7 +208,8 @@ def _detector_sim(env, capture_dir, monkeypatch, *, rounds: int = 1):
     monkeypatch.setattr(preannotate, "detector_problem", lambda: None)
     admin = ApiClient(env.client, token_of(env, Role.admin))
     config = BootstrapConfig(rounds=rounds, annotators=1, reviewers=1, detector=True,
-                             annotator=AnnotatorConfig(click_sigma_px=1.0, max_mask_corrections=0, seed=3),
+                             annotator=AnnotatorConfig(click_sigma_px=1.0, max_mask_corrections=0, seed=3,
+                                                       accept_proposals_within_px=accept_proposals_px),
                              reviewer=ReviewerConfig(accept_below_mm=8.0, error_rate=0.0))
     sim = BootstrapSimulation(env.client, admin, config)
     workers = FakeWorkers(env, sim)
@@ -257,3 +259,28 @@ def test_the_detector_run_is_refused_before_anything_is_imported_where_it_cannot
     with pytest.raises(ValueError, match="needs it on the server: the palm detection model file is corrupt"):
         sim.run(capture_dir, initial_every=3)
     assert admin.sample_index()["count"] == 0
+
+
+def test_annotators_who_accept_the_detectors_proposals_click_less(env_with, sqlite_template, capture_dir, tmp_path,
+                                                                  monkeypatch):
+    """The two samples the policy leaves to the annotators carry the detector's keypoints as proposals: with a
+    3 px tolerance the annotators accept most of them (one key per view) and click the rest."""
+    efforts = {}
+    for tolerance in (None, 3.0):
+        database = tmp_path / f"sim-{tolerance}.sqlite3"
+        shutil.copyfile(sqlite_template, database)
+        env = env_with(f"sqlite:///{database}", tmp_path / f"data-{tolerance}", review_min_time_gap_s=0.0,
+                       review_min_pose_distance=0.0,
+                       fit_global_iterations=15, fit_full_iterations=25)
+        sim, _ = _detector_sim(env, capture_dir, monkeypatch, rounds=0, accept_proposals_px=tolerance)
+        summary = sim.run(capture_dir, initial_every=3)
+        assert summary["failure"] is None and summary["rounds"][0]["added"]["annotated"] == 2
+        efforts[tolerance] = summary["rounds"][0]["effort"], summary["human_hours"]
+    (plain, plain_hours), (accepting, accepting_hours) = efforts[None], efforts[3.0]
+    assert plain["accepted_proposals"] == 0 and plain["proposal_views"] == 0
+    assert accepting["accepted_proposals"] > 0 and accepting["proposal_views"] > 0
+    # Every point the plain annotators clicked was either clicked or accepted by the others.
+    assert accepting["clicks"] + accepting["accepted_proposals"] == plain["clicks"]
+    assert accepting["clicks"] < plain["clicks"] / 2 and accepting_hours < plain_hours
+    assert accepting_hours * 3600 == pytest.approx(accepting["clicks"] * 2 + accepting["verifications"] * 5
+                                                   + accepting["proposal_views"] * 1.0)

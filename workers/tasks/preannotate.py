@@ -108,19 +108,24 @@ def detection_record(lifted: LiftedKeypoints, view_ids: Sequence[int]) -> dict[s
     if inliers.shape != (NUM_KEYPOINTS, C) or len(lifted.views) != C:
         raise DetectorInputError(f"the detector answered for {len(lifted.views)} views (inliers {inliers.shape}); "
                                  f"the sample has {C}")
+    # Rounded far below what the detector resolves (0.01 px, 1 um, 1e-4): a record per sample is stored twice
+    # (the fit job's payload, the fit's inputs), so its size counts.
+    def rounded(value: Any, shape: tuple[int, ...], decimals: int) -> np.ndarray:
+        return np.round(np.asarray(value, dtype=np.float64).reshape(shape), decimals)
+
     views = []
     for view_id, view in zip(view_ids, lifted.views, strict=True):
         views.append(None if view is None else {
-            "view_id": int(view_id), "keypoints_px": np.asarray(view.keypoints_px, float).reshape(NUM_KEYPOINTS, 2),
-            "scores": np.asarray(view.scores, float).reshape(NUM_KEYPOINTS), "presence": float(view.presence),
-            "handedness": view.handedness, "box_px": np.asarray(view.box_px, float).reshape(4),
-            "rotation_rad": float(view.rotation_rad)})
+            "view_id": int(view_id), "keypoints_px": rounded(view.keypoints_px, (NUM_KEYPOINTS, 2), 2),
+            "scores": rounded(view.scores, (NUM_KEYPOINTS,), 4), "presence": round(float(view.presence), 4),
+            "handedness": view.handedness, "box_px": rounded(view.box_px, (4,), 2),
+            "rotation_rad": round(float(view.rotation_rad), 4)})
     return json_safe({
         "view_ids": [int(v) for v in view_ids], "views": views,
-        "points_world": np.asarray(lifted.points_world, float).reshape(NUM_KEYPOINTS, 3),
-        "confidence": np.asarray(lifted.confidence, float).reshape(NUM_KEYPOINTS),
-        "reprojection_px": np.asarray(lifted.reprojection_px, float).reshape(NUM_KEYPOINTS),
-        "inliers": inliers.tolist(), "frame_confidence": float(lifted.frame_confidence)})
+        "points_world": rounded(lifted.points_world, (NUM_KEYPOINTS, 3), 6),
+        "confidence": rounded(lifted.confidence, (NUM_KEYPOINTS,), 4),
+        "reprojection_px": rounded(lifted.reprojection_px, (NUM_KEYPOINTS,), 2),
+        "inliers": inliers.tolist(), "frame_confidence": round(float(lifted.frame_confidence), 4)})
 
 
 def _floats(value: Any, shape: tuple[int, ...]) -> np.ndarray:

@@ -309,3 +309,29 @@ def test_model_files_vanishing_mid_job_fail_it_with_the_reason_and_leave_no_samp
     fits, _, states = _counts(ctx)
     # The two detected samples' fits were queued but not run: cancelled, and every sample is with the annotators.
     assert fits == 0 and states == {SampleState.needs_annotation: 4}, states
+
+
+def test_observations_keep_the_inlier_detections_inside_the_image_weighted_by_score_and_presence():
+    from workers.geometry.rig import default_rig
+
+    cameras = list(default_rig(width_px=160))[:3]
+    xy = np.full((21, 2), 50.0)
+    xy[3] = (-5.0, 10.0)  # outside the image: left out
+    views = [{"keypoints_px": xy.tolist(), "scores": [0.5] * 21, "presence": 0.8} for _ in cameras]
+    views[2] = None  # no hand in the third view
+    inliers = np.ones((21, 3), bool)
+    inliers[7, 1] = False  # view 1 disagreed on keypoint 7
+    points = np.zeros((21, 3))
+    points[9] = np.nan  # not lifted
+    from workers.tasks.fits import json_safe  # as the record is stored: NaN as None
+
+    record = json_safe({"views": views, "inliers": inliers.tolist(), "points_world": points,
+                        "confidence": [0.7] * 9 + [float("nan")] + [0.7] * 11})
+    obs = preannotate.observations_from_detection(record, cameras, None)
+    assert obs.click_weights.shape == (3, 21) and obs.click_weights[0, 0] == pytest.approx(0.4)
+    assert obs.click_weights[0, 3] == 0 and obs.click_weights[1, 7] == 0 and obs.click_weights[0, 7] > 0
+    assert not obs.click_weights[2].any()
+    assert obs.keypoint_3d_weights[9] == 0 and obs.keypoint_3d_weights[0] == pytest.approx(0.7)
+    obs.validate(cameras)  # what the fit engine checks first
+    with pytest.raises(preannotate.InputError, match="covers 3 views; the rig has 2"):
+        preannotate.observations_from_detection(record, cameras[:2], None)

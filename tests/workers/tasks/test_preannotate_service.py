@@ -19,19 +19,30 @@ from backend.services.jobs import InMemoryJobQueue
 from backend.services.transactions import run_after_commit
 from backend.settings import Settings
 from tests.support.detector_fake import FakeDetector
-from tests.support.live_stack import TEST_SETTINGS, prepare_database, tiny_capture
+from tests.support.live_stack import TEST_SETTINGS, fresh_postgres, prepare_database, tiny_capture
 from workers.tasks import preannotate
 from workers.tasks.context import build_context
 
 MISSING = "the hand landmark model file is missing: install it with scripts/fetch_models.sh"
 
 
+@pytest.fixture(params=["sqlite", pytest.param("postgres", marks=pytest.mark.postgres)])
+def database_url(request):
+    """Both backends for the tests that ask for them (the others run on SQLite)."""
+    if request.param == "sqlite":
+        yield None
+        return
+    with fresh_postgres() as url:
+        yield url
+
+
 @pytest.fixture
-def world(tmp_path, capture_cache, monkeypatch):
+def world(tmp_path, capture_cache, monkeypatch, request):
     capture = tiny_capture(capture_cache, frames=4)
+    url = request.getfixturevalue("database_url") if "database_url" in request.fixturenames else None
     # No time gap between picked frames: the policy's median cut alone decides who is reviewed.
-    settings = Settings(data_dir=tmp_path / "data", review_min_time_gap_s=0.0, review_min_pose_distance=0.0,
-                        **TEST_SETTINGS)
+    settings = Settings(data_dir=tmp_path / "data", database_url=url, review_min_time_gap_s=0.0,
+                        review_min_pose_distance=0.0, **TEST_SETTINGS)
     project_id = prepare_database(settings, capture, queue_for_annotation=False)
     queue = InMemoryJobQueue()
     ctx = build_context(settings, job_queue=queue)
@@ -59,7 +70,7 @@ def _counts(ctx):
     return fits, jobs_, states
 
 
-def test_preannotation_fits_every_sample_and_routes_them_by_the_review_policy(world, monkeypatch):
+def test_preannotation_fits_every_sample_and_routes_them_by_the_review_policy(database_url, world, monkeypatch):
     ctx, queue, project_id, fake = world
     reported = []
     real_update = jobs.update_progress
@@ -135,7 +146,7 @@ def test_rest_keep_leaves_unpicked_samples_fitted(world):
     assert result["to_review"] == 2 and states == {SampleState.in_review: 2, SampleState.fitted: 2}
 
 
-def test_a_redelivered_job_records_nothing_twice(world):
+def test_a_redelivered_job_records_nothing_twice(database_url, world):
     ctx, queue, project_id, fake = world
     job_id = _launch(ctx, queue, project_id)
     preannotate.run_preannotation_job(ctx, job_id)
@@ -197,7 +208,7 @@ def _bare_project(ctx, cameras: int) -> int:
 
 
 @pytest.mark.parametrize(("cameras", "message"), [(0, "has no camera calibration"), (1, "1 calibrated view")])
-def test_bad_calibration_is_refused_at_launch_and_by_the_job(world, cameras, message):
+def test_bad_calibration_is_refused_at_launch_and_by_the_job(database_url, world, cameras, message):
     ctx, queue, _, fake = world
     bare = _bare_project(ctx, cameras)
     before = _counts(ctx)

@@ -151,6 +151,9 @@ class Settings(BaseSettings):
                                        description="Fit stage 1: most solver steps (Adam: its steps).")
     fit_full_iterations: int = Field(default=30, ge=0, le=100_000,
                                      description="Fit stage 2: most solver steps (Adam: its steps).")
+    preannotate_on_import: bool = Field(
+        default=False, description="After an import, run the pretrained detector -> triangulation -> fit on its "
+        "samples (round 0 without clicks); refused, and the import is as without it, where the detector is missing.")
 
     @model_validator(mode="after")
     def _refuse_published_secret(self) -> Settings:

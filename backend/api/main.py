@@ -17,7 +17,9 @@ from backend.api.routes import (
     imports,
     jobs,
     overlays,
+    preannotation,
     prefetch,
+    reliability,
     review,
     rounds,
     users,
@@ -25,8 +27,8 @@ from backend.api.routes import (
 )
 
 api_router = APIRouter(prefix="/api")
-# The service's own resources, then the admin's choice of what people annotate (e.g. D_0), then the routes the
-# browser UI needs (prefetch, overlays, 3D scenes, activity timing, dashboard).
+# The service's own resources, then the admin's choice of what people annotate (e.g. D_0) or the detector
+# pre-annotates, then the routes the browser UI needs (prefetch, overlays, 3D scenes, activity timing, dashboard).
 for module in (health, auth, users, annotate, review, files, rounds, jobs, exports, imports, annotation_set,
-               prefetch, overlays, viewer, activity, dashboard, calibration):
+               preannotation, prefetch, overlays, viewer, activity, dashboard, reliability, calibration):
     api_router.include_router(module.router)

@@ -160,8 +160,8 @@ def run(*, quick: bool = False, emit_json: bool = False, broker: str = "embedded
     from backend.services.users import create_user
     from backend.settings import Settings
     from workers.tasks.context import build_context
+    from workers.tasks.fit_sources import fit_input
     from workers.tasks.fits import engine_for, fit_config
-    from workers.tasks.inputs import fit_input
 
     started = time.perf_counter()
     batch = batch_size or 6

@@ -2,7 +2,10 @@
 
 Full: a 200-frame capture (10 sequences x 20 frames at 320 px: 8 green-screen training sequences, 2
 evaluation sequences), the cpu-small networks with the workers' default round budgets, 4 rounds. `--quick`:
-24 frames at 128 px, the tiny networks with budgets of seconds, short fits, 1 round (same keys)."""
+24 frames at 128 px, the tiny networks with budgets of seconds, short fits, 1 round (same keys).
+
+`--detector on|off|both` (default both where the pretrained detector can run, else off): round 0 pre-annotated
+by the detector, clicked from nothing, or the two on the same capture and seed side by side (issue 15)."""
 
 from __future__ import annotations
 
@@ -23,6 +26,35 @@ QUICK = {"sequences": 3, "frames": 8, "width": 128, "rounds": 1, "initial_every"
                       "fit_global_iterations": 15, "fit_full_iterations": 30, "round_min_training_samples": 1}}
 SEED = 2026
 TARGETS = {"minutes_max": 60.0, "accepted_vertex_mm_max": 8.0, "auto_accept_precision_min": 0.95}
+# Issue 15, with the detector: D_0 at least half from verification alone, the heuristic accepting >= 30 % of the
+# fitted samples by round 2 at >= 95 % precision, >= 100 labels per human hour, accepted labels <= 6 mm.
+DETECTOR_TARGETS = {"d0_verified_share_min": 0.5, "heuristic_share_by_round_2_min": 0.3,
+                    "labels_per_human_hour_min": 100.0, "accepted_vertex_mm_max": 6.0,
+                    "auto_accept_precision_min": 0.95}
+DETECTOR_MODES = ("on", "off", "both")
+ROUND_KEYS = ("auto_accepted", "auto_accept_precision", "labels_per_human_hour", "accepted_vertex_mm",
+              "verified_share", "human_hours", "dataset_size")
+
+
+def detector_default() -> tuple[str, str | None]:
+    """("both", None) where the detector can run here (the started stack shares this install), else ("off", why)."""
+    from backend.services.preannotation import detector_problem
+
+    problem = detector_problem()
+    return ("both", None) if problem is None else ("off", problem)
+
+
+def heuristic_share(report: dict[str, Any]) -> float | None:
+    """The share of the round's fitted samples the heuristic accepted (the round job's heuristic summary)."""
+    counts = (report.get("round_job") or {}).get("heuristic") or {}
+    return counts["accepted"] / counts["evaluated"] if counts.get("evaluated") else None
+
+
+def side_by_side_rows(summary: dict[str, Any]) -> list[dict[str, Any]]:
+    """Per round: D^h count, share and auto-accept precision, D^m, D^l, labels per human hour, accepted error."""
+    return [{"index": r["index"], "heuristic": r["added"]["heuristic"], "manual": r["added"]["manual"],
+             "annotated": r["added"]["annotated"], "heuristic_share": heuristic_share(r),
+             **{k: r.get(k) for k in ROUND_KEYS}} for r in summary["rounds"]]
 
 
 def _capture(root: Path, sequences: int, frames: int, width: int) -> Path:
@@ -46,28 +78,65 @@ def _capture(root: Path, sequences: int, frames: int, width: int) -> Path:
     return out
 
 
-def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = None) -> dict[str, Any]:
+def _simulate(capture: Path, work: Path, plan: dict[str, Any], detector: bool,
+              accept_proposals_px: float | None) -> dict[str, Any]:
     from tqdm import tqdm
 
-    from backend.bench.common import emit
-    from backend.settings import get_settings
+    from backend.simulation.annotator import AnnotatorConfig
     from backend.simulation.bootstrap import BootstrapConfig
     from backend.simulation.runner import ServerOptions, run_simulation
 
-    started = time.perf_counter()
-    plan = QUICK if quick else FULL
-    capture = _capture(get_settings().data_dir.resolve() / "bench", plan["sequences"], plan["frames"], plan["width"])
-    work = Path(work_dir) if work_dir else Path(tempfile.mkdtemp(prefix="handloop-bench-sim-"))
-    config = BootstrapConfig(rounds=plan["rounds"])
-    load_before = os.getloadavg()
-    with tqdm(total=plan["rounds"] + 1, unit="round", desc="bootstrap", file=sys.stderr) as bar:
+    config = BootstrapConfig(rounds=plan["rounds"], detector=detector,
+                             annotator=AnnotatorConfig(accept_proposals_within_px=accept_proposals_px))
+    label = f"bootstrap, detector {'on' if detector else 'off'}"
+    with tqdm(total=plan["rounds"] + 1, unit="round", desc=label, file=sys.stderr) as bar:
         def on_round(report) -> None:
             bar.set_postfix(D=report.dataset_size, hours=f"{report.human_hours_cumulative:.2f}")
             bar.update(1)
 
-        summary = run_simulation(capture, work, config, initial_every=plan["initial_every"],
-                                 server=ServerOptions(settings=plan["settings"]), on_round=on_round)
+        return run_simulation(capture, work, config, initial_every=plan["initial_every"],
+                              server=ServerOptions(settings=plan["settings"]), on_round=on_round)
+
+
+def _detector_met(summary: dict[str, Any]) -> dict[str, bool]:
+    """The issue's simulation targets for a run with the detector; the heuristic's share is that of round 2 (or
+    of the last round where the run has fewer), its precision the run's."""
+    t = DETECTOR_TARGETS
+    share, rate, mm, precision = (summary.get(k) for k in ("d0_verified_share", "labels_per_human_hour",
+                                                           "accepted_vertex_mm", "auto_accept_precision"))
+    by_round_2 = [r for r in summary["rounds"] if 1 <= r["index"] <= 2]
+    accepted = heuristic_share(by_round_2[-1]) if by_round_2 else None
+    return {"d0_verified_share": share is not None and share >= t["d0_verified_share_min"],
+            "heuristic_share_by_round_2": accepted is not None and accepted >= t["heuristic_share_by_round_2_min"],
+            "labels_per_human_hour": rate is not None and rate >= t["labels_per_human_hour_min"],
+            "accepted_vertex_mm": mm is not None and mm <= t["accepted_vertex_mm_max"],
+            "auto_accept_precision": precision is not None and precision >= t["auto_accept_precision_min"]}
+
+
+def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = None,
+        detector: str | None = None, accept_proposals_px: float | None = None) -> dict[str, Any]:
+    """One run (`detector` "on" or "off") or both on the same capture and seed ("both"); None: both where the
+    detector can run, else off. The record's top level is the run with the detector when it ran, else without."""
+    from backend.bench.common import emit
+    from backend.settings import get_settings
+
+    started = time.perf_counter()
+    plan = QUICK if quick else FULL
+    default_mode, why_not = detector_default()
+    mode = detector or default_mode
+    if mode not in DETECTOR_MODES:
+        raise ValueError(f"detector must be one of {DETECTOR_MODES}, not {mode!r}")
+    if mode in ("on", "both") and why_not is not None:
+        raise ValueError(f"--detector {mode} needs the pretrained detector: {why_not}")
+    capture = _capture(get_settings().data_dir.resolve() / "bench", plan["sequences"], plan["frames"], plan["width"])
+    work = Path(work_dir) if work_dir else Path(tempfile.mkdtemp(prefix="handloop-bench-sim-"))
+    load_before = os.getloadavg()
+    runs: dict[str, dict[str, Any]] = {}
+    for name in (("off", "on") if mode == "both" else (mode,)):
+        runs[name] = _simulate(capture, work / f"detector-{name}", plan, detector=name == "on",
+                               accept_proposals_px=accept_proposals_px)
     load_after = os.getloadavg()
+    summary = runs.get("on") or runs["off"]
     met = {
         "minutes": summary["minutes"] <= TARGETS["minutes_max"],
         "accepted_vertex_mm": summary["accepted_vertex_mm"] is not None
@@ -77,9 +146,15 @@ def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = 
         "rounds": summary["rounds_completed"] == plan["rounds"],
     }
     result = {**summary, "targets": TARGETS, "targets_met": met, "quick": quick,
-              "load_average_before": load_before, "load_average_after": load_after, "work_dir": str(work)}
+              "load_average_before": load_before, "load_average_after": load_after, "work_dir": str(work),
+              "detector_mode": mode, "detector_unavailable": why_not,
+              "side_by_side": {name: side_by_side_rows(r) for name, r in runs.items()},
+              "detector_off": runs.get("off") if "on" in runs else None}
+    if "on" in runs:
+        result["detector_targets"] = DETECTOR_TARGETS
+        result["detector_targets_met"] = _detector_met(runs["on"])
     settings = {"plan": {k: v for k, v in plan.items() if k != "settings"}, "stack_settings": plan["settings"],
-                "capture": str(capture), "seed": SEED}
+                "capture": str(capture), "seed": SEED, "detector": mode, "accept_proposals_px": accept_proposals_px}
     if emit_json:
         return emit("sim", result, settings, started)
     return result

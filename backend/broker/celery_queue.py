@@ -45,12 +45,14 @@ TASK_REVIEW_QUEUE = "handloop.build_review_queue"
 TASK_ROUND = "handloop.round"
 TASK_ROUND_INFERENCE = "handloop.round_inference"
 TASK_ROUND_FINISH = "handloop.round_finish"
+TASK_PREANNOTATE = "handloop.preannotate"
 
 # Where each task runs: training and inference on the gpu queue, fitting and orchestration on cpu.
 ROUTES: dict[str, str] = {
     TASK_FIT: QUEUE_CPU, TASK_FIT_BATCH: QUEUE_CPU, TASK_HEURISTIC: QUEUE_CPU, TASK_REVIEW_QUEUE: QUEUE_CPU,
     TASK_ROUND: QUEUE_CPU, TASK_ROUND_INFERENCE: QUEUE_CPU, TASK_ROUND_FINISH: QUEUE_CPU,
     TASK_TRAIN_HANDSEGNET: QUEUE_GPU, TASK_TRAIN_MVNET: QUEUE_GPU, TASK_PREDICT: QUEUE_GPU,
+    TASK_PREANNOTATE: QUEUE_CPU,  # the detector runs on a CPU (ai-edge-litert), and so do the fits
 }
 
 
@@ -64,6 +66,8 @@ def task_for_job(kind: str, payload: dict[str, Any] | None = None) -> str | None
         return TASK_PREDICT
     if kind == "train":
         return TASK_TRAIN_MVNET if (payload or {}).get("net") == "mvnet" else TASK_TRAIN_HANDSEGNET
+    if kind == "preannotate":
+        return TASK_PREANNOTATE
     return None
 
 

@@ -91,6 +91,7 @@ class JobKind(StrEnum):
     round = "round"
     import_capture = "import_capture"
     export = "export"
+    preannotate = "preannotate"  # round 0 without clicks: detector -> triangulation -> fit (issue 15)
 
 
 def enum_check(column: str, enum: type[StrEnum], name: str | None = None) -> CheckConstraint:

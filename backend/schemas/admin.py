@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import Field
 
@@ -87,7 +87,42 @@ class ImportPublic(Public):
     samples: int
     views: int
     masks: int
+    preannotation: str | None = Field(default=None, description="HANDLOOP_PREANNOTATE_ON_IMPORT: the job queued, "
+                                      "or why it did not run (the import is then as without it).")
+    preannotation_job_id: int | None = None
 
 
 class ReviewQueueBuilt(Public):
     queued: list[int]
+
+
+class PreannotateRequest(Strict):
+    """Round 0 without clicks: detector -> triangulation -> fit on a project's unlabeled samples."""
+
+    project_id: int = Field(ge=1)
+    sample_ids: list[int] | None = Field(default=None, min_length=1, max_length=1_000_000,
+                                         description="Unlabeled samples of the project; default all of them.")
+    rest: Literal["annotate", "keep"] = Field(
+        default="annotate", description="Samples the reviewers' queue does not take, and those with no detector "
+        "fit: to the annotators (with the detector's keypoints as proposals), or left as they are.")
+    handedness: Literal["right", "left"] = "right"
+
+
+class PreannotateLaunched(Public):
+    job_id: int
+    project_id: int
+    samples: int
+
+
+class PreannotationProject(Public):
+    project_id: int
+    name: str
+    samples: int
+    unlabeled: int
+    running_job_id: int | None = Field(description="Its pre-annotation job still queued or running, if any.")
+
+
+class PreannotationOverview(Public):
+    available: bool
+    reason: str | None = Field(description="Why the detector cannot run (None when it can).")
+    projects: list[PreannotationProject]

@@ -38,9 +38,9 @@ class ClickPublic(Public):
 
 
 class ProposalSource(Public):
-    kind: Literal["mvnet", "fit"]
+    kind: Literal["detector", "mvnet", "fit"]
     label: str
-    confidences: list[float] | None = Field(description="Per keypoint (21), MVNet only.")
+    confidences: list[float] | None = Field(description="Per keypoint (21): MVNet's, or the detector's lifted ones.")
     views: dict[str, list[Pixel2 | None]] = Field(description="View id -> 21 projected keypoints (px) or null.")
 
 

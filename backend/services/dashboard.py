@@ -23,7 +23,8 @@ SPARSIFICATION_STEPS = 20
 
 
 def confidence_histogram(session: Session) -> dict[str, Any]:
-    """Mean MVNet confidence of every sample that has one, in 20 bins over [0, 1]; accepted apart."""
+    """Mean MVNet confidence of every sample that has one (the detector's frame confidence for samples
+    pre-annotated and not yet predicted by MVNet), in 20 bins over [0, 1]; accepted apart."""
     rows = session.execute(select(Sample.confidence, Sample.state).where(Sample.confidence.is_not(None))).all()
     edges = np.linspace(0.0, 1.0, HISTOGRAM_BINS + 1)
     conf = np.asarray([r[0] for r in rows], dtype=float)

@@ -40,6 +40,11 @@ def _check_project(session: Session, project: str | None) -> None:
         raise NotFoundError(f"project {project!r} not found")
 
 
+def fit_source(fit: Fit) -> str:
+    """What a fit was made from (its inputs' source): "annotation", "prediction" or "detector"."""
+    return str((fit.inputs or {}).get("source", "unknown"))
+
+
 def dataset(session: Session, up_to_round: int | None = None, project: str | None = None) -> dict[str, Any]:
     """The accepted samples (D_i up to a round index) with their fits, rounds and streams, as JSON values."""
     _check_project(session, project)
@@ -48,7 +53,7 @@ def dataset(session: Session, up_to_round: int | None = None, project: str | Non
          "split": sample.split, "project": project_name, "round": index, "stream": member.stream,
          "fit": None if fit is None else {"id": fit.id, "params": fit.params, "keypoints_m": fit.keypoints_m,
                                           "model_file": fit.model_file, "prediction_id": fit.prediction_id,
-                                          "heuristic": fit.heuristic}}
+                                          "heuristic": fit.heuristic, "source": fit_source(fit)}}
         for member, index, sample, seq, fit, project_name, _ in session.execute(_members_query(up_to_round, project))
     ]
     hand_models = sorted({row[6] for row in session.execute(_members_query(up_to_round, project))} - {""})
@@ -112,5 +117,5 @@ def export_records(session: Session, up_to_round: int | None = None, project: st
             sample_id=sample.id, fit_id=fit.id, sequence=seq, frame_index=sample.frame_index, split=sample.split,
             green_screen=sample.green_screen, round_index=index, stream=member.stream,
             params=np.asarray(fit.params, np.float64), keypoints_m=np.asarray(fit.keypoints_m, np.float64),
-            model_file=fit.model_file, views=tuple(views)))
+            model_file=fit.model_file, views=tuple(views), fit_source=fit_source(fit)))
     return records

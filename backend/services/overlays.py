@@ -88,9 +88,9 @@ def _projections(points_m: Any, cameras: list[ViewCamera]) -> dict[int, np.ndarr
 
 
 def annotate_proposals(session: Session, user: Actor, sample_id: int) -> dict[str, Any]:
-    """Calibrations (the browser triangulates from the annotator's own clicks), MVNet's prediction and
-    the current fit projected into every view, the previous clicks and the reviewer's note when the
-    sample came back from review."""
+    """Calibrations (the browser triangulates from the annotator's own clicks), the detector's keypoints
+    behind a pre-annotation fit, MVNet's prediction and the current fit projected into every view, the
+    previous clicks and the reviewer's note when the sample came back from review."""
     from backend.viewer.hand_mesh import hand_model_label
 
     sample = _held(session, user, sample_id, LeaseKind.annotate)
@@ -103,6 +103,9 @@ def annotate_proposals(session: Session, user: Actor, sample_id: int) -> dict[st
     previous = clicks_of(session, sample_id)
     end_reads(session)
     sources = []
+    detection = detector_proposal(fit, cameras) if fit is not None else None
+    if detection is not None:  # the image's own evidence comes before the model fitted to it (sent back as wrong)
+        sources.append(detection)
     if prediction is not None:
         projected = _projections(prediction.keypoints_m, cameras)
         sources.append({"kind": "mvnet", "label": f"MVNet {prediction.mvnet_version}",
@@ -115,6 +118,40 @@ def annotate_proposals(session: Session, user: Actor, sample_id: int) -> dict[st
     return {"sample_id": sample_id, "cameras": [c.to_public() for c in cameras],
             "keypoints_to_click": list(SPARSE_KEYPOINTS), "sources": sources,
             "previous_clicks": [c.to_public() for c in previous], "review_note": note}
+
+
+def detector_proposal(fit: Fit, cameras: list[ViewCamera]) -> dict[str, Any] | None:
+    """The pretrained detector's keypoints behind a pre-annotation fit (workers.tasks.preannotate), as a proposal
+    source "detector": per view a keypoint's own detection where the view agreed with the triangulation (an
+    inlier), else the triangulated keypoint projected into it; None for fits of any other source."""
+    detection = (fit.inputs or {}).get("detection") if (fit.inputs or {}).get("source") == "detector" else None
+    if not isinstance(detection, dict):
+        return None
+    try:
+        view_ids = [int(v) for v in detection["view_ids"]]
+        points = np.array(detection["points_world"], dtype=np.float64).reshape(21, 3)
+        confidence = np.nan_to_num(np.array(detection["confidence"], dtype=np.float64).reshape(21), nan=0.0)
+        inliers = np.asarray(detection["inliers"], dtype=bool).reshape(21, len(view_ids))
+        views = list(detection["views"])
+    except (KeyError, TypeError, ValueError) as exc:  # a stored record this code cannot read: no proposal
+        logger.warning("fit %s: unreadable detection (%s); no detector proposals", fit.id, exc)
+        return None
+    projected = _projections(points, cameras)
+    column = {view_id: c for c, view_id in enumerate(view_ids)}
+    out: dict[str, list[list[float] | None]] = {}
+    for cam in cameras:
+        pixels = np.array(projected[cam.view_id], dtype=np.float64)
+        c = column.get(cam.view_id)
+        view = views[c] if c is not None and c < len(views) else None
+        if view is not None:
+            own = np.array(view.get("keypoints_px"), dtype=np.float64).reshape(21, 2)
+            use = inliers[:, c] & np.isfinite(own).all(1)
+            pixels[use] = own[use]
+        out[str(cam.view_id)] = pixels_or_none(pixels)
+    frame = detection.get("frame_confidence")
+    label = f"detector (confidence {frame:.2f})" if isinstance(frame, int | float) else "detector"
+    return {"kind": "detector", "label": label, "confidences": [round(float(c), 4) for c in confidence],
+            "views": out}
 
 
 def _residuals(fit_px: dict[int, np.ndarray], clicks: list[ClickRow]) -> dict[int, dict[int, float]]:

@@ -11,7 +11,11 @@ fingertips where the ground truth projects them, with the mistakes people make.
 - masks: a view whose shown mask overlaps the true hand mask with IoU < `mask_iou_threshold` is corrected
   (at most `max_mask_corrections` per sample, worst first) to the true hand mask with a boundary displaced
   by smooth noise of `boundary_noise_px`.
-Time is counted with the unit costs (clicks and mask corrections) and sent as `time_spent_s`.
+- proposals (`accept_proposals_within_px`, off by default): the annotator accepts the page's proposal of a
+  keypoint (the detector's, MVNet's or the current fit's, in the page's order; MVNet's from confidence 0.3)
+  where it lies within that distance of the true point, instead of clicking it; one key per view
+  (`UnitCosts.proposal_view_s`). Points the annotator would skip stay skipped.
+Time is counted with the unit costs (clicks, mask corrections, accepted views) and sent as `time_spent_s`.
 """
 
 from __future__ import annotations
@@ -30,6 +34,22 @@ from backend.simulation.truth import GroundTruthIndex
 log = logging.getLogger(__name__)
 
 FINGERTIPS = (4, 8, 12, 16, 20)
+MIN_MVNET_CONFIDENCE = 0.3  # the annotate page offers MVNet's proposals from this confidence (annotation.js)
+
+
+def offered_proposals(proposals: dict) -> dict[tuple[int, int], tuple[float, float]]:
+    """(view id, keypoint) -> the proposal the annotate page shows first, from the server's sources in order."""
+    out: dict[tuple[int, int], tuple[float, float]] = {}
+    for source in proposals.get("sources", []):
+        confidences = source.get("confidences")
+        for view_id, points in source.get("views", {}).items():
+            for k, point in enumerate(points):
+                if point is None or (int(view_id), k) in out:
+                    continue
+                if source.get("kind") == "mvnet" and confidences and confidences[k] < MIN_MVNET_CONFIDENCE:
+                    continue
+                out[(int(view_id), k)] = (float(point[0]), float(point[1]))
+    return out
 
 
 @dataclass(frozen=True)
@@ -43,9 +63,13 @@ class AnnotatorConfig:
     max_mask_corrections: int = 2
     boundary_noise_px: float = 1.5
     reannotate_all_keypoints: bool = True
+    accept_proposals_within_px: float | None = None
     seed: int = 0
 
     def __post_init__(self) -> None:
+        tolerance = self.accept_proposals_within_px
+        if tolerance is not None and not (math.isfinite(tolerance) and 0 <= tolerance <= 100):
+            raise ValueError(f"accept_proposals_within_px must be in [0, 100] pixels or None, not {tolerance}")
         for name in ("click_sigma_px", "boundary_noise_px"):
             value = getattr(self, name)
             if not (math.isfinite(value) and 0 <= value <= 100):
@@ -133,24 +157,34 @@ class SimulatedAnnotator:
         cfg = self.config
         gt = self.truth.truth(task["sample_id"])
         cameras = list(gt.camera_names)
-        clicks, skipped, swapped = [], 0, 0
+        tolerance = cfg.accept_proposals_within_px
+        offered = offered_proposals(self.client.proposals(task["sample_id"])) if tolerance is not None else {}
+        clicks, skipped, swapped, accepted, proposal_views = [], 0, 0, 0, 0
         keypoints = list(task["keypoints_to_click"])
         if cfg.reannotate_all_keypoints and task["sample_id"] in annotated_before:
             keypoints = list(range(gt.keypoints_2d.shape[1]))
         for view in task["views"]:
             c = cameras.index(view["camera"])
             points: dict[int, tuple[float, float, str]] = {}
+            taken: set[int] = set()  # keypoints set from a proposal in this view
             for k in keypoints:
                 x, y = gt.keypoints_2d[c, k]
                 inside = -0.5 <= x <= view["width"] - 0.5 and -0.5 <= y <= view["height"] - 0.5
                 if not inside or (not gt.visibility[c, k] and cfg.skip_occluded):
                     skipped += 1
                     continue
+                proposal = offered.get((view["id"], k))
+                if proposal is not None and math.hypot(proposal[0] - x, proposal[1] - y) <= tolerance:
+                    points[k] = (*proposal, "visible" if gt.visibility[c, k] else "occluded")
+                    taken.add(k)
+                    continue
                 x, y = np.array([x, y]) + self.rng.normal(0, cfg.click_sigma_px, 2)
                 x = float(np.clip(x, -0.5, view["width"] - 0.5))
                 y = float(np.clip(y, -0.5, view["height"] - 0.5))
                 points[k] = (x, y, "visible" if gt.visibility[c, k] else "occluded")
-            tips = [k for k in FINGERTIPS if k in points]
+            accepted += len(taken)
+            proposal_views += bool(taken)
+            tips = [k for k in FINGERTIPS if k in points and k not in taken]  # a swap is a clicking mistake
             if len(tips) >= 2 and self.rng.random() < cfg.swap_probability:
                 a, b = self.rng.choice(tips, 2, replace=False)
                 (xa, ya, va), (xb, yb, vb) = points[a], points[b]
@@ -174,14 +208,17 @@ class SimulatedAnnotator:
                 corrected = noisy_mask(true_mask, cfg.boundary_noise_px, self.rng)
                 masks.append({"view_id": view["id"], "width": view["width"], "height": view["height"],
                               "rle": encode_rle(corrected)})
-        n_clicks = sum(1 for c in clicks if c["visibility"] != "not_annotated")
-        seconds = n_clicks * self.ledger.costs.click_s + len(masks) * self.ledger.costs.mask_correction_s
+        n_clicks = sum(1 for c in clicks if c["visibility"] != "not_annotated") - accepted
+        costs = self.ledger.costs
+        seconds = (n_clicks * costs.click_s + len(masks) * costs.mask_correction_s
+                   + proposal_views * costs.proposal_view_s)
         self._submissions += 1
         body = {"submission_id": f"sim-{self.name}-{task['sample_id']}-{self._submissions}",
                 "lease_token": task["lease_token"], "time_spent_s": seconds, "clicks": clicks, "masks": masks}
         result = self.client.submit(task["sample_id"], body)
         self.ledger.add(round_index, clicks=n_clicks, skipped_points=skipped, swapped_views=swapped,
-                        mask_corrections=len(masks), submissions=1)
+                        mask_corrections=len(masks), submissions=1, accepted_proposals=accepted,
+                        proposal_views=proposal_views)
         return AnnotationOutcome(sample_id=task["sample_id"], clicks=n_clicks, skipped_points=skipped,
                                  swapped_views=swapped, mask_corrections=len(masks), seconds=seconds,
                                  fit_job_id=result.get("fit_job_id"))

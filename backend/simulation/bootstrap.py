@@ -2,7 +2,10 @@
 
 The capture is imported as one project with every sample unlabeled; the admin queues the initial set
 (every k-th frame of each training sequence, spread over subjects and motions) for annotation. Round 0:
-simulated annotators click it, the workers fit, simulated reviewers verify (bad fits go back for clicks): D_0. Round
+simulated annotators click it, the workers fit, simulated reviewers verify (bad fits go back for clicks): D_0.
+With the detector (`BootstrapConfig.detector`), the admin pre-annotates the initial set instead (issue 15): the
+pretrained detector -> triangulation -> fit on each, the reviewers first verify what the queue policy picks,
+the rest and what they send back reach the annotators (with the detector's keypoints as proposals). Round
 i >= 1: the admin launches a round through the API (the workers train MVNet and HandSegNet on D_{i-1},
 predict and fit the rest, accept by the heuristic and queue the review); the reviewers verify the queue,
 the annotators click what was sent back, and so on until both queues are empty: D_i. After each round the
@@ -49,6 +52,8 @@ class BootstrapConfig:
         round_timeout_s: longest wait for one round's job (and for the fits queued by people).
         poll_s: job polling interval.
         project: name of the project the capture is imported as.
+        detector: round 0 pre-annotated by the pretrained detector (the server must have its model files);
+            None: when the server can run it.
     """
 
     rounds: int = 4
@@ -61,6 +66,7 @@ class BootstrapConfig:
     round_timeout_s: float = 3600.0
     poll_s: float = 1.0
     project: str = "sim"
+    detector: bool | None = False
 
     def __post_init__(self) -> None:
         if not 0 <= self.rounds <= 50:
@@ -81,6 +87,8 @@ class RoundReport:
     dataset_size: int
     human_hours: float
     human_hours_cumulative: float
+    labels_per_human_hour: float | None  # this round's added labels over its human hours
+    verified_share: float | None  # share of the round's labels that came from verification alone (D^m)
     effort: dict[str, int]
     auto_accepted: int
     auto_accept_precision: float | None
@@ -100,6 +108,7 @@ class RoundReport:
     round_job: dict[str, Any] | None
     minutes: float
     bookkeeping_ok: bool
+    preannotation: dict[str, Any] | None = None  # round 0 with the detector: the pre-annotation job's result
 
 
 def _mean(values: list[float]) -> float | None:
@@ -119,12 +128,14 @@ class BootstrapSimulation:
         config: the run.
         wait_for_workers: blocks until the workers have done what people queued (default: poll the jobs).
         run_round: launches-and-waits for a round job (default: poll its job); returns the final job.
+        run_job: waits for another job (the pre-annotation; default: poll it); returns the final job.
         on_round: called with each finished RoundReport (progress).
     """
 
     def __init__(self, http: httpx.Client, admin: ApiClient, config: BootstrapConfig, *,
                  wait_for_workers: Callable[[], None] | None = None,
                  run_round: Callable[[int], dict[str, Any]] | None = None,
+                 run_job: Callable[[int], dict[str, Any]] | None = None,
                  on_round: Callable[[RoundReport], None] | None = None) -> None:
         self.http = http
         self.admin = admin
@@ -136,9 +147,16 @@ class BootstrapSimulation:
             lambda job_id: wait_for_job(admin, job_id, timeout_s=config.round_timeout_s, poll_s=config.poll_s,
                                         on_progress=lambda j: log.info("round job %d: %.0f%% %s", j["id"],
                                                                        100 * j["progress"], j["message"])))
+        self.run_job = run_job or (
+            lambda job_id: wait_for_job(admin, job_id, timeout_s=config.round_timeout_s, poll_s=config.poll_s,
+                                        on_progress=lambda j: log.info("%s job %d: %.0f%% %s", j["kind"], j["id"],
+                                                                       100 * j["progress"], j["message"])))
         self.on_round = on_round
         self.truth: GroundTruthIndex | None = None
         self.initial_set: list[int] = []
+        self.project_id: int | None = None
+        self.detector_on = bool(config.detector)  # settled by `prepare` when config.detector is None
+        self.preannotation: dict[str, Any] | None = None
         self._errors: dict[int, tuple[float, float]] = {}  # fit id -> (vertex mm, keypoint mm)
         self._previous_size = 0
 
@@ -161,19 +179,35 @@ class BootstrapSimulation:
         return Team(annotators, reviewers, max_annotation_passes=cfg.reviewer.max_annotation_attempts + 1)
 
     def prepare(self, capture_dir: Path, initial_every: int) -> Team:
-        """Import the capture (unlabeled), queue the initial set for annotation, create the accounts."""
+        """Import the capture (unlabeled), queue the initial set for annotation (with the detector: leave it to
+        `preannotate`), create the accounts."""
         if initial_every < 2:
             raise ValueError(f"initial_every must be at least 2 (all frames in D_0 leave nothing to bootstrap), "
                              f"not {initial_every}")
         project = self.config.project
-        self.admin.import_capture(str(capture_dir), project, queue_for_annotation=False)
+        if self.config.detector is not False:  # refused before anything is imported where the server cannot run it
+            status = self.admin.preannotation()
+            if self.config.detector and not status["available"]:
+                raise ValueError(f"the simulation with the detector needs it on the server: {status['reason']}")
+            self.detector_on = bool(status["available"])
+            if not self.detector_on:
+                log.info("detector off: %s", status["reason"])
+        imported = self.admin.import_capture(str(capture_dir), project, queue_for_annotation=False)
+        self.project_id = int(imported["project_id"])
         samples = self.admin.sample_index(project=project)["samples"]
         initial = [s["sample_id"] for s in samples if s["split"] == "train" and s["frame_index"] % initial_every == 0]
         if not initial:
             raise ValueError(f"{capture_dir}: no training frames for the initial set")
-        self.initial_set = self.admin.queue_for_annotation(initial)
+        self.initial_set = initial if self.detector_on else self.admin.queue_for_annotation(initial)
         self.truth = GroundTruthIndex({project: read_capture(capture_dir, check_images=False)}, samples)
         return self._people(self.truth)
+
+    def preannotate(self) -> dict[str, Any]:
+        """Round 0 with the detector: pre-annotate the initial set (the rest to the annotators); the final job."""
+        launched = self.admin.preannotate(int(self.project_id), self.initial_set, rest="annotate")
+        job = self.run_job(launched["job_id"])
+        self.preannotation = {k: job.get(k) for k in ("id", "state", "message", "error", "result")}
+        return job
 
     # --- the run ---------------------------------------------------------------------------------------
     def run(self, capture_dir: Path, initial_every: int) -> dict[str, Any]:
@@ -195,6 +229,7 @@ class BootstrapSimulation:
                     launched = self.admin.launch_round(note=f"bootstrap simulation round {index}")
                     job = self.run_round(launched["job_id"])
                     job_info = {k: job.get(k) for k in ("id", "state", "message", "error")}
+                    job_info["heuristic"] = (job.get("result") or {}).get("heuristic")  # evaluated, accepted
                     if job["state"] != "succeeded":
                         failure = (f"round {index}: the round job ended '{job['state']}': "
                                    f"{job.get('error') or job['message']}")
@@ -202,6 +237,13 @@ class BootstrapSimulation:
                         break
                     self.wait_for_workers()
                     self.admin.build_review_queue()  # the round job built it; this adds fits that finished later
+                elif self.detector_on:
+                    job = self.preannotate()  # reported as the round's `preannotation`, not as a round job
+                    if job["state"] != "succeeded":
+                        failure = (f"round 0: the pre-annotation job ended '{job['state']}': "
+                                   f"{job.get('error') or job['message']}")
+                        reports.append(self._report(index, job_info, round_started, None))
+                        break
                 work = team.work_until_done(index, self.wait_for_workers)
             except (ApiError, SimulationTimeoutError) as exc:
                 # The rounds measured so far are still worth reporting; say where and why it stopped.
@@ -256,14 +298,18 @@ class BootstrapSimulation:
                           and int(row["added_total"]) == sum(int(row["added"][s]) for s in STREAMS)
                           == len(this_round))
         self._previous_size = size
+        hours = self.ledger.hours(index)
+        added_total = int(row["added_total"])
         reviews = work.reviews if work is not None else []
         reviewed_mm = [r.vertex_mm for r in reviews]
         from_predictions = [r.vertex_mm for r in reviews if not r.after_annotation]
         after_annotation = [r.vertex_mm for r in reviews if r.after_annotation]
         return RoundReport(
             index=index, added={s: int(row["added"][s]) for s in STREAMS}, added_total=int(row["added_total"]),
-            dataset_size=size, human_hours=self.ledger.hours(index),
+            dataset_size=size, human_hours=hours,
             human_hours_cumulative=sum(self.ledger.hours(i) for i in range(index + 1)),
+            labels_per_human_hour=added_total / hours if hours > 0 else None,
+            verified_share=int(row["added"]["manual"]) / added_total if added_total else None,
             effort=vars(self.ledger.effort(index)), auto_accepted=len(heuristic),
             auto_accept_precision=(float(np.mean(np.asarray(heuristic_mm) <= self.config.auto_accept_max_mm))
                                    if heuristic_mm else None),
@@ -278,7 +324,8 @@ class BootstrapSimulation:
             mvnet_predictions=len(predictions),
             mvnet_keypoint_mm=float(mvnet_errors.mean() * 1000) if mvnet_errors is not None else None,
             mvnet_auc=summarise_errors(mvnet_errors).auc if mvnet_errors is not None else None,
-            round_job=job, minutes=(time.perf_counter() - started) / 60, bookkeeping_ok=bookkeeping_ok)
+            round_job=job, minutes=(time.perf_counter() - started) / 60, bookkeeping_ok=bookkeeping_ok,
+            preannotation=self.preannotation if index == 0 else None)
 
     def summary(self, reports: list[RoundReport], seconds: float, failure: str | None) -> dict[str, Any]:
         """The run's figures: per round, and over the run (the keys `handloop bench sim` reports)."""
@@ -307,8 +354,10 @@ class BootstrapSimulation:
             "minutes": seconds / 60,
             "bookkeeping_ok": all(r.bookkeeping_ok for r in reports),
             "failure": failure,
+            "detector": self.detector_on,
+            "d0_verified_share": reports[0].verified_share if reports else None,
             "config": {"rounds": self.config.rounds, "annotators": self.config.annotators,
                        "reviewers": self.config.reviewers, "annotator": asdict(self.config.annotator),
                        "reviewer": asdict(self.config.reviewer), "costs": asdict(self.config.costs),
-                       "auto_accept_max_mm": self.config.auto_accept_max_mm},
+                       "auto_accept_max_mm": self.config.auto_accept_max_mm, "detector": self.detector_on},
         }

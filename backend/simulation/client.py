@@ -72,6 +72,9 @@ class ApiClient:
         return self.request("POST", f"/api/annotate/samples/{sample_id}/submissions", expect=(200, 201),
                             json=body).json()
 
+    def proposals(self, sample_id: int) -> dict[str, Any]:
+        return self.get_json(f"/api/annotate/samples/{sample_id}/proposals")
+
     def release_annotation(self, sample_id: int, lease_token: str) -> None:
         self.request("POST", f"/api/annotate/samples/{sample_id}/lease/release", expect=(204,),
                      json={"lease_token": lease_token})
@@ -97,6 +100,17 @@ class ApiClient:
         return self.request("POST", "/api/admin/imports", expect=(201,),
                             json={"path": path, "project": project,
                                   "queue_for_annotation": queue_for_annotation}).json()
+
+    def preannotation(self) -> dict[str, Any]:
+        """Whether the detector can run on the server, and its projects."""
+        return self.get_json("/api/admin/preannotation")
+
+    def preannotate(self, project_id: int, sample_ids: list[int] | None = None, rest: str = "annotate"
+                    ) -> dict[str, Any]:
+        body: dict[str, Any] = {"project_id": project_id, "rest": rest}
+        if sample_ids is not None:
+            body["sample_ids"] = sample_ids
+        return self.request("POST", "/api/admin/preannotation", expect=(202,), json=body).json()
 
     def launch_round(self, note: str = "") -> dict[str, Any]:
         return self.request("POST", "/api/admin/rounds", expect=(201,), json={"note": note}).json()

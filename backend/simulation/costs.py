@@ -18,9 +18,12 @@ class UnitCosts:
     click_s: float = 2.0
     mask_correction_s: float = 12.0
     verification_s: float = 5.0
+    # Accepting a view's proposals with one key (annotate page: Enter). Not a figure of the paper: an assumption,
+    # counted only when simulated annotators accept proposals (AnnotatorConfig.accept_proposals_within_px).
+    proposal_view_s: float = 1.0
 
     def __post_init__(self) -> None:
-        for name in ("click_s", "mask_correction_s", "verification_s"):
+        for name in ("click_s", "mask_correction_s", "verification_s", "proposal_view_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and 0 <= value <= 3600):
                 raise ValueError(f"{name} must be a number of seconds in [0, 3600], not {value}")
@@ -40,10 +43,12 @@ class RoundEffort:
     rejects: int = 0
     sent_to_annotation: int = 0
     reviewer_mistakes: int = 0
+    accepted_proposals: int = 0  # keypoints set by accepting a proposal instead of a click
+    proposal_views: int = 0  # views where proposals were accepted (one key each)
 
     def seconds(self, costs: UnitCosts) -> float:
         return (self.clicks * costs.click_s + self.mask_corrections * costs.mask_correction_s
-                + self.verifications * costs.verification_s)
+                + self.verifications * costs.verification_s + self.proposal_views * costs.proposal_view_s)
 
 
 @dataclass

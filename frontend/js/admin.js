@@ -1,7 +1,8 @@
 // The admin dashboard: samples per state, the dataset per round and stream (the paper's D_0 ... D_n
 // table), charts (growth per round, MVNet confidence, sparsification, human time per action), rounds
-// launched and cancelled with a live progress bar (server-sent events), jobs, users and roles, exports.
-import { histogram, lines, pairedBars, stackedBars } from "./charts.js";
+// launched and cancelled with a live progress bar (server-sent events), round 0 pre-annotated by the detector,
+// jobs, users and roles, exports, and the reliability of the confidences per round.
+import { histogram, lines, pairedBars, reliability, stackedBars } from "./charts.js";
 import { fmt, h, toast, fill } from "./dom.js";
 
 const STATES = ["unlabeled", "needs_annotation", "annotated", "fitting", "fitted", "in_review", "accepted", "rejected"];
@@ -11,6 +12,12 @@ const STREAMS = [
   { name: "annotated", label: "Dˡ annotated", color: "#e76f51" },
 ];
 const ROLES = ["annotator", "reviewer", "admin"];
+const ROUND_COLORS = ["#e76f51", "#f4a261", "#e9c46a", "#2a9d8f", "#457b9d", "#6d597a"];
+const CONFIDENCES = [
+  { name: "detector", title: "Detector keypoint score vs 2D error" },
+  { name: "triangulation", title: "Triangulation confidence vs 3D error" },
+  { name: "mvnet", title: "MVNet confidence vs 3D error" },
+];
 const REFRESH_MS = 4000;
 
 export async function mountAdmin(root, ctx) {
@@ -32,6 +39,7 @@ class AdminPage {
       jobs: h("section", { class: "card", id: "jobs" }),
       users: h("section", { class: "card", id: "users" }),
       data: h("section", { class: "card", id: "data" }),
+      reliability: h("section", { class: "card wide", id: "reliability" }),
     };
     this.progress = h("div", { class: "round-progress" });
     root.append(h("div", { class: "admin-page" }, ...Object.values(this.sections)));
@@ -40,10 +48,13 @@ class AdminPage {
   async start() {
     await this.refresh();
     this.timer = setInterval(() => this.refresh().catch(() => null), REFRESH_MS);
-    const running = (this.jobs || []).find((j) => j.kind === "round" && (j.state === "queued" || j.state === "running"));
+    const running = (this.jobs || []).find((j) => (j.kind === "round" || j.kind === "preannotate")
+      && (j.state === "queued" || j.state === "running"));
     if (running) this.watch(running.id);
     this.renderUsers();
     this.renderData();
+    this.renderReliability().catch((error) => fill(this.sections.reliability, h("h2", {}, "Reliability"),
+      h("p", { class: "error" }, `reliability: ${error.message}`)));
     document.body.dataset.ready = "admin";
   }
 
@@ -53,13 +64,14 @@ class AdminPage {
   }
 
   async refresh() {
-    const [stats, rounds, dashboard, jobs] = await Promise.all([
+    const [stats, rounds, dashboard, jobs, preannotation] = await Promise.all([
       this.api.get("/api/admin/rounds/statistics"),
       this.api.get("/api/admin/rounds"),
       this.api.get("/api/admin/dashboard"),
       this.api.get("/api/admin/jobs?limit=25"),
+      this.api.get("/api/admin/preannotation"),
     ]);
-    Object.assign(this, { stats, rounds, dashboard, jobs });
+    Object.assign(this, { stats, rounds, dashboard, jobs, preannotation });
     this.renderOverview();
     this.renderRounds();
     this.renderCharts();
@@ -115,8 +127,46 @@ class AdminPage {
           "Launch a round"),
         h("button", { type: "button", onclick: () => this.buildReviewQueue() }, "Build review queue")),
       refusal ? h("div", { class: "muted launch-why" }, `Not yet: ${refusal}`) : null,
+      this.preannotationForm(),
       this.progress,
     );
+  }
+
+  // Round 0 without clicks: the pretrained detector -> triangulation -> fit on a project's unlabeled samples.
+  preannotationForm() {
+    const p = this.preannotation;
+    if (!p) return null;
+    const candidates = p.projects.filter((x) => x.unlabeled > 0 && x.running_job_id === null);
+    // The section is redrawn at each refresh: the admin's choice is kept across redraws.
+    const chosen = this.preannotateChoice || (this.preannotateChoice = { project: null, rest: "annotate" });
+    const project = h("select", { name: "project", disabled: !p.available || !candidates.length,
+      onchange: (e) => { chosen.project = e.target.value; } },
+    candidates.map((x) => h("option", { value: String(x.project_id), selected: String(x.project_id) === chosen.project },
+      `${x.name} (${x.unlabeled} unlabeled)`)));
+    const rest = h("select", { name: "rest", disabled: !p.available, onchange: (e) => { chosen.rest = e.target.value; } },
+      h("option", { value: "annotate", selected: chosen.rest === "annotate" }, "the rest to annotators"),
+      h("option", { value: "keep", selected: chosen.rest === "keep" }, "keep the rest"));
+    const busy = p.projects.filter((x) => x.running_job_id !== null)
+      .map((x) => `${x.name}: job ${x.running_job_id} running`).join(" · ");
+    return h("form", { class: "inline-form preannotate", onsubmit: (e) => { e.preventDefault();
+      this.preannotate(Number(project.value), rest.value); } },
+    project, rest,
+    h("button", { type: "submit", class: "preannotate-button", disabled: !p.available || !candidates.length,
+      title: p.available ? "detector -> triangulation -> fit; the fits go to the reviewers first" : p.reason },
+    "Pre-annotate with the detector (round 0)"),
+    h("span", { class: "muted" }, !p.available ? `detector unavailable: ${p.reason}`
+      : busy || (candidates.length ? "" : "no unlabeled samples")));
+  }
+
+  async preannotate(projectId, rest) {
+    try {
+      const launched = await this.api.post("/api/admin/preannotation", { project_id: projectId, rest });
+      toast(`pre-annotating ${launched.samples} samples (job ${launched.job_id})`, "ok");
+      this.watch(launched.job_id);
+      await this.refresh();
+    } catch (error) {
+      toast(`pre-annotation refused: ${error.message}`, "error", 10000);
+    }
   }
 
   renderCharts() {
@@ -127,7 +177,7 @@ class AdminPage {
     const hist = d.confidence_histogram;
     const conf = hist.n
       ? histogram(hist.edges, [{ values: hist.counts, color: "#6c757d", label: "all" },
-        { values: hist.accepted, color: "#2a9d8f", label: "accepted" }], { xLabel: "mean MVNet confidence" })
+        { values: hist.accepted, color: "#2a9d8f", label: "accepted" }], { xLabel: "mean confidence (MVNet; the detector's until MVNet predicts)" })
       : h("p", { class: "muted" }, "no MVNet predictions yet");
     const sp = d.sparsification;
     const spars = sp
@@ -143,11 +193,34 @@ class AdminPage {
     ], { labels: ["handloop", "paper"] });
     fill(this.sections.charts, h("h2", {}, "Charts"), h("div", { class: "charts" },
       h("figure", {}, growth, h("figcaption", {}, "Dataset growth per round and stream")),
-      h("figure", {}, conf, h("figcaption", {}, `MVNet confidence (${hist.n} samples)`)),
+      h("figure", {}, conf, h("figcaption", {}, `Sample confidence: MVNet's, the detector's in round 0 (${hist.n} samples)`)),
       h("figure", {}, spars, h("figcaption", {}, sp ? `Sparsification vs accepted fits (n=${sp.n}, AUSE ` +
         `${fmt(sp.ause_mm, 2)} mm)` : "Sparsification curve")),
       h("figure", {}, time, h("figcaption", {}, `Human time per action (${ht.annotations} annotations, ` +
         `${ht.verifications} verifications)`))));
+  }
+
+  // Do the confidences mean something? Mean true error per confidence bin, a line per round; read on demand
+  // (it reads every detection and prediction), not at each refresh.
+  async renderReliability() {
+    const r = await this.api.get("/api/admin/reliability?bins=10");
+    const refs = r.references;
+    const figures = CONFIDENCES.map(({ name, title }) => {
+      const series = r.rounds.map((round, i) => {
+        const b = round.sources[name];
+        const points = b.mean_error.map((m, k) => (m === null ? null : [(b.edges[k] + b.edges[k + 1]) / 2, m, b.counts[k]]))
+          .filter(Boolean);
+        return { label: `D${sub(round.index)}`, color: ROUND_COLORS[i % ROUND_COLORS.length], points, n: b.n };
+      }).filter((s) => s.n > 0);
+      const unit = r.units[name];
+      return h("figure", { dataset: { source: name } }, series.length ? reliability(series, { yLabel: unit })
+        : h("p", { class: "muted" }, "no data yet"), h("figcaption", {}, `${title} (${unit})`));
+    });
+    fill(this.sections.reliability, h("h2", {}, "Reliability of the confidences"),
+      h("p", { class: "muted" }, `Reference: ground truth for ${refs.ground_truth} samples, accepted fits for ` +
+        `${refs.accepted_fit}. The error should fall as the confidence rises.`),
+      h("div", { class: "charts" }, figures),
+      h("button", { class: "small", onclick: () => this.renderReliability() }, "Refresh"));
   }
 
   renderJobs() {
@@ -216,7 +289,7 @@ class AdminPage {
     const bar = h("div", { class: "live", dataset: { job: String(jobId) } });
     fill(this.progress, bar);
     const draw = (job) => fill(bar, 
-      h("div", { class: "live-head" }, `round job ${job.id}: ${job.state}`, h("span", { class: "muted" },
+      h("div", { class: "live-head" }, `${job.kind || "round"} job ${job.id}: ${job.state}`, h("span", { class: "muted" },
         ` ${FINAL.has(job.state) ? "" : job.message || ""}`)), progressBar(job.progress, true), job.error ? h("div", { class: "error" }, job.error) : null);
     this.api.events(`/api/admin/jobs/${jobId}/events`, (name, job) => {
       if (!job) return;
@@ -288,7 +361,9 @@ class AdminPage {
       e.preventDefault();
       try {
         const r = await this.api.post("/api/admin/imports", { path: path.value, project: project.value || null });
-        toast(`imported ${r.project}: ${r.samples} samples, ${r.views} views`, "ok");
+        toast(`imported ${r.project}: ${r.samples} samples, ${r.views} views` +
+          (r.preannotation ? ` · pre-annotation: ${r.preannotation}` : ""), "ok");
+        if (r.preannotation_job_id) this.watch(r.preannotation_job_id);
         this.refresh();
       } catch (error) {
         toast(`import failed: ${error.message}`, "error", 10000);

@@ -1,5 +1,5 @@
-// Small SVG charts for the dashboard (bars, histogram, lines). A charting library would need a build
-// step or a CDN; these four shapes are all the dashboard draws.
+// Small SVG charts for the dashboard (bars, histogram, lines, reliability). A charting library would need a
+// build step or a CDN; these five shapes are all the dashboard draws.
 const NS = "http://www.w3.org/2000/svg";
 
 function el(tag, attrs = {}, text = null) {
@@ -123,6 +123,31 @@ export function lines(xs, series, { width = 420, height = 200, xLabel = "", yLab
   svg.append(el("text", { x: (plot.x0 + plot.x1) / 2, y: height - 2, class: "tick", "text-anchor": "middle" }, xLabel));
   svg.append(el("text", { x: 10, y: plot.y1 - 2, class: "tick" }, yLabel));
   legend(svg, series.map((s) => [s.label, s.color, s.dashed]), plot.x0, 9);
+  return svg;
+}
+
+// Reliability: mean true error per confidence bin, one line per series ({label, color, points: [[x, y, n]]}),
+// x the bin centre in [0, 1]; empty bins are simply absent (a line joins the bins that have data).
+export function reliability(series, { width = 420, height = 200, yLabel = "" } = {}) {
+  const { svg, plot } = frame(width, height, { left: 44, right: 10, top: 26, bottom: 30 });
+  const max = niceMax(Math.max(1e-9, ...series.flatMap((s) => s.points.map((p) => p[1]))));
+  yAxis(svg, plot, max);
+  const x = (v) => plot.x0 + (plot.x1 - plot.x0) * v;
+  const y = (v) => plot.y0 - ((plot.y0 - plot.y1) * v) / max;
+  for (const s of series) {
+    if (s.points.length > 1) {
+      svg.append(el("polyline", { points: s.points.map(([px, py]) => `${x(px)},${y(py)}`).join(" "), fill: "none",
+        stroke: s.color, "stroke-width": 2 }));
+    }
+    for (const [px, py, n] of s.points) {
+      add(svg, "circle", { cx: x(px), cy: y(py), r: 3, fill: s.color }, `${s.label}: confidence ${px.toFixed(2)}, ` +
+        `mean error ${py} ${yLabel} (n=${n})`);
+    }
+  }
+  for (const v of [0, 0.5, 1]) svg.append(el("text", { x: x(v), y: plot.y0 + 13, class: "tick", "text-anchor": "middle" }, v));
+  svg.append(el("text", { x: (plot.x0 + plot.x1) / 2, y: height - 2, class: "tick", "text-anchor": "middle" }, "confidence"));
+  svg.append(el("text", { x: 10, y: plot.y1 - 2, class: "tick" }, yLabel));
+  legend(svg, series.map((s) => [s.label, s.color]), plot.x0, 9);
   return svg;
 }
 

@@ -313,8 +313,8 @@ def write_freihand(samples: Sequence[SampleRecord], out_dir: Path, read_bytes: C
                 index[set_name].append({
                     "index": i, "sample_id": record.sample_id, "fit_id": record.fit_id, "sequence": record.sequence,
                     "frame_index": record.frame_index, "camera": view.name, "round": record.round_index,
-                    "stream": record.stream, "R": view.R.tolist(), "t": view.t.tolist(),
-                    "dist": view.dist.tolist(), "composites": composited, "meshes": mesh_files,
+                    "stream": record.stream, "fit_source": record.fit_source, "R": view.R.tolist(),
+                    "t": view.t.tolist(), "dist": view.dist.tolist(), "composites": composited, "meshes": mesh_files,
                 })
             if progress is not None:
                 progress(1)

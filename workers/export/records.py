@@ -42,6 +42,8 @@ class SampleRecord:
         keypoints_m: (21, 3) the fit's keypoints, metres, world frame, FreiHAND order.
         model_file: the hand model that made the fit (as the fit records it).
         views: the sample's views in camera order.
+        fit_source: what the fit was made from (its inputs' source): annotators' clicks, MVNet's prediction, or
+            the pretrained detector (pre-annotation, round 0 without clicks).
     """
 
     sample_id: int
@@ -56,6 +58,7 @@ class SampleRecord:
     keypoints_m: np.ndarray
     model_file: str
     views: tuple[ViewRecord, ...]
+    fit_source: str = "unknown"  # what the fit was made from: "annotation", "prediction" or "detector"
 
     def __post_init__(self) -> None:
         if np.shape(self.params) != (NUM_PARAMS,):

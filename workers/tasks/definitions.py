@@ -1,5 +1,5 @@
 """The Celery tasks: thin, named, taking ids; each calls one job service (workers.tasks.fits, training,
-inference, rounds) that re-loads its rows and returns quietly when there is nothing to do.
+inference, rounds, preannotate) that re-loads its rows and returns quietly when there is nothing to do.
 
 Every task is acknowledged late (after it ran) and requeued when its process dies; services claim their
 job rows, so a redelivered task records nothing twice, and a delivery for a job that may still run under
@@ -19,6 +19,7 @@ from backend.broker.celery_queue import (
     TASK_FIT,
     TASK_FIT_BATCH,
     TASK_HEURISTIC,
+    TASK_PREANNOTATE,
     TASK_PREDICT,
     TASK_REVIEW_QUEUE,
     TASK_ROUND,
@@ -81,6 +82,14 @@ def predict_batch(job_id: int) -> dict[str, Any]:
     from workers.tasks.inference import run_prediction_job
 
     return run_prediction_job(get_context(), int(job_id))
+
+
+@celery_app.task(name=TASK_PREANNOTATE)
+def preannotate(job_id: int) -> dict[str, Any]:
+    """Round 0 without clicks: detector -> triangulation -> fit on a project's unlabeled samples -> reviewers."""
+    from workers.tasks.preannotate import run_preannotation_job
+
+    return run_preannotation_job(get_context(), int(job_id))
 
 
 @celery_app.task(name=TASK_HEURISTIC)

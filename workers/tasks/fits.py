@@ -33,8 +33,9 @@ from workers.capture.schema import CaptureError
 from workers.fitting.config import FitConfig, LossWeights
 from workers.fitting.inputs import FitInputError
 from workers.tasks.context import WorkerContext
+from workers.tasks.fit_sources import fit_input
 from workers.tasks.inference import touch_round
-from workers.tasks.inputs import FitInput, InputError, fit_input, load_frames
+from workers.tasks.inputs import FitInput, InputError, load_frames
 from workers.tasks.json_values import json_safe
 from workers.tasks.progress import JobCancelledError, ProgressReporter
 

@@ -145,31 +145,13 @@ class FitInput:
 
     job_id: int
     sample_id: int
-    source: str  # "annotation" or "prediction"
+    source: str  # "annotation", "prediction" or "detector"
     rig: Rig
     view_ids: tuple[int, ...]
     observations: FrameObservations
     inputs: dict[str, Any]
     prediction_id: int | None = None
     round_id: int | None = None
-
-
-def fit_input(ctx: WorkerContext, session: Session, job: Job, frames: dict[int, SampleFrame] | None = None
-              ) -> FitInput:
-    """The fit input of a fit job: from the annotators' clicks and masks, or from a prediction. `frames`:
-    frames already loaded for several jobs (load_frames), to save the queries."""
-    if job.sample_id is None:
-        raise InputError(f"fit job {job.id} names no sample")
-    if frames is None or job.sample_id not in frames:
-        frames = load_frames(ctx, session, [job.sample_id])
-    if job.sample_id not in frames:
-        raise InputError(f"sample {job.sample_id} of fit job {job.id} no longer exists")
-    frame = frames[job.sample_id]
-    rig = rig_of(ctx, session, frame.project_id)
-    source = str((job.payload or {}).get("source", "annotation"))
-    if source == "prediction":
-        return _from_prediction(ctx, session, job, frame, rig)
-    return _from_annotation(ctx, session, job, frame, rig)
 
 
 def _submission_of(session: Session, job: Job) -> Submission:
@@ -182,7 +164,7 @@ def _submission_of(session: Session, job: Job) -> Submission:
     return submission
 
 
-def _from_annotation(ctx: WorkerContext, session: Session, job: Job, frame: SampleFrame, rig: Rig) -> FitInput:
+def from_annotation(ctx: WorkerContext, session: Session, job: Job, frame: SampleFrame, rig: Rig) -> FitInput:
     """Clicks of the job's submission; per view the newest corrected mask, else the chroma-key mask."""
     submission = _submission_of(session, job)
     C = len(rig.cameras)
@@ -198,7 +180,7 @@ def _from_annotation(ctx: WorkerContext, session: Session, job: Job, frame: Samp
             clicks[c, click.keypoint] = (click.x_px, click.y_px)
             weights[c, click.keypoint] = weight
     masks, mask_ids = [], []
-    newest = _newest_masks(session, list(frame.view_ids), (MaskKind.corrected, MaskKind.chroma_key))
+    newest = newest_masks(session, list(frame.view_ids), (MaskKind.corrected, MaskKind.chroma_key))
     for c, (view_id, cam) in enumerate(zip(frame.view_ids, rig.cameras, strict=True)):
         row = newest.get(view_id)
         if row is None:
@@ -214,7 +196,7 @@ def _from_annotation(ctx: WorkerContext, session: Session, job: Job, frame: Samp
                     round_id=job.round_id)
 
 
-def _newest_masks(session: Session, view_ids: list[int], kinds: tuple[MaskKind, ...]) -> dict[int, Mask]:
+def newest_masks(session: Session, view_ids: list[int], kinds: tuple[MaskKind, ...]) -> dict[int, Mask]:
     """Per view the newest mask of the first kind in `kinds` that the view has."""
     rows = session.execute(select(Mask).where(Mask.view_id.in_(view_ids), Mask.kind.in_([k.value for k in kinds]))
                            .order_by(Mask.version)).scalars().all()
@@ -227,7 +209,7 @@ def _newest_masks(session: Session, view_ids: list[int], kinds: tuple[MaskKind, 
     return best
 
 
-def _from_prediction(ctx: WorkerContext, session: Session, job: Job, frame: SampleFrame, rig: Rig) -> FitInput:
+def from_prediction(ctx: WorkerContext, session: Session, job: Job, frame: SampleFrame, rig: Rig) -> FitInput:
     """MVNet's 3D keypoints weighted by their confidences, and HandSegNet's (hand-only) masks."""
     prediction_id = (job.payload or {}).get("prediction_id")
     prediction = session.get(Prediction, prediction_id) if prediction_id is not None else None
@@ -250,7 +232,7 @@ def _from_prediction(ctx: WorkerContext, session: Session, job: Job, frame: Samp
     include_forearm = False  # HandSegNet's masks stop at the wrist
     mask_source = "handsegnet"
     if not mask_ids:  # HandSegNet found no hand: the prediction was localised by the chroma-key masks
-        chroma = _newest_masks(session, list(frame.view_ids), (MaskKind.chroma_key,))
+        chroma = newest_masks(session, list(frame.view_ids), (MaskKind.chroma_key,))
         masks = [read_mask(ctx, chroma[v].storage_key, (cam.height, cam.width), f"sample {frame.sample_id} view {c}")
                  if v in chroma else None for c, (v, cam) in enumerate(zip(frame.view_ids, rig.cameras, strict=True))]
         mask_ids = [chroma[v].id for v in frame.view_ids if v in chroma]

@@ -10,16 +10,35 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
     def bench_sim(
         json_out: bool = typer.Option(False, "--json", help="Print the JSON record as the last stdout line."),
         quick: bool = typer.Option(False, "--quick", help="Reduced run (tiny networks, 24 frames, 1 round)."),
+        detector: str | None = typer.Option(
+            None, "--detector", help="on, off, or both (the same capture and seed side by side). Default: both "
+            "where the pretrained detector can run, else off."),
+        accept_proposals_px: float | None = typer.Option(
+            None, help="Simulated annotators accept a shown proposal within this many pixels of the true point "
+            "(one key per view) instead of clicking it; default: they click every point."),
     ) -> None:
         """200-frame synthetic capture, cpu-small networks, 4 rounds through the real server and workers:
-        minutes, accepted labels' vertex error, auto-accept precision, labels per human hour."""
+        minutes, accepted labels' vertex error, auto-accept precision, labels per human hour; with the
+        detector on and off side by side."""
         import logging
 
-        from backend.bench.sim import run
+        from backend.bench.sim import DETECTOR_MODES, run
 
+        if detector is not None and detector not in DETECTOR_MODES:
+            typer.echo(f"error: --detector must be one of {', '.join(DETECTOR_MODES)}, not {detector!r}", err=True)
+            raise typer.Exit(code=2)
         logging.getLogger("httpx").setLevel(logging.WARNING)  # one line per request drowns the progress
-        record = run(quick=quick, emit_json=json_out)
+        try:
+            record = run(quick=quick, emit_json=json_out, detector=detector, accept_proposals_px=accept_proposals_px)
+        except ValueError as exc:
+            typer.echo(f"error: {exc}", err=True)
+            raise typer.Exit(code=2) from exc
         if not json_out:
+            for mode, rows in (record.get("side_by_side") or {}).items():
+                for r in rows:
+                    typer.echo(f"detector {mode} D_{r['index']}: +{r['heuristic']} Dh (precision "
+                               f"{r['auto_accept_precision']}) +{r['manual']} Dm +{r['annotated']} Dl, "
+                               f"{r['labels_per_human_hour']} labels/h, accepted {r['accepted_vertex_mm']} mm")
             for r in record["rounds"]:
                 typer.echo(f"D_{r['index']}: {r['dataset_size']} samples, {r['human_hours']:.2f} h")
             typer.echo(f"minutes {record['minutes']:.1f}  accepted {record['accepted_vertex_mm']} mm  "

@@ -39,13 +39,16 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
     def import_(path: Path = typer.Argument(..., help="Capture directory."),
                 project: str | None = typer.Option(None, help="Project name (default: the capture's name)."),
                 queue: bool = typer.Option(True, help="Queue every sample for annotation (round 0).")) -> None:
-        """Validate a capture, verify every file in full, and import it as a project (nothing if a file is broken)."""
+        """Validate a capture, verify every file in full, and import it as a project (nothing if a file is broken);
+        with HANDLOOP_PREANNOTATE_ON_IMPORT, then queue its pre-annotation by the pretrained detector."""
         from tqdm import tqdm
 
+        from backend.broker.celery_queue import CeleryJobQueue
         from backend.db.session import create_engine_from_url, make_session_factory
+        from backend.services import preannotation
         from backend.services.errors import DomainError
-        from backend.services.importer import import_capture
         from backend.services.storage import LocalDiskStorage
+        from backend.services.transactions import run_after_commit
         from backend.settings import get_settings
 
         settings = get_settings()
@@ -59,9 +62,13 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
                 bar.close()
 
         try:
-            with factory.begin() as session:
-                result = import_capture(session, LocalDiskStorage(settings.storage_dir), path, project_name=project,
-                                        queue_for_annotation=queue, progress=verified)
+            with factory() as session:
+                result = preannotation.import_capture(
+                    session, LocalDiskStorage(settings.storage_dir), CeleryJobQueue(settings), path,
+                    enabled=settings.preannotate_on_import, project_name=project, queue_for_annotation=queue,
+                    actor_id=None, progress=verified)
+                session.commit()
+                run_after_commit(session)  # the pre-annotation job's task, once its row is committed
         except DomainError as exc:
             bar.close()
             logger.error("%s", exc.message)

@@ -49,7 +49,15 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         click_s: float = typer.Option(2.0, help="Seconds per click."),
         mask_s: float = typer.Option(12.0, help="Seconds per mask correction."),
         verify_s: float = typer.Option(5.0, help="Seconds per verification."),
+        accept_proposals_px: float | None = typer.Option(
+            None, help="Annotators accept a shown proposal (detector, MVNet, fit) within this many pixels of the "
+            "true point instead of clicking it (default: they click every point)."),
+        proposal_s: float = typer.Option(1.0, help="Seconds to accept a view's proposals (one key; an assumption, "
+                                                   "not a figure of the paper)."),
         seed: int = typer.Option(0),
+        detector: str | None = typer.Option(None, "--detector", help="on: round 0 pre-annotated by the pretrained "
+                                            "detector (the initial set goes to reviewers first); off: clicked "
+                                            "from nothing (the paper). Default: on where the server can run it."),
         nets: str = typer.Option("cpu-small", help="Networks trained each round: tiny, cpu-small or paper."),
         set_: list[str] = typer.Option([], "--set", help="Another server setting, KEY=VALUE (e.g. "
                                                          "round_mvnet_budget_s=300); repeatable."),
@@ -84,16 +92,26 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
             fail(f"capture rejected: {exc}")
         if not any(seq.has_ground_truth for seq in parsed.sequences):
             fail(f"{capture} has no ground truth: the simulated people need a synthetic capture")
+        if detector not in (None, "on", "off"):
+            fail(f"--detector must be on or off, not {detector!r}")
+        if detector == "on" and url is None:  # the started stack shares this install: refuse before starting it
+            from backend.services.preannotation import detector_problem
+
+            problem = detector_problem()
+            if problem is not None:
+                fail(f"--detector on needs the pretrained detector: {problem}")
         try:
             config = BootstrapConfig(
                 rounds=rounds, annotators=annotators, reviewers=reviewers,
                 annotator=AnnotatorConfig(click_sigma_px=click_sigma_px, swap_probability=swap_probability,
                                           mask_iou_threshold=mask_iou_threshold,
                                           max_mask_corrections=max_mask_corrections,
-                                          boundary_noise_px=boundary_noise_px, seed=seed),
+                                          boundary_noise_px=boundary_noise_px,
+                                          accept_proposals_within_px=accept_proposals_px, seed=seed),
                 reviewer=ReviewerConfig(accept_below_mm=accept_below_mm, error_rate=review_error_rate, seed=seed),
-                costs=UnitCosts(click_s=click_s, mask_correction_s=mask_s, verification_s=verify_s),
-                round_timeout_s=round_timeout_s)
+                costs=UnitCosts(click_s=click_s, mask_correction_s=mask_s, verification_s=verify_s,
+                                proposal_view_s=proposal_s),
+                round_timeout_s=round_timeout_s, detector=None if detector is None else detector == "on")
             server = ServerOptions(url=url, admin_email=admin_email, admin_password=admin_password,
                                    settings={"nets_config": nets, **_parse_settings(set_)},
                                    worker_concurrency=worker_concurrency)
@@ -120,6 +138,8 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
                        f"+{r['added']['manual']} manual +{r['added']['annotated']} annotated  "
                        f"{r['human_hours']:.2f} h  accepted {_mm(r['accepted_vertex_mm'])}  "
                        f"MVNet {_mm(r['mvnet_keypoint_mm'])}")
+        typer.echo(f"detector {'on' if summary['detector'] else 'off'}; D_0 verified alone: "
+                   f"{summary['d0_verified_share']}")
         typer.echo(f"labels per human hour: {summary['labels_per_human_hour']}; report in {work}")
         if summary["failure"]:
             typer.echo(f"stopped early: {summary['failure']}", err=True)

@@ -35,6 +35,9 @@ ROUTES = [
     ("GET", "/api/admin/exports/samples", Role.admin),
     ("GET", "/api/admin/exports/predictions", Role.admin),
     ("POST", "/api/admin/imports", Role.admin),
+    ("GET", "/api/admin/preannotation", Role.admin),
+    ("POST", "/api/admin/preannotation", Role.admin),
+    ("GET", "/api/admin/reliability", Role.admin),
     ("POST", "/api/admin/samples/queue-for-annotation", Role.admin),
     # The browser UI's routes (tests/backend/api/ui/).
     ("POST", "/api/annotate/prefetch", Role.annotator),

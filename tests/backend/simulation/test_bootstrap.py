@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -193,3 +194,94 @@ def test_a_timeout_keeps_the_rounds_measured_so_far(env_with, sqlite_url, captur
     assert summary["failure"].endswith("(round) still running after 3600 s: training mvnet")
     assert [r["index"] for r in summary["rounds"]] == [0, 1] and summary["rounds"][0]["dataset_size"] == 4
     assert summary["dataset_size"] == 4 and summary["bookkeeping_ok"]
+
+
+def _detector_sim(env, capture_dir, monkeypatch, *, rounds: int = 1, accept_proposals_px: float | None = None):
+    """The simulation with the detector on: the pre-annotation job runs in-process with the ground-truth fake."""
+    from backend.services import preannotation
+    from tests.support.detector_fake import FakeDetector
+    from workers.tasks import preannotate
+    from workers.tasks.context import build_context
+
+    # Frame 0 of each training sequence with every view agreeing, frame 3 with two views off: the queue policy
+    # (confidence from the median up) sends the first to the reviewers, the others to the annotators.
+    monkeypatch.setattr(preannotate, "detect", FakeDetector(capture_dir, outliers_by_frame={0: 0, 3: 2}))
+    monkeypatch.setattr(preannotation, "detector_problem", lambda: None)
+    admin = ApiClient(env.client, token_of(env, Role.admin))
+    config = BootstrapConfig(rounds=rounds, annotators=1, reviewers=1, detector=True,
+                             annotator=AnnotatorConfig(click_sigma_px=1.0, max_mask_corrections=0, seed=3,
+                                                       accept_proposals_within_px=accept_proposals_px),
+                             reviewer=ReviewerConfig(accept_below_mm=8.0, error_rate=0.0))
+    sim = BootstrapSimulation(env.client, admin, config)
+    workers = FakeWorkers(env, sim)
+    ctx = build_context(env.settings, job_queue=env.queue)
+
+    def run_job(job_id: int) -> dict:
+        preannotate.run_preannotation_job(ctx, job_id)
+        return admin.job(job_id)
+
+    sim.wait_for_workers, sim.run_round, sim.run_job = workers.fit_submissions, workers.round, run_job
+    return sim, admin
+
+
+def test_with_the_detector_d0_comes_from_verified_detector_fits(env_with, sqlite_url, capture_dir, tmp_path,
+                                                                  monkeypatch):
+    env = env_with(sqlite_url, tmp_path / "data", review_min_time_gap_s=0.0, review_min_pose_distance=0.0,
+                   fit_global_iterations=15, fit_full_iterations=25)
+    sim, admin = _detector_sim(env, capture_dir, monkeypatch)
+    summary = sim.run(capture_dir, initial_every=3)
+    assert summary["failure"] is None and summary["bookkeeping_ok"] and summary["detector"] is True
+    first = summary["rounds"][0]
+    result = first["preannotation"]["result"]
+    assert first["preannotation"]["state"] == "succeeded" and result["samples"] == 4 and result["fitted"] == 4
+    # The reviewers verified what the policy queued (D^m); the rest was clicked by the annotators (D^l).
+    assert result["to_review"] == 2 and result["fitted_to_annotators"] == 2
+    assert first["added"] == {"heuristic": 0, "manual": 2, "annotated": 2} and first["dataset_size"] == 4
+    assert summary["d0_verified_share"] == first["verified_share"] == 0.5
+    members = admin.dataset(up_to_round=0)["samples"]
+    frames = {m["frame_index"]: set() for m in members}
+    for m in members:
+        frames[m["frame_index"]].add((m["stream"], m["fit"]["source"]))
+    assert frames[0] == {("manual", "detector")} and frames[3] == {("annotated", "unknown")}  # the fake workers'
+    assert first["effort"]["verifications"] == 4 and first["effort"]["submissions"] == 2
+    assert first["labels_per_human_hour"] == pytest.approx(4 / first["human_hours"])
+    assert first["accepted_vertex_mm"] < 8.0  # the fake's detections are within a pixel, one view off by 40 px
+    assert summary["rounds_completed"] == 1
+
+
+def test_the_detector_run_is_refused_before_anything_is_imported_where_it_cannot_run(env_with, sqlite_url,
+                                                                                   capture_dir, tmp_path,
+                                                                                   monkeypatch):
+    from backend.services import preannotation
+
+    env = env_with(sqlite_url, tmp_path / "data")
+    sim, admin = _detector_sim(env, capture_dir, monkeypatch)
+    monkeypatch.setattr(preannotation, "detector_problem", lambda: "the palm detection model file is corrupt")
+    with pytest.raises(ValueError, match="needs it on the server: the palm detection model file is corrupt"):
+        sim.run(capture_dir, initial_every=3)
+    assert admin.sample_index()["count"] == 0
+
+
+def test_annotators_who_accept_the_detectors_proposals_click_less(env_with, sqlite_template, capture_dir, tmp_path,
+                                                                  monkeypatch):
+    """The two samples the policy leaves to the annotators carry the detector's keypoints as proposals: with a
+    3 px tolerance the annotators accept most of them (one key per view) and click the rest."""
+    efforts = {}
+    for tolerance in (None, 3.0):
+        database = tmp_path / f"sim-{tolerance}.sqlite3"
+        shutil.copyfile(sqlite_template, database)
+        env = env_with(f"sqlite:///{database}", tmp_path / f"data-{tolerance}", review_min_time_gap_s=0.0,
+                       review_min_pose_distance=0.0,
+                       fit_global_iterations=15, fit_full_iterations=25)
+        sim, _ = _detector_sim(env, capture_dir, monkeypatch, rounds=0, accept_proposals_px=tolerance)
+        summary = sim.run(capture_dir, initial_every=3)
+        assert summary["failure"] is None and summary["rounds"][0]["added"]["annotated"] == 2
+        efforts[tolerance] = summary["rounds"][0]["effort"], summary["human_hours"]
+    (plain, plain_hours), (accepting, accepting_hours) = efforts[None], efforts[3.0]
+    assert plain["accepted_proposals"] == 0 and plain["proposal_views"] == 0
+    assert accepting["accepted_proposals"] > 0 and accepting["proposal_views"] > 0
+    # Every point the plain annotators clicked was either clicked or accepted by the others.
+    assert accepting["clicks"] + accepting["accepted_proposals"] == plain["clicks"]
+    assert accepting["clicks"] < plain["clicks"] / 2 and accepting_hours < plain_hours
+    assert accepting_hours * 3600 == pytest.approx(accepting["clicks"] * 2 + accepting["verifications"] * 5
+                                                   + accepting["proposal_views"] * 1.0)

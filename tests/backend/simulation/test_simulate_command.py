@@ -33,7 +33,7 @@ def test_simulate_d0_and_a_round_through_the_real_server_and_worker(capture_dir,
     out = tmp_path / "run"
     result = runner.invoke(app, ["simulate", "--capture", str(capture_dir), "--rounds", "1", "--initial-every", "2",
                                  "--out", str(out), "--accept-below-mm", "40", "--review-error-rate", "0",
-                                 "--json", *FAST])
+                                 "--detector", "off", "--json", *FAST])
     assert result.exit_code == 0, result.output[-3000:]
     summary = json.loads(result.stdout.strip().splitlines()[-1])
     d0 = summary["rounds"][0]
@@ -77,6 +77,7 @@ def test_simulate_refuses_bad_arguments(capture_dir, tmp_path):
         (["--capture", str(capture_dir), "--review-error-rate", "2"], "error_rate must be in [0, 1]"),
         (["--capture", str(capture_dir), "--url", "http://127.0.0.1:9", "--out", str(tmp_path / "b")],
          "needs an admin's email and password"),
+        (["--capture", str(capture_dir), "--detector", "maybe"], "--detector must be on or off, not 'maybe'"),
     ]
     for args, message in cases:
         result = runner.invoke(app, ["simulate", *args])
@@ -86,3 +87,19 @@ def test_simulate_refuses_bad_arguments(capture_dir, tmp_path):
     (busy / "x").write_text("mine")
     result = runner.invoke(app, ["simulate", "--capture", str(capture_dir), "--out", str(busy)])
     assert result.exit_code == 2 and "not empty" in result.output
+
+
+def test_the_detector_runs_are_refused_where_the_detector_cannot_run(capture_dir, tmp_path, monkeypatch):
+    from backend.services import preannotation
+
+    monkeypatch.setattr(preannotation, "detector_problem", lambda: "the hand landmark model file is missing")
+    result = runner.invoke(app, ["simulate", "--capture", str(capture_dir), "--detector", "on",
+                                 "--out", str(tmp_path / "c")])
+    assert result.exit_code == 2, result.output[-2000:]
+    assert "--detector on needs the pretrained detector: the hand landmark model file is missing" in result.output
+    assert not (tmp_path / "c").exists()  # refused before a stack was started
+    for mode in ("on", "both"):
+        result = runner.invoke(app, ["bench", "sim", "--quick", "--detector", mode])
+        assert result.exit_code == 2 and "the hand landmark model file is missing" in result.output, result.output
+    result = runner.invoke(app, ["bench", "sim", "--detector", "sideways"])
+    assert result.exit_code == 2 and "--detector must be one of on, off, both" in result.output

@@ -1,0 +1,283 @@
+"""Pre-annotation jobs (issue 15: round 0 without clicks).
+
+For each of the job's samples still 'unlabeled': the pretrained detector's per-view 2D keypoints, lifted over
+the views (`workers.detector.detect_frame`) -> a fit job of source "detector", whose input is the inlier views'
+detections as 2D keypoints weighted by their confidence, plus the masks the annotation fits use -> the fit
+(workers.tasks.fits, the round-0 weights) -> the reviewers' queue by the paper's policy
+(services.verification.select_for_review), the detector's frame confidence standing in for MVNet's. The
+samples the policy does not pick, those where no hand was found and those whose fit failed go to the
+annotators (payload "rest": "annotate"; failed fits always do, as for every fit) or stay 'unlabeled' /
+'fitted' ("keep"); annotators then see the detector's keypoints as "D" proposals.
+
+The detector core is reached only through `detect` here and `services.preannotation.detector_problem`
+(tests swap in fakes). A job is
+claimed like every other; a redelivered one continues from what is recorded: a sample with its fit job
+already made is not detected again, and the routing only moves samples still 'fitted'.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from backend.models.capture import Sample
+from backend.models.enums import JobKind, JobState, SampleState
+from backend.models.fits import Fit
+from backend.models.jobs import Job
+from backend.services import jobs, preannotation, records
+from backend.services.errors import DomainError
+from backend.services.state_machine import transition
+from backend.services.verification import Candidate, ReviewPolicy, select_for_review
+from workers.capture.schema import CaptureError
+from workers.detector.types import DetectorInputError, DetectorUnavailableError, Handedness, LiftedKeypoints
+from workers.geometry.camera import Camera
+from workers.tasks.context import WorkerContext
+from workers.tasks.detection_inputs import SOURCE, detection_record, lifted_count, masks_for
+from workers.tasks.inputs import NUM_KEYPOINTS, InputError, Rig, SampleFrame, load_frames, rig_of
+from workers.tasks.progress import JobCancelledError, ProgressReporter
+
+log = logging.getLogger(__name__)
+
+MIN_LIFTED_KEYPOINTS = 6  # fewer keypoints lifted to 3D: no hand to place (the fit needs a placement)
+CHUNK_IN = 500  # ids per IN (...) clause
+
+
+# --- the one seam to the detector core ------------------------------------------------------------------
+
+
+def detect(images: Sequence[np.ndarray], cameras: Sequence[Camera], masks: Sequence[np.ndarray | None] | None,
+           *, handedness: Handedness = "right") -> LiftedKeypoints:
+    """`workers.detector.detect_frame`: images (H, W, 3) uint8 RGB and masks (H, W) bool or None per view, in
+    calibration order."""
+    from workers.detector import detect_frame
+
+    return detect_frame(images, cameras, masks, handedness=handedness)
+
+
+# --- the job --------------------------------------------------------------------------------------------
+
+
+def _chunks(ids: Sequence[int], size: int = CHUNK_IN) -> list[list[int]]:
+    return [list(ids[i:i + size]) for i in range(0, len(ids), size)]
+
+
+def _fit_jobs_of(session: Session, job_id: int, sample_ids: Sequence[int]) -> dict[int, Job]:
+    """sample id -> the fit job this pre-annotation job made for it."""
+    out: dict[int, Job] = {}
+    for part in _chunks(sample_ids):
+        for fit_job in session.execute(select(Job).where(Job.kind == JobKind.fit, Job.sample_id.in_(part))
+                                       .order_by(Job.id)).scalars():
+            if (fit_job.payload or {}).get("preannotate_job_id") == job_id:
+                out[fit_job.sample_id] = fit_job
+    return out
+
+
+def _states(session: Session, sample_ids: Sequence[int]) -> dict[int, str]:
+    out: dict[int, str] = {}
+    for part in _chunks(sample_ids):
+        out.update(session.execute(select(Sample.id, Sample.state).where(Sample.id.in_(part))).all())
+    return out
+
+
+def _detect_sample(ctx: WorkerContext, frame: SampleFrame, rig: Rig, handedness: Handedness
+                   ) -> tuple[dict[str, Any] | None, str]:
+    """(detection record, "") or (None, why there is nothing to fit: bad input, no hand, or the detector failing
+    on this frame). DetectorUnavailableError propagates: it ends the job."""
+    from workers.capture.reader import load_frame_images
+
+    try:
+        with ctx.session_factory() as session:
+            masks, mask_ids = masks_for(ctx, session, frame, rig)
+        images = load_frame_images(frame.frame, rig.cameras)
+        ordered = [images[cam.name] for cam in rig.cameras]
+        lifted = detect(ordered, rig.cameras, masks if mask_ids else None, handedness=handedness)
+        record = detection_record(lifted, frame.view_ids)
+    except (DetectorInputError, CaptureError, InputError, KeyError) as exc:
+        return None, f"detector input: {exc}"
+    except DetectorUnavailableError:
+        raise  # the model files went missing or corrupt: no other sample can be detected either
+    except Exception as exc:  # one frame that breaks the detector must not sink the others (as for the fits)
+        log.exception("detector failed on sample %s", frame.sample_id)
+        return None, f"detector failed: {exc.__class__.__name__}: {exc}"
+    lifted_n = lifted_count(record)
+    if lifted_n < MIN_LIFTED_KEYPOINTS:
+        found = sum(v is not None for v in record["views"])
+        return None, (f"no hand to fit: the detector found it in {found} of {len(rig.cameras)} views and lifted "
+                      f"{lifted_n} of {NUM_KEYPOINTS} keypoints (at least {MIN_LIFTED_KEYPOINTS} needed)")
+    return record, ""
+
+
+def _queue_detector_fit(ctx: WorkerContext, job_id: int, sample_id: int, record: dict[str, Any]) -> int | None:
+    """A fit job of source "detector" for a sample still 'unlabeled' (None when it no longer is)."""
+    with ctx.session_factory.begin() as session:
+        sample = session.get(Sample, sample_id)
+        if sample is None or sample.state != SampleState.unlabeled:
+            return None
+        fit_job = records.queue_fit(session, ctx.job_queue, sample_id, source=SOURCE, enqueue=False,
+                                    payload={"preannotate_job_id": job_id, "detection": record})
+        # The policy ranks reviewers' candidates by this: the detector's confidence in MVNet's place.
+        sample.confidence = float(record.get("frame_confidence") or 0.0)
+        session.flush()
+        return fit_job.id
+
+
+def _to_annotators(session: Session, sample_ids: Sequence[int], from_state: SampleState, reason: str) -> int:
+    moved = 0
+    for part in _chunks(sample_ids):
+        for sample in session.execute(select(Sample).where(Sample.id.in_(part), Sample.state == from_state)
+                                      .with_for_update()).scalars():
+            transition(session, sample, SampleState.needs_annotation, None, reason=reason)
+            moved += 1
+    return moved
+
+
+def route_fitted(ctx: WorkerContext, job_id: int, sample_ids: Sequence[int], rest: str) -> dict[str, int]:
+    """The job's samples 'fitted' from their detector fit: the reviewers' queue takes what the paper's policy
+    picks (confidence from the median up, temporally spread, not flat); the rest go to the annotators when
+    `rest` is "annotate"."""
+    policy = ReviewPolicy.from_settings(ctx.settings)
+    with ctx.session_factory.begin() as session:
+        rows: list[Sample] = []
+        for part in _chunks(sample_ids):
+            rows += session.execute(select(Sample).where(Sample.id.in_(part), Sample.state == SampleState.fitted,
+                                                         Sample.current_fit_id.is_not(None))
+                                    .with_for_update()).scalars().all()
+        fits = {}
+        for part in _chunks([s.current_fit_id for s in rows]):
+            fits.update({f.id: f for f in session.execute(select(Fit).where(Fit.id.in_(part))).scalars()})
+        mine = [s for s in rows if (fits[s.current_fit_id].inputs or {}).get("preannotate_job_id") == job_id]
+        candidates = [Candidate(s.id, s.sequence_id, s.time_s, s.confidence, s.pose_distance or 0.0) for s in mine]
+        queued: dict[int, list[float]] = {}
+        for sequence_id, time_s in session.execute(select(Sample.sequence_id, Sample.time_s)
+                                                   .where(Sample.state == SampleState.in_review)):
+            queued.setdefault(sequence_id, []).append(time_s)
+        picked = set(select_for_review(candidates, policy, queued))
+        for sample in mine:
+            if sample.id in picked:
+                transition(session, sample, SampleState.in_review, None, reason="review policy (pre-annotation)")
+            elif rest == "annotate":
+                transition(session, sample, SampleState.needs_annotation, None,
+                           reason="pre-annotation: not picked for review; annotators correct the detector's fit")
+    return {"to_review": len(picked), "fitted_to_annotators": (len(mine) - len(picked)) if rest == "annotate" else 0}
+
+
+def _settle(ctx: WorkerContext, job_id: int, sample_ids: Sequence[int], rest: str, *, cancel_fits: bool
+            ) -> dict[str, int]:
+    """Leave no sample of the job in between: cancel its unfinished fit jobs (when stopping early), route the
+    fitted samples, and when `rest` is "annotate" hand those still 'unlabeled' to the annotators (the
+    paper-only path, as without the detector)."""
+    with ctx.session_factory.begin() as session:
+        if cancel_fits:
+            for fit_job in _fit_jobs_of(session, job_id, sample_ids).values():
+                if JobState(fit_job.state) not in jobs.FINAL_STATES:
+                    jobs.cancel(session, ctx.job_queue, fit_job.id, None)
+    routed = route_fitted(ctx, job_id, sample_ids, rest)
+    with ctx.session_factory.begin() as session:
+        left = [s for s, state in _states(session, sample_ids).items() if state == SampleState.unlabeled]
+        moved = _to_annotators(session, left, SampleState.unlabeled,
+                               "pre-annotation: no detector fit; annotators click") if rest == "annotate" else 0
+    return {**routed, "unlabeled_to_annotators": moved}
+
+
+def run_preannotation_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
+    """Claim a preannotate job (payload: project_id, sample_ids, rest, handedness) and run it; returns its
+    result (also stored on the job)."""
+    from workers.tasks.fits import run_fit_jobs
+
+    started = time.perf_counter()
+    with ctx.session_factory.begin() as session:
+        job = ctx.claim(session, job_id)
+        if job is None:
+            return {"job_id": job_id, "skipped": True}
+        payload = dict(job.payload or {})
+        sample_ids = [int(s) for s in payload.get("sample_ids", [])]
+        rest = str(payload.get("rest", "annotate"))
+        handedness: Handedness = "left" if payload.get("handedness") == "left" else "right"
+        project_id = payload.get("project_id")
+        problem = preannotation.detector_problem()
+        if problem is None:
+            problem = (f"rest must be one of {preannotation.RESTS}, not {rest!r}" if rest not in preannotation.RESTS
+                       else preannotation.project_problem(session, int(project_id)) if isinstance(project_id, int)
+                       else f"preannotate job {job_id} names no project")
+        if problem:  # nothing was written for any sample: the paper-only path is untouched
+            jobs.finish(session, job_id, JobState.failed, error=problem[:2000])
+            return {"job_id": job_id, "failed": problem}
+    summary: dict[str, Any] = {"samples": len(sample_ids), "detected": 0, "no_detection": 0, "fitted": 0,
+                               "fit_failed": 0, "errors": {}}
+    reporter = ProgressReporter(ctx, [job_id])
+    size = max(1, ctx.settings.fit_batch_size)
+    try:
+        with ctx.session_factory() as session:
+            earlier = _fit_jobs_of(session, job_id, sample_ids)
+            states = _states(session, sample_ids)
+        leftover = [j.id for j in earlier.values() if JobState(j.state) not in jobs.FINAL_STATES]
+        if leftover:  # a redelivered job: the fits an earlier attempt queued but did not run
+            _tally(summary, run_fit_jobs(ctx, leftover, parent=(job_id, 0.0, 0.05)))
+        todo = [s for s in sample_ids if states.get(s) == SampleState.unlabeled and s not in earlier]
+        for start in range(0, len(todo), size):
+            part = todo[start:start + size]
+            span = (0.05 + 0.9 * start / len(todo), 0.05 + 0.9 * (start + len(part)) / len(todo))
+            reporter(span[0], f"detecting hands: {start}/{len(todo)} samples", force=True)
+            fit_job_ids = []
+            with ctx.session_factory() as session:
+                frames = load_frames(ctx, session, part)
+                rig = rig_of(ctx, session, int(project_id))
+            for i, sample_id in enumerate(part):
+                _stop_if_cancelled(ctx, job_id)
+                frame = frames.get(sample_id)
+                record, why = _detect_sample(ctx, frame, rig, handedness) if frame else (None, "sample is gone")
+                reporter(span[0] + (span[1] - span[0]) * 0.5 * (i + 1) / len(part),
+                         f"detecting hands: {start + i + 1}/{len(todo)} samples")
+                if record is None:
+                    summary["no_detection"] += 1
+                    summary["errors"][str(sample_id)] = why[:300]
+                    continue
+                fit_job_id = _queue_detector_fit(ctx, job_id, sample_id, record)
+                if fit_job_id is not None:
+                    summary["detected"] += 1
+                    fit_job_ids.append(fit_job_id)
+            if fit_job_ids:
+                mid = span[0] + 0.5 * (span[1] - span[0])
+                _tally(summary, run_fit_jobs(ctx, fit_job_ids, parent=(job_id, mid, span[1])))
+    except JobCancelledError:
+        summary.update(_settle(ctx, job_id, sample_ids, rest, cancel_fits=True), cancelled=True)
+        return {"job_id": job_id, **summary}
+    except (DetectorUnavailableError, DomainError, InputError, CaptureError, ValueError) as exc:
+        message = getattr(exc, "message", None) or str(exc) or exc.__class__.__name__
+        log.warning("preannotate job %s failed: %s", job_id, message)
+        summary.update(_settle(ctx, job_id, sample_ids, rest, cancel_fits=True))
+        with ctx.session_factory.begin() as session:
+            jobs.finish(session, job_id, JobState.failed, error=message[:2000], result=_jsonable(summary))
+        return {"job_id": job_id, "failed": message, **summary}
+    summary.update(_settle(ctx, job_id, sample_ids, rest, cancel_fits=False))
+    summary["seconds"] = round(time.perf_counter() - started, 3)
+    result = _jsonable(summary)
+    with ctx.session_factory.begin() as session:
+        jobs.finish(session, job_id, JobState.succeeded, result=result)
+    log.info("preannotate job %s done: %s", job_id, {k: v for k, v in result.items() if k != "errors"})
+    return {"job_id": job_id, **result}
+
+
+def _stop_if_cancelled(ctx: WorkerContext, job_id: int) -> None:
+    """Raise JobCancelledError once the job is final (cancelled by an admin): checked before each sample, as
+    the progress writes that would notice it are spaced in time."""
+    with ctx.session_factory() as session:
+        if jobs.is_final(session, job_id):
+            raise JobCancelledError(f"preannotate job {job_id} cancelled")
+
+
+def _tally(summary: dict[str, Any], part: Any) -> None:
+    summary["fitted"] += len(part.fitted)
+    summary["fit_failed"] += len(part.failed)
+    summary["errors"].update({f"fit job {k}": v[:300] for k, v in part.failed.items()})
+
+
+def _jsonable(summary: dict[str, Any]) -> dict[str, Any]:
+    errors = dict(list(summary.get("errors", {}).items())[:50])  # a job row is no log: the first 50 reasons
+    return {**summary, "errors": errors}

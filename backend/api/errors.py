@@ -9,7 +9,7 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.exception_handlers import http_exception_handler
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
-from sqlalchemy.exc import IntegrityError, OperationalError
+from sqlalchemy.exc import DataError, IntegrityError, OperationalError
 from starlette.exceptions import HTTPException
 
 from backend.api.deps import bearer, depends_on, get_current_user
@@ -126,6 +126,14 @@ def install(app: FastAPI) -> None:
         logger.info("integrity error: %s", exc.orig)
         return JSONResponse({"detail": "conflicting concurrent change; nothing was written, retry"},
                             status_code=409)
+
+    @app.exception_handler(DataError)
+    async def _data(_request: Request, exc: DataError) -> JSONResponse:
+        # A value the database refuses to store (PostgreSQL: a NUL character in a query parameter or a form
+        # field, which the body schemas already refuse); the transaction was rolled back.
+        logger.info("data the database refused: %s", exc.orig)
+        message = str(exc.orig).splitlines()[0] if exc.orig is not None else "a value the database cannot store"
+        return JSONResponse({"detail": f"a value cannot be stored: {message}; nothing was written"}, status_code=422)
 
     @app.exception_handler(OperationalError)
     async def _operational(_request: Request, exc: OperationalError) -> JSONResponse:

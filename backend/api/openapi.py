@@ -1,6 +1,7 @@
 """The published OpenAPI schema describes what the server sends: every operation lists the error statuses it
 can answer, each with the one error body (schemas.errors.ErrorBody), derived from what the route depends on,
-so a route added later is documented without doing anything.
+so a route added later is documented without doing anything; and request bodies' text refuses NUL characters,
+as the server does (PostgreSQL cannot store them).
 
 | status | when | operations |
 |---|---|---|
@@ -57,6 +58,49 @@ def error_statuses(route: APIRoute) -> set[int]:
     return statuses
 
 
+NO_NUL = "^[^\\u0000]*$"  # what backend.schemas.base.Strict enforces on every text of a request body
+
+
+def _refuse_nul(node: Any) -> None:
+    """Add NO_NUL to every free-text string schema under `node` (not to enums, constants or formats)."""
+    if isinstance(node, list):
+        for item in node:
+            _refuse_nul(item)
+        return
+    if not isinstance(node, dict):
+        return
+    if node.get("type") == "string" and not {"enum", "const", "format"} & set(node):
+        if "pattern" not in node:
+            node["pattern"] = NO_NUL
+        elif {"pattern": NO_NUL} not in node.get("allOf", []):
+            node.setdefault("allOf", []).append({"pattern": NO_NUL})
+    for key in ("properties", "$defs"):
+        for child in node.get(key, {}).values():
+            _refuse_nul(child)
+    for key in ("items", "anyOf", "allOf", "oneOf", "if", "then", "else", "additionalProperties"):
+        if key in node:
+            _refuse_nul(node[key])
+
+
+def _request_components(schema: dict[str, Any]) -> set[str]:
+    """Names of the components that request bodies use, directly or through other components."""
+    components = schema.get("components", {}).get("schemas", {})
+    pending = [op["requestBody"] for methods in schema["paths"].values() for op in methods.values()
+               if "requestBody" in op]
+    found: set[str] = set()
+    while pending:
+        node = pending.pop()
+        if isinstance(node, dict):
+            ref = node.get("$ref", "")
+            if ref.startswith("#/components/schemas/") and ref.rsplit("/", 1)[1] not in found:
+                found.add(ref.rsplit("/", 1)[1])
+                pending.append(components.get(ref.rsplit("/", 1)[1], {}))
+            pending.extend(node.values())
+        elif isinstance(node, list):
+            pending.extend(node)
+    return found
+
+
 def document_errors(schema: dict[str, Any], app: FastAPI) -> None:
     """Add the error responses to every operation of `schema` (in place)."""
     components = schema.setdefault("components", {}).setdefault("schemas", {})
@@ -82,6 +126,8 @@ def document_errors(schema: dict[str, Any], app: FastAPI) -> None:
                     entry["headers"] = HEADERS[status]
     for unused in ("HTTPValidationError", "ValidationError"):
         components.pop(unused, None)
+    for name in _request_components(schema):
+        _refuse_nul(components[name])
 
 
 def install(app: FastAPI) -> None:

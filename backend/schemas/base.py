@@ -34,6 +34,8 @@ class Strict(BaseModel):
     @field_validator("*", mode="before")
     @classmethod
     def _from_json_values(cls, value: Any, info: ValidationInfo) -> Any:
+        if type(value) is str and "\x00" in value:  # PostgreSQL cannot store it (a 500 there, not a 422)
+            raise ValueError("text must not contain NUL (0x00) characters")
         kind = _field_kinds(cls).get(info.field_name or "")
         if kind is None:
             return value

@@ -117,3 +117,27 @@ def test_an_unreadable_body_with_a_revoked_token_is_401(sqlite_env, h):
     response = sqlite_env.client.post("/api/annotate/prefetch", content=BAD_BODIES["not UTF-8"][0],
                                       headers={"content-type": "application/json", **headers})
     assert response.status_code == 401 and "revoked" in response.json()["detail"], response.text
+
+
+@pytest.mark.parametrize(("method", "path", "body", "field"), [
+    ("POST", "/api/admin/users", {"email": "a\u0000b@example.org", "password": "12345678"}, "email"),
+    ("POST", "/api/admin/rounds", {"note": "a note\u0000"}, "note"),
+    ("POST", "/api/admin/imports", {"path": "/tmp/a\u0000b"}, "path"),
+    ("POST", "/api/annotate/samples/1/lease/renew", {"lease_token": "t\u0000"}, "lease_token")])
+def test_text_with_a_nul_character_is_422_on_both_databases(env, h, method, path, body, field):
+    """PostgreSQL cannot store NUL in text: it was a 500 there."""
+    before = {t: h.count(env, t) for t in TABLES}
+    response = env.client.request(method, path, json=body, headers=env.headers(Role.admin))
+    assert response.status_code == 422 and field in response.json()["detail"] and "NUL" in response.json()["detail"]
+    assert {t: h.count(env, t) for t in TABLES} == before
+
+
+def test_nul_in_a_query_or_form_field_is_never_a_500(env):
+    on_postgres = env.settings.resolved_database_url.startswith("postgresql")
+    query = env.client.get("/api/admin/exports/samples?project=a%00b", headers=env.headers(Role.admin))
+    login = env.client.post("/api/auth/token", data={"username": "a\u0000b@example.org", "password": "whatever1"})
+    if on_postgres:  # the database refuses the value: a 422 that says so
+        assert query.status_code == 422 and "NUL" in query.json()["detail"], query.text
+        assert login.status_code == 422 and "NUL" in login.json()["detail"], login.text
+    else:  # SQLite stores any text: no such project, no such account
+        assert query.status_code == 404 and login.status_code == 401, (query.text, login.text)

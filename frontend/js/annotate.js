@@ -15,6 +15,10 @@ import { ActionTimer } from "./timing.js";
 import { Viewport } from "./viewport.js";
 
 const HIT_PX = 12; // how close (screen px) a press must be to grab a point
+const LOUPE_R = 56; // the magnifier's radius, screen px
+const LOUPE_OFFSET = 80; // its centre from the cursor, screen px (up and right, flipped near the edges)
+const LOUPE_ZOOM = 4; // times the view's zoom ...
+const LOUPE_MAX_PX = 24; // ... up to this many screen px per image pixel
 const DRAG_PX = 3; // movement below this is a click, not a drag
 const SOURCE_LETTER = { triangulated: "T", fit: "F", mvnet: "M", detector: "D" };
 // Enter accepts only proposals at least this confident; the others are ringed orange for a look (A takes
@@ -22,7 +26,7 @@ const SOURCE_LETTER = { triangulated: "T", fit: "F", mvnet: "M", detector: "D" }
 const ACCEPT_CONF = 0.6;
 const HELP = [
   ["1 … 6", "pick wrist, thumb, index, middle, ring, pinky"],
-  ["click", "place the keypoint (then the next one is picked)"],
+  ["click", "place the keypoint (then the next one is picked); the magnifier beside the cursor shows where"],
   ["drag", "move a point or a proposal"],
   ["A / Enter", `accept the proposal of this keypoint / all of this view's with confidence >= ${ACCEPT_CONF}`],
   ["O", "toggle occluded: the point just placed, else the picked one (ringed white)"],
@@ -33,7 +37,7 @@ const HELP = [
   ["[ ] / wheel", "brush size (wheel in mask mode; Ctrl+wheel zooms)"],
   ["P", "back to points"],
   ["wheel, right-drag", "zoom, pan (Space+drag pans too)"],
-  ["+ / - / 0", "zoom in / out at the centre / fit the view"],
+  ["+ / - / 0", "zoom in / out at the centre / fit the hand (again: the whole image); each view keeps its zoom"],
   ["H", "hide / show the mask"],
   ["Ctrl+Z / Ctrl+Shift+Z / Ctrl+Y", "undo / redo / redo"],
   ["Ctrl+Enter", "submit and show the next task"],
@@ -69,6 +73,7 @@ class AnnotatePage {
     this.preparing = null;
     this.pending = 0;
     this.keys = new Set();
+    this.zooms = new Map(); // "sample/view" -> {scale, ox, oy, minScale}: each view keeps its zoom and pan
     this.metrics = { shown: [] };
     this.build();
     this.onKey = (e) => this.keydown(e);
@@ -557,6 +562,10 @@ class AnnotatePage {
     const d = this.drag;
     if (!d) {
       if (this.mode === "mask") this.requestRender(this.cursorRect(previous), this.cursorRect(this.hover));
+      else if (this.view && this.view.image) {
+        const before = this.loupeGeometry(previous), now = this.loupeGeometry(this.hover);
+        this.requestRender(before && before.rect, now && now.rect);
+      }
       return;
     }
     if (d.type === "pan") {
@@ -716,7 +725,10 @@ class AnnotatePage {
       this.requestRender();
       this.buildThumbs();
     } else if (key === "0") {
+      // The hand; pressed again (already there), the whole image.
+      const before = [this.vp.scale, this.vp.ox, this.vp.oy];
       this.fitView();
+      if (Math.abs(before[0] - this.vp.scale) < 1e-9 && Math.abs(before[1] - this.vp.ox) < 1e-6) this.fitView({ whole: true });
       this.requestRender();
     } else if (key === "+" || key === "=") {
       this.zoomCentre(1.25);
@@ -759,20 +771,64 @@ class AnnotatePage {
 
   selectView(index) {
     if (index === this.viewIndex) return;
+    this.keepZoom();
     this.viewIndex = index;
     this.decodeMask(this.view);
     this.timer.mark("view", { view_id: this.view.id });
     this.keypoint = this.annotation.firstUnset(this.view.id) ?? this.keypoint;
-    this.fitView();
+    this.restoreZoom();
     this.requestRender();
     for (const [i, el] of [...this.thumbs.children].entries()) el.classList.toggle("active", i === index);
     this.renderSide();
   }
 
-  fitView() {
+  // Fit the view to the hand (its clicks and proposals, else its automatic mask), or with whole=true (or no
+  // hand found) to the whole image.
+  fitView({ whole = false } = {}) {
     if (!this.task) return;
     const { width, height } = fitCanvas(this.canvas);
-    this.vp.fit(this.view.width, this.view.height, width, height);
+    const box = whole ? null : this.handBox(this.view);
+    if (box) this.vp.fitRect(...box, width, height, 8);
+    else this.vp.fit(this.view.width, this.view.height, width, height);
+    this.vp.minScale = Math.min(this.vp.minScale, Math.min(width / this.view.width, height / this.view.height) / 2);
+  }
+
+  // The image rectangle [x0, y0, x1, y1] around the hand in a view, with a margin; null if nothing shows it.
+  handBox(view, margin = 0.35, minFraction = 0.2) {
+    const xs = [], ys = [];
+    const add = (x, y) => { if (Number.isFinite(x) && Number.isFinite(y)) { xs.push(x); ys.push(y); } };
+    for (const c of this.annotation.clicks.get(view.id).values()) add(c.x, c.y);
+    for (const p of (this.proposals ? this.proposals.get(view.id) : new Map()).values()) add(p.x, p.y);
+    for (const source of this.sources || []) for (const p of source.views[String(view.id)] || []) if (p) add(p[0], p[1]);
+    let box = null;
+    if (xs.length >= 2) {
+      box = [Math.min(...xs), Math.min(...ys), Math.max(...xs), Math.max(...ys)];
+    } else if (view.overlay) {
+      box = view.overlay.bounds();
+      margin = 0.15;
+    }
+    if (!box) return null;
+    const [x0, y0, x1, y1] = box;
+    const w = Math.max((x1 - x0) * (1 + 2 * margin), view.width * minFraction);
+    const hh = Math.max((y1 - y0) * (1 + 2 * margin), view.height * minFraction);
+    const cx = (x0 + x1) / 2, cy = (y0 + y1) / 2;
+    return [cx - w / 2, cy - hh / 2, cx + w / 2, cy + hh / 2];
+  }
+
+  zoomKey(view = this.view) {
+    return `${this.task.sample_id}/${view.id}`;
+  }
+
+  keepZoom() {
+    if (!this.task || !this.view) return;
+    const { scale, ox, oy, minScale } = this.vp;
+    this.zooms.set(this.zoomKey(), { scale, ox, oy, minScale });
+  }
+
+  restoreZoom() {
+    const kept = this.zooms.get(this.zoomKey());
+    if (kept) Object.assign(this.vp, kept);
+    else this.fitView();
   }
 
   // --- submit -------------------------------------------------------------------------------------
@@ -856,7 +912,8 @@ class AnnotatePage {
     this.vp.apply(ctx, dpr);
     ctx.imageSmoothingEnabled = this.vp.scale < 3;
     if (view.image) ctx.drawImage(view.image, 0, 0);
-    if (this.showMask && view.overlay) ctx.drawImage(view.overlay.canvas, 0, 0);
+    // Points mode shows the mask's outline only, so the skin under it stays visible.
+    if (this.showMask && view.overlay) ctx.drawImage(this.mode === "points" ? view.overlay.outline() : view.overlay.canvas, 0, 0);
     ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
     if (!view.image) {
       ctx.fillStyle = "#9aa0ab";
@@ -879,6 +936,7 @@ class AnnotatePage {
       ctx.stroke();
       ctx.restore();
     }
+    if (this.mode === "points" && this.hover && view.image && !this.drag) this.drawLoupe(ctx, view, dpr);
     if (this.mode === "mask" && this.hover) {
       ctx.save();
       ctx.strokeStyle = this.tool === "brush" ? "#4cc9f0" : "#ff6b6b";
@@ -893,6 +951,56 @@ class AnnotatePage {
     this.hud.textContent = `${view.camera} · ${view.width}×${view.height} · ${Math.round(this.vp.scale * 100)}% · ` +
       (this.mode === "mask" ? `mask: ${this.tool} r=${Math.round(this.radius)} px` : `points: ${labelFor(this.keypoint)}` +
         ` · O/N: ${labelFor(target.keypoint)}${target.justPlaced ? " (just placed)" : ""}`);
+  }
+
+  // The magnifier: up to LOUPE_ZOOM times the view's zoom around the cursor, in a circle beside it (clear of
+  // the finger that points), with a crosshair on the pixel a click would place.
+  loupeGeometry(point = this.hover) {
+    if (!point) return null;
+    const r = this.canvas.getBoundingClientRect();
+    const [x, y] = point;
+    const cx = x + (x + LOUPE_OFFSET + LOUPE_R > r.width ? -LOUPE_OFFSET : LOUPE_OFFSET);
+    const cy = y + (y - LOUPE_OFFSET - LOUPE_R < 0 ? LOUPE_OFFSET : -LOUPE_OFFSET);
+    return { x, y, cx, cy, rect: { x: cx - LOUPE_R - 3, y: cy - LOUPE_R - 3, w: 2 * LOUPE_R + 6, h: 2 * LOUPE_R + 6 } };
+  }
+
+  drawLoupe(ctx, view, dpr) {
+    const g = this.loupeGeometry();
+    const [u, v] = this.vp.toImage(g.x, g.y);
+    // LOUPE_ZOOM times the view's zoom, but no more than LOUPE_MAX_PX screen px per image pixel (at least 1.5x).
+    const scale = Math.min(this.vp.scale * LOUPE_ZOOM, Math.max(this.vp.scale * 1.5, LOUPE_MAX_PX));
+    ctx.save();
+    ctx.beginPath();
+    ctx.arc(g.cx, g.cy, LOUPE_R, 0, 2 * Math.PI);
+    ctx.fillStyle = "#000";
+    ctx.fill();
+    ctx.clip();
+    // Image point (u, v) at the loupe's centre: screen = (px + 0.5) * scale + o.
+    ctx.setTransform(scale * dpr, 0, 0, scale * dpr, (g.cx - (u + 0.5) * scale) * dpr, (g.cy - (v + 0.5) * scale) * dpr);
+    ctx.imageSmoothingEnabled = false;
+    ctx.drawImage(view.image, 0, 0);
+    if (this.showMask && view.overlay) ctx.drawImage(view.overlay.outline(), 0, 0);
+    ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
+    ctx.strokeStyle = "rgba(255, 255, 255, 0.9)";
+    ctx.lineWidth = 1;
+    ctx.beginPath();
+    ctx.moveTo(g.cx - 8, g.cy);
+    ctx.lineTo(g.cx + 8, g.cy);
+    ctx.moveTo(g.cx, g.cy - 8);
+    ctx.lineTo(g.cx, g.cy + 8);
+    ctx.stroke();
+    ctx.restore();
+    ctx.save();
+    ctx.strokeStyle = "#000";
+    ctx.lineWidth = 3;
+    ctx.beginPath();
+    ctx.arc(g.cx, g.cy, LOUPE_R, 0, 2 * Math.PI);
+    ctx.stroke();
+    ctx.strokeStyle = "#fff";
+    ctx.lineWidth = 1.5;
+    ctx.stroke();
+    ctx.restore();
+    this.loupe = { cx: g.cx, cy: g.cy, u, v, zoom: scale / this.vp.scale };
   }
 
   // While the picked keypoint is being placed here: the epipolar curve of each view where it was placed by

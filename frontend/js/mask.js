@@ -150,7 +150,49 @@ export class MaskOverlay {
     this.refresh({ x: 0, y: 0, w: layer.width, h: layer.height });
   }
 
+  // The mask's boundary only (pixels inside with a 4-neighbour outside), opaque: drawn in points mode, so
+  // the skin under the mask stays visible where the fingertips are placed. Rebuilt after a change.
+  outline() {
+    if (this.outlineCanvas && !this.outlineStale) return this.outlineCanvas;
+    const { width, height, bits } = this.layer;
+    if (!this.outlineCanvas) {
+      this.outlineCanvas = makeCanvas(width, height);
+      this.outlineImage = this.outlineCanvas.getContext("2d").createImageData(width, height);
+    }
+    const px = new Uint32Array(this.outlineImage.data.buffer);
+    const little = new Uint8Array(new Uint32Array([1]).buffer)[0] === 1;
+    const edge = little ? 0xff00e5ff : 0xffe500ff; // opaque yellow (#ffe500)
+    px.fill(0);
+    for (let y = 0; y < height; y++) {
+      for (let x = 0, i = y * width; x < width; x++, i++) {
+        if (!bits[i]) continue;
+        if (x === 0 || y === 0 || x === width - 1 || y === height - 1 || !bits[i - 1] || !bits[i + 1] ||
+            !bits[i - width] || !bits[i + width]) px[i] = edge;
+      }
+    }
+    this.outlineCanvas.getContext("2d").putImageData(this.outlineImage, 0, 0);
+    this.outlineStale = false;
+    return this.outlineCanvas;
+  }
+
+  // The mask's bounding box in image pixels [x0, y0, x1, y1], or null when it is empty.
+  bounds() {
+    const { width, height, bits } = this.layer;
+    let x0 = width, y0 = height, x1 = -1, y1 = -1;
+    for (let y = 0; y < height; y++) {
+      for (let x = 0, i = y * width; x < width; x++, i++) {
+        if (!bits[i]) continue;
+        if (x < x0) x0 = x;
+        if (x > x1) x1 = x;
+        if (y < y0) y0 = y;
+        y1 = y;
+      }
+    }
+    return x1 < 0 ? null : [x0, y0, x1, y1];
+  }
+
   refresh(rect) {
+    this.outlineStale = true;
     const { width } = this.layer;
     const bits = this.layer.bits, pixels = this.pixels, on = this.on;
     for (let y = rect.y; y < rect.y + rect.h; y++) {

@@ -629,6 +629,8 @@ class ReviewPage {
           this.layers[name] = e.target.checked;
           this.renderViews();
         } }), ` ${label} (${key})`))),
+      pred ? null : h("div", { class: "muted mvnet-note" },
+        "MVNet layer (P) empty: no MVNet prediction exists for this sample (this fit was made from clicks)."),
       h("div", { class: "muted" }, `1-8 enlarge a view, Esc back · Z ${this.cropToHand ? "whole images" : "zoom to the hand"} · V 3D view`),
       this.render3d(),
       h("details", { class: "help", open: this.helpOpen }, h("summary", {}, "Keys (?)"),

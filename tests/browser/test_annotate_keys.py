@@ -19,6 +19,7 @@ STATE = """() => { const p = window.__handloop.page; return {view: p.viewIndex, 
 
 
 def click_at(page, u: float, v: float) -> None:
+    page.evaluate("() => { const p = window.__handloop.page; p.fitView({whole: true}); p.renderNow(true); }")
     page.mouse.click(*page.evaluate(SCREEN_OF, [u, v]))
 
 

@@ -19,11 +19,14 @@ CLICKS = """() => { const p = window.__handloop.page; const out = [];
   for (const [view, m] of p.annotation.clicks) for (const [k, c] of m) out.push([view, k, c.x, c.y, c.visibility]);
   return out.sort((a, b) => a[0] - b[0] || a[1] - b[1]); }"""
 SAMPLE = "() => window.__handloop.page.task.sample_id"
+# The view opens cropped to the hand; these tests click anywhere in the image, so they show it whole.
+WHOLE = "() => { const p = window.__handloop.page; p.fitView({whole: true}); p.renderNow(true); }"
 
 
 def place(page, view_index: int, count: int) -> None:
     """Click `count` keypoints (wrist, thumb, ...) in one view, 12 image px apart along a row."""
     page.click(f".thumb >> nth={view_index}")
+    page.evaluate(WHOLE)
     for i in range(count):
         page.keyboard.press(str(i + 1))
         page.mouse.click(*page.evaluate(SCREEN_OF, [20.0 + 12.0 * i, 30.0 + 5.0 * view_index]))

@@ -35,6 +35,7 @@ def test_a_reviewers_note_survives_a_reload_and_digits_pick_reasons(live_stack, 
     assert page.get_attribute("body", "data-sample") == str(sample)
     # The review clock waits for the reviewer's first act (the time before it is not verification).
     assert page.inner_text(".review-side .clock") == "time starts when you act"
+    assert "no MVNet prediction exists for this sample" in page.inner_text(".mvnet-note")  # a fit from clicks
     assert page.evaluate("() => window.__handloop.page.spentSeconds()") == 0
     page.keyboard.press("r")
     assert page.evaluate("() => window.__handloop.page.clockWaits") is False

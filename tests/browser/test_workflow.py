@@ -46,6 +46,11 @@ def annotate_in_browser(tab, stack) -> dict:
         page.click(f".thumb >> nth={index}")
         page.keyboard.press("Enter")  # accept the points triangulated from the two clicked views
     page.click(".thumb >> nth=0")
+    page.keyboard.press("0")
+    if page.evaluate("() => window.__handloop.page.vp.scale") > page.evaluate(
+            "() => { const p = window.__handloop.page; const r = p.canvas.getBoundingClientRect();"
+            " return Math.min((r.width - 16) / p.view.width, (r.height - 16) / p.view.height) + 1e-9; }"):
+        page.keyboard.press("0")  # the view opened on the hand: 0 again shows the whole image for the stroke
     page.keyboard.press("b")
     (x0, y0), (x1, y1) = (page.evaluate(SCREEN_OF, p) for p in ([8.0, 8.0], [40.0, 20.0]))
     page.mouse.move(x0, y0)

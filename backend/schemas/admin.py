@@ -8,7 +8,7 @@ from typing import Any, Literal
 from pydantic import Field
 
 from backend.models.enums import JobKind, JobState, RoundState
-from backend.schemas.base import Public, Strict
+from backend.schemas.base import Id, Public, Strict
 
 
 class RoundCreate(Strict):
@@ -99,8 +99,8 @@ class ReviewQueueBuilt(Public):
 class PreannotateRequest(Strict):
     """Round 0 without clicks: detector -> triangulation -> fit on a project's unlabeled samples."""
 
-    project_id: int = Field(ge=1)
-    sample_ids: list[int] | None = Field(default=None, min_length=1, max_length=1_000_000,
+    project_id: Id
+    sample_ids: list[Id] | None = Field(default=None, min_length=1, max_length=1_000_000,
                                          description="Unlabeled samples of the project; default all of them.")
     rest: Literal["annotate", "keep"] = Field(
         default="annotate", description="Samples the reviewers' queue does not take, and those with no detector "

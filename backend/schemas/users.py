@@ -3,16 +3,19 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Annotated
 
-from pydantic import Field
+from pydantic import ConfigDict, Field
 
 from backend.models.enums import Role
 from backend.schemas.base import Public, Strict
 
-Email = Annotated[str, Field(min_length=3, max_length=254, pattern=r"^[^@\s]+@[^@\s]+$")]
+# \Z, not $: with $ Python's regex (what schema-driven clients generate from) also matches before a final
+# newline, which the default (Rust) engine refuses; the model using it validates with Python's engine too.
+Email = Annotated[str, Field(min_length=3, max_length=254, pattern=r"^[^@\s\x00-\x1f\x7f]+@[^@\s\x00-\x1f\x7f]+\Z")]
 Password = Annotated[str, Field(min_length=8, max_length=256)]
 
 
 class UserBase(Strict):
+    model_config = ConfigDict(regex_engine="python-re")
     email: Email
     full_name: str = Field(default="", max_length=200)
     role: Role = Role.annotator

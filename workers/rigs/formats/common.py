@@ -8,7 +8,9 @@ the unit, fills missing image sizes and refuses values that cannot be right, nam
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -66,6 +68,21 @@ class Conversion:
     cameras: list[Camera]
     span_m: float
     notes: list[str] = field(default_factory=list)
+
+
+def read_camera_files(path: Path, suffixes: tuple[str, ...], read_file: Callable[[Path], RawCamera]
+                      ) -> tuple[list[RawCamera], list[str]]:
+    """Formats with one file per camera: every such file of the folder `path`, sorted by name (or the single
+    file `path`), read by `read_file`; no notes."""
+    path = Path(path)
+    if path.is_file():
+        return [read_file(path)], []
+    if not path.is_dir():
+        raise FormatError(f"{path}: not found")
+    files = sorted(p for p in path.iterdir() if p.suffix.lower() in suffixes and not p.name.startswith("."))
+    if not files:
+        raise FormatError(f"{path}: no {'/'.join(suffixes)} camera files")
+    return [read_file(p) for p in files], []
 
 
 def as_matrix(value: object, shape: tuple[int, ...], where: str, field_name: str) -> np.ndarray:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from workers.rigs.formats.common import FormatError, RawCamera, as_matrix
+from workers.rigs.formats.common import FormatError, RawCamera, as_matrix, read_camera_files
 from workers.rigs.formats.opencv_yaml import Storage
 
 DEFAULT_UNIT = "mm"
@@ -39,12 +39,4 @@ def read_file(path: Path) -> RawCamera:
 
 def read(path: Path) -> tuple[list[RawCamera], list[str]]:
     """Every camera file of the folder, sorted by name (or the single file `path`)."""
-    path = Path(path)
-    if path.is_file():
-        return [read_file(path)], []
-    if not path.is_dir():
-        raise FormatError(f"{path}: not found")
-    files = sorted(p for p in path.iterdir() if p.suffix.lower() in SUFFIXES and not p.name.startswith("."))
-    if not files:
-        raise FormatError(f"{path}: no {'/'.join(SUFFIXES)} camera files")
-    return [read_file(p) for p in files], []
+    return read_camera_files(path, SUFFIXES, read_file)

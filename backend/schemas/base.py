@@ -13,10 +13,10 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validat
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 Pixel = Annotated[float, Field(allow_inf_nan=False, ge=-1e6, le=1e6)]
-# Every database id, in bodies and as a path parameter (`sample_id: Id`): beyond 2**63 SQLite's integers
-# overflow (a 500), so larger ids are a 422 before any query. The bound is JavaScript's largest exact integer,
-# so every id the server accepts survives a browser (and a JSON float) unchanged.
-MAX_ID = 2**53 - 1
+# Every database id, in bodies and as a path parameter (`sample_id: Id`): the primary keys are INTEGER, whose
+# range on PostgreSQL is 32-bit (beyond it "integer out of range"; beyond 2**63 SQLite's integers overflow, a
+# 500), so larger ids are a 422 before any query, the same on both databases.
+MAX_ID = 2**31 - 1
 Id = Annotated[int, Field(ge=1, le=MAX_ID)]
 
 

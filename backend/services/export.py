@@ -7,7 +7,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from sqlalchemy import select
+from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from backend.models.capture import CameraCalibration, Project, Sample, Sequence, View
@@ -45,9 +45,20 @@ def fit_source(fit: Fit) -> str:
     return str((fit.inputs or {}).get("source", "unknown"))
 
 
+def _check_round(session: Session, up_to_round: int | None) -> None:
+    """A round index beyond the last round is a mistake to name, not an export of everything."""
+    if up_to_round is None:
+        return
+    last = session.scalar(select(func.max(Round.index)))
+    if last is None or up_to_round > last:
+        there = "no rounds yet" if last is None else f"the last round is D_{last}"
+        raise InvalidInputError(f"up_to_round={up_to_round} is beyond the rounds: {there}")
+
+
 def dataset(session: Session, up_to_round: int | None = None, project: str | None = None) -> dict[str, Any]:
     """The accepted samples (D_i up to a round index) with their fits, rounds and streams, as JSON values."""
     _check_project(session, project)
+    _check_round(session, up_to_round)
     samples = [
         {"sample_id": sample.id, "sequence": seq, "sequence_id": sample.sequence_id, "frame_index": sample.frame_index,
          "split": sample.split, "project": project_name, "round": index, "stream": member.stream,
@@ -98,6 +109,7 @@ def export_records(session: Session, up_to_round: int | None = None, project: st
     from workers.export.records import SampleRecord, ViewRecord  # plain dataclasses, no torch
 
     _check_project(session, project)
+    _check_round(session, up_to_round)
     records = []
     for member, index, sample, seq, fit, _, _ in session.execute(_members_query(up_to_round, project)):
         if fit is None:

@@ -12,12 +12,14 @@ from backend.api.deps import AdminUser, SessionDep
 from backend.services import export
 
 router = APIRouter(prefix="/admin/exports", tags=["admin: exports"])
+# A project's name as a query parameter: PostgreSQL text cannot hold NUL, so it is a 422 here, not at the query.
+ProjectQuery = Query(default=None, min_length=1, max_length=200, pattern=r"^[^\x00]*$")
 
 
 @router.get("/dataset")
 def export_dataset(session: SessionDep, _admin: AdminUser,
                    up_to_round: int | None = Query(default=None, ge=0, le=1_000_000),
-                   project: str | None = Query(default=None, min_length=1, max_length=200)) -> dict[str, Any]:
+                   project: str | None = ProjectQuery) -> dict[str, Any]:
     """The accepted samples (D_i up to a round index) with their fits, rounds and streams, and the hand
     models that made the labels."""
     return export.dataset(session, up_to_round, project)
@@ -25,7 +27,7 @@ def export_dataset(session: SessionDep, _admin: AdminUser,
 
 @router.get("/samples")
 def export_samples(session: SessionDep, _admin: AdminUser,
-                   project: str | None = Query(default=None, min_length=1, max_length=200)) -> dict[str, Any]:
+                   project: str | None = ProjectQuery) -> dict[str, Any]:
     """Every sample: id, sequence (external id), frame, split, state, current fit."""
     return export.sample_index(session, project)
 

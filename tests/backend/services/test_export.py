@@ -162,6 +162,10 @@ def test_dataset_endpoint_names_the_hand_model(sqlite_env, capture_dir):
     assert missing.status_code == 404 and "project 'nope' not found" in missing.json()["detail"]
     bad = env.client.get("/api/admin/exports/dataset?up_to_round=-1", headers=env.headers(Role.admin))
     assert bad.status_code == 422
+    beyond = env.client.get("/api/admin/exports/dataset?up_to_round=99", headers=env.headers(Role.admin))
+    assert beyond.status_code == 422 and "up_to_round=99 is beyond the rounds" in beyond.json()["detail"]
+    assert env.client.get("/api/admin/exports/dataset?up_to_round=0", headers=env.headers(Role.admin)).json()[
+        "count"] == 4
 
 
 def test_bad_arguments_are_refused_and_write_nothing(sqlite_env, capture_dir, tmp_path, monkeypatch):

@@ -21,6 +21,7 @@ log = logging.getLogger(__name__)
 
 FULL = {"sequences": 10, "frames": 20, "width": 320, "rounds": 4, "initial_every": 8,
         "settings": {"nets_config": "cpu-small"}}
+MIN_WIDTH_PX, MAX_WIDTH_PX, MAX_ROUNDS = 64, 4096, 10
 QUICK = {"sequences": 3, "frames": 8, "width": 128, "rounds": 1, "initial_every": 4,
          "settings": {"nets_config": "tiny", "round_handsegnet_budget_s": 5.0, "round_mvnet_budget_s": 8.0,
                       "fit_global_iterations": 15, "fit_full_iterations": 30, "round_min_training_samples": 1}}
@@ -114,14 +115,24 @@ def _detector_met(summary: dict[str, Any]) -> dict[str, bool]:
 
 
 def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = None,
-        detector: str | None = None, accept_proposals_px: float | None = None) -> dict[str, Any]:
+        detector: str | None = None, accept_proposals_px: float | None = None, width: int | None = None,
+        rounds: int | None = None) -> dict[str, Any]:
     """One run (`detector` "on" or "off") or both on the same capture and seed ("both"); None: both where the
-    detector can run, else off. The record's top level is the run with the detector when it ran, else without."""
+    detector can run, else off. The record's top level is the run with the detector when it ran, else without.
+    `width` (view width, pixels) and `rounds` replace the plan's (the detector's targets are set at 640 px)."""
     from backend.bench.common import emit
     from backend.settings import get_settings
 
     started = time.perf_counter()
-    plan = QUICK if quick else FULL
+    plan = dict(QUICK if quick else FULL)
+    if width is not None:
+        if not MIN_WIDTH_PX <= width <= MAX_WIDTH_PX:
+            raise ValueError(f"width must be in {MIN_WIDTH_PX}..{MAX_WIDTH_PX} px, not {width}")
+        plan["width"] = width
+    if rounds is not None:
+        if not 1 <= rounds <= MAX_ROUNDS:
+            raise ValueError(f"rounds must be in 1..{MAX_ROUNDS}, not {rounds}")
+        plan["rounds"] = rounds
     default_mode, why_not = detector_default()
     mode = detector or default_mode
     if mode not in DETECTOR_MODES:

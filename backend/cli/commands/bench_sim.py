@@ -16,6 +16,8 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         accept_proposals_px: float | None = typer.Option(
             None, help="Simulated annotators accept a shown proposal within this many pixels of the true point "
             "(one key per view) instead of clicking it; default: they click every point."),
+        width: int | None = typer.Option(None, "--width", help="View width in pixels (default 320; --quick 128)."),
+        rounds: int | None = typer.Option(None, "--rounds", help="Bootstrap rounds after D_0 (default 4; --quick 1)."),
     ) -> None:
         """200-frame synthetic capture, cpu-small networks, 4 rounds through the real server and workers:
         minutes, accepted labels' vertex error, auto-accept precision, labels per human hour; with the
@@ -29,7 +31,8 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
             raise typer.Exit(code=2)
         logging.getLogger("httpx").setLevel(logging.WARNING)  # one line per request drowns the progress
         try:
-            record = run(quick=quick, emit_json=json_out, detector=detector, accept_proposals_px=accept_proposals_px)
+            record = run(quick=quick, emit_json=json_out, detector=detector, accept_proposals_px=accept_proposals_px,
+                         width=width, rounds=rounds)
         except ValueError as exc:
             typer.echo(f"error: {exc}", err=True)
             raise typer.Exit(code=2) from exc

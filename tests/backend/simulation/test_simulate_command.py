@@ -103,3 +103,11 @@ def test_the_detector_runs_are_refused_where_the_detector_cannot_run(capture_dir
         assert result.exit_code == 2 and "the hand landmark model file is missing" in result.output, result.output
     result = runner.invoke(app, ["bench", "sim", "--detector", "sideways"])
     assert result.exit_code == 2 and "--detector must be one of on, off, both" in result.output
+
+
+def test_bench_sim_refuses_a_width_or_round_count_out_of_range():
+    for args, message in ((["--width", "10"], "width must be in 64..4096 px, not 10"),
+                          (["--rounds", "0"], "rounds must be in 1..10, not 0"),
+                          (["--rounds", "11"], "rounds must be in 1..10, not 11")):
+        result = runner.invoke(app, ["bench", "sim", "--quick", "--detector", "off", *args])
+        assert result.exit_code == 2 and message in result.output, result.output

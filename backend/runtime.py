@@ -21,6 +21,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 import urllib.error
 import urllib.request
@@ -84,6 +85,8 @@ class RunningStack:
         self.api: subprocess.Popen | None = None
         self.worker: subprocess.Popen | None = None
         self._ready_file: Path | None = None
+        self._previous_sigterm: Any = None
+        self._sigterm_trapped = False
 
     # -- processes -------------------------------------------------------------------------------------
     def _spawn(self, args: list[str], log_name: str, extra_env: dict[str, str] | None = None) -> subprocess.Popen:
@@ -143,8 +146,13 @@ class RunningStack:
 
     def stop(self) -> None:
         """End the worker (warm shutdown, then kill) and the API."""
-        self._stop(self.worker, 10.0)
-        self._stop(self.api, 10.0)
+        try:
+            self._stop(self.worker, 10.0)
+            self._stop(self.api, 10.0)
+        finally:
+            if self._sigterm_trapped:
+                signal.signal(signal.SIGTERM, self._previous_sigterm or signal.SIG_DFL)
+                self._sigterm_trapped = False
 
     @staticmethod
     def _stop(process: subprocess.Popen | None, grace_s: float) -> None:
@@ -167,11 +175,23 @@ class RunningStack:
     def api_log(self) -> Path:
         return self.log_dir / "api.log"
 
+    def trap_sigterm(self) -> None:
+        """SIGTERM (a `kill`, a CI timeout) would end this process without running `stop()`'s callers' finally
+        blocks, leaving the API and worker (in sessions of their own) running: make it a SystemExit until
+        `stop()`. Only the main thread may set handlers; elsewhere the caller's own handling stands."""
+        if threading.current_thread() is threading.main_thread() and not self._sigterm_trapped:
+            self._previous_sigterm = signal.signal(signal.SIGTERM, _exit_on_sigterm)
+            self._sigterm_trapped = True
+
     def __enter__(self) -> RunningStack:
         return self
 
     def __exit__(self, *exc: Any) -> None:
         self.stop()
+
+
+def _exit_on_sigterm(signum: int, _frame: Any) -> None:
+    raise SystemExit(128 + signum)
 
 
 def start_stack(settings: Settings, *, host: str = "127.0.0.1", port: int = 0,
@@ -203,6 +223,7 @@ def start_stack(settings: Settings, *, host: str = "127.0.0.1", port: int = 0,
     repo = str(Path(__file__).resolve().parents[1])
     env["PYTHONPATH"] = repo + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
     stack = RunningStack(settings, host, port or free_port(host), worker_queues, worker_concurrency, env)
+    stack.trap_sigterm()
     try:
         if start_api:
             stack.start_api()

@@ -184,6 +184,7 @@ def claim(session: Session, job_id: int, worker: str, stale_after_s: float, now:
     job.worker = worker[:200]
     job.worker_process = process
     job.updated_at = now
+    job.started_at = now  # this attempt's start: a taken-over job's duration counts the attempt that ended it
     job.message = f"taken over by {worker} (attempt {job.attempts})" if reason else f"started by {worker}"
     audit.record(session, None, "job.start", "job", job.id, attempt=job.attempts, worker=worker)
     return job
@@ -226,6 +227,7 @@ def finish(session: Session, job_id: int, state: JobState, *, error: str | None 
     job.error = error
     job.result = result
     job.finished_at = utcnow()
+    job.message = ""  # the last progress message ("predicting 0/16") no longer says what the job is doing
     if state is JobState.succeeded:
         job.progress = 1.0
     audit.record(session, None, "job.finish", "job", job.id, state=state.value, error=error)
@@ -238,6 +240,7 @@ def cancel(session: Session, queue: JobQueue, job_id: int, actor_id: int | None)
         raise ConflictError(f"job {job_id} is already {job.state}")
     job.state = JobState.cancelled
     job.finished_at = utcnow()
+    job.message = ""
     audit.record(session, actor_id, "job.cancel", "job", job.id)
     if job.kind == JobKind.fit and job.sample_id is not None:
         fit_samples.release_cancelled_fit(session, job.sample_id, job.id)

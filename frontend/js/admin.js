@@ -226,14 +226,14 @@ class AdminPage {
   renderJobs() {
     const rows = this.jobs.map((j) => h("tr", { dataset: { job: String(j.id), state: j.state } },
       h("td", {}, String(j.id)), h("td", {}, j.kind), h("td", {}, j.sample_id === null ? "–" : String(j.sample_id)),
-      h("td", {}, j.state), h("td", { class: "muted" }, new Date(j.created_at).toLocaleTimeString()),
-      h("td", { class: "num" }, duration(j)),
+      h("td", {}, j.state), h("td", { class: "muted started" }, started(j)),
+      h("td", { class: "num took" }, duration(j)),
       h("td", {}, progressBar(j.progress)),
       h("td", { class: "muted msg" }, jobMessage(j)),
       h("td", {}, j.state === "queued" || j.state === "running"
         ? h("button", { class: "small", onclick: () => this.cancelJob(j.id) }, "Cancel") : "")));
     fill(this.sections.jobs, h("h2", {}, "Jobs"), h("table", { class: "table" },
-      h("thead", {}, h("tr", {}, ...["id", "kind", "sample", "state", "created", "took", "progress", "message", ""]
+      h("thead", {}, h("tr", {}, ...["id", "kind", "sample", "state", "started", "took", "progress", "message", ""]
         .map((t) => h("th", {}, t)))),
       h("tbody", {}, rows)));
   }
@@ -396,10 +396,19 @@ function sub(i) {
 const FINAL = new Set(["succeeded", "failed", "cancelled"]);
 
 // From creation to the end (or to now while it runs), e.g. "42 s", "3.5 min".
+// When a worker started the job's current attempt; a job no worker has started shows since when it waits.
+function started(job) {
+  if (job.started_at) return new Date(job.started_at).toLocaleTimeString();
+  const created = new Date(job.created_at).toLocaleTimeString();
+  return FINAL.has(job.state) ? `never (created ${created})` : `waiting since ${created}`;
+}
+
+// From the attempt's start (not the job's creation: the wait in the queue is not the work) to its end.
 function duration(job) {
+  if (!job.started_at) return "–";
   const end = job.finished_at ? Date.parse(job.finished_at) : Date.now();
-  const s = Math.max(0, (end - Date.parse(job.created_at)) / 1000);
-  return `${s < 120 ? s.toFixed(0) + " s" : (s / 60).toFixed(1) + " min"}${job.finished_at ? "" : " so far"}`;
+  const s = Math.max(0, (end - Date.parse(job.started_at)) / 1000);
+  return `${s < 120 ? s.toFixed(1) + " s" : (s / 60).toFixed(1) + " min"}${job.finished_at ? "" : " so far"}`;
 }
 
 // A finished job shows how it ended, not its last progress message ("predicting 0/16").

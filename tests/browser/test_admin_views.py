@@ -1,11 +1,18 @@
 """The admin page does not mislead: a round cannot be launched below the minimum of accepted labels (the
 button says why in plain words, the API refuses with 409 and writes nothing); leased samples are counted
-apart from free ones; jobs show their sample, creation time, duration and how they ended."""
+apart from free ones; jobs show their sample, when their attempt started, how long it took (not the wait
+in the queue) and how they ended."""
 
 from __future__ import annotations
 
+from datetime import timedelta
+
 import pytest
 
+from backend.db.base import utcnow
+from backend.models.enums import JobKind, JobState
+from backend.services import jobs
+from backend.services.jobs import InMemoryJobQueue
 from tests.browser.conftest import sign_in
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
@@ -15,6 +22,7 @@ def test_the_launch_button_says_why_not_and_the_counts_show_leases(live_stack, t
     stack = live_stack(worker=False, round_min_training_samples=2)
     with stack.client("annotator") as http:
         task = http.post("/api/annotate/next").json()  # one sample on an annotator's screen
+    finished, waiting = _two_jobs(stack)
     t = tab()
     user = stack.users["admin"]
     sign_in(t, stack.base_url, user.email, user.password, "admin")
@@ -25,7 +33,13 @@ def test_the_launch_button_says_why_not_and_the_counts_show_leases(live_stack, t
     overview = page.inner_text("#overview")
     assert "to annotate (+1 being annotated)" in overview, overview
     headers = page.eval_on_selector_all("#jobs th", "els => els.map((e) => e.textContent)")
-    assert headers[:6] == ["id", "kind", "sample", "state", "created", "took"], headers
+    assert headers[:6] == ["id", "kind", "sample", "state", "started", "took"], headers
+    done_row = f'#jobs tr[data-job="{finished}"]'
+    assert page.inner_text(f"{done_row} td.took") == "12.0 s"  # the attempt, not the 5 minutes in the queue
+    assert ":" in page.inner_text(f"{done_row} td.started")
+    assert page.inner_text(f"{done_row} td.msg") == "done"  # not its last progress message
+    assert page.inner_text(f'#jobs tr[data-job="{waiting}"] td.started').startswith("waiting since")
+    assert page.inner_text(f'#jobs tr[data-job="{waiting}"] td.took') == "–"
     with stack.client("admin") as http:
         refused = http.post("/api/admin/rounds", json={"note": "too early"})
         assert refused.status_code == 409 and "at least 2 needed" in refused.json()["detail"]
@@ -33,3 +47,21 @@ def test_the_launch_button_says_why_not_and_the_counts_show_leases(live_stack, t
     t.shot("admin-launch-refused")
     assert task["sequence"] == "seq000"
     assert not t.errors, t.errors
+
+
+def _two_jobs(stack) -> tuple[int, int]:
+    """A job that waited 5 minutes, ran 12 s and succeeded after reporting "predicting 0/16", and a job no
+    worker has started."""
+    factory = stack.session_factory()
+    with factory() as session, session.begin():
+        done = jobs.create(session, InMemoryJobQueue(), JobKind.predict, payload={})
+        waiting = jobs.create(session, InMemoryJobQueue(), JobKind.predict, payload={})
+    with factory() as session, session.begin():
+        jobs.claim(session, done.id, "w1:1", stale_after_s=60)
+        jobs.update_progress(session, done.id, 0.0, "predicting 0/16")
+        jobs.finish(session, done.id, JobState.succeeded)
+    with factory() as session, session.begin():  # as if it had waited 5 minutes and then run 12 s
+        job, start = jobs.get(session, done.id), utcnow() - timedelta(seconds=60)
+        job.created_at, job.started_at, job.finished_at = start - timedelta(seconds=300), start, start + \
+            timedelta(seconds=12)
+    return done.id, waiting.id

@@ -19,7 +19,7 @@ from sqlalchemy.orm import Session
 from backend.db.base import utcnow
 from backend.models.enums import JobKind, JobState
 from backend.models.jobs import Job
-from backend.services import audit, fit_samples, queues, worker_processes
+from backend.services import audit, fit_samples, queues, round_failure, worker_processes
 from backend.services.errors import ConflictError, InvalidInputError, NotFoundError, ServiceUnavailableError
 from backend.services.transactions import after_commit
 
@@ -231,6 +231,8 @@ def finish(session: Session, job_id: int, state: JobState, *, error: str | None 
     if state is JobState.succeeded:
         job.progress = 1.0
     audit.record(session, None, "job.finish", "job", job.id, state=state.value, error=error)
+    if state is JobState.failed and job.kind == JobKind.round:
+        round_failure.reopen_previous(session, job, error)  # the round table as it was before the launch
     return job
 
 

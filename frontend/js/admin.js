@@ -290,7 +290,8 @@ class AdminPage {
     fill(this.progress, bar);
     const draw = (job) => fill(bar, 
       h("div", { class: "live-head" }, `${job.kind || "round"} job ${job.id}: ${job.state}`, h("span", { class: "muted" },
-        ` ${FINAL.has(job.state) ? "" : job.message || ""}`)), progressBar(job.progress, true), job.error ? h("div", { class: "error" }, job.error) : null);
+        ` ${FINAL.has(job.state) ? "" : job.message || ""}`)), progressBar(job.progress, true), phaseSteps(job),
+      job.error ? h("div", { class: "error" }, job.error) : null);
     this.api.events(`/api/admin/jobs/${jobId}/events`, (name, job) => {
       if (!job) return;
       draw(job);
@@ -409,6 +410,14 @@ function duration(job) {
   const end = job.finished_at ? Date.parse(job.finished_at) : Date.now();
   const s = Math.max(0, (end - Date.parse(job.started_at)) / 1000);
   return `${s < 120 ? s.toFixed(1) + " s" : (s / 60).toFixed(1) + " min"}${job.finished_at ? "" : " so far"}`;
+}
+
+// A round's phases (workers.tasks.round_progress) as steps: done, running (with what it has done), pending.
+function phaseSteps(job) {
+  const phases = job.result?.phases;
+  if (!phases?.length) return null;
+  return h("ol", { class: "phases" }, phases.map((p) => h("li", { class: `phase ${p.state}`, dataset: { state: p.state } },
+    p.name, p.state === "running" && p.detail ? h("span", { class: "muted" }, ` ${p.detail}`) : null)));
 }
 
 // A finished job shows how it ended, not its last progress message ("predicting 0/16").

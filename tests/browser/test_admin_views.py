@@ -65,3 +65,54 @@ def _two_jobs(stack) -> tuple[int, int]:
         job.created_at, job.started_at, job.finished_at = start - timedelta(seconds=300), start, start + \
             timedelta(seconds=12)
     return done.id, waiting.id
+
+
+def test_the_round_progress_bar_follows_its_phases_live(live_stack, tab):
+    # The round's bar moves with its phases as the workers report (training by the elapsed share of its
+    # budget), on the open page, and a finished round keeps no phase message.
+    from backend.services import rounds
+    from workers.tasks import round_progress
+    from workers.tasks.context import build_context
+    from workers.tasks.round_steps import start_round
+
+    stack = live_stack(worker=False, round_handsegnet_budget_s=90.0, round_mvnet_budget_s=240.0)
+    factory = stack.session_factory()
+    with factory() as session, session.begin():  # launched by the service: this capture has no accepted labels
+        _, job = rounds.launch(session, InMemoryJobQueue(), None, None, None, "live bar", min_training_samples=0)
+        round_job_id = job.id
+    ctx = build_context(stack.settings, job_queue=InMemoryJobQueue())
+    train = dict(zip(("handsegnet", "mvnet"), start_round(ctx, round_job_id), strict=True))
+
+    def report(net: str, fraction: float) -> None:
+        with ctx.session_factory.begin() as session:
+            if fraction >= 1:
+                jobs.finish(session, train[net], JobState.succeeded)
+            else:
+                jobs.update_progress(session, train[net], fraction, "training")
+            round_progress.refresh(session, round_job_id, stack.settings)
+
+    report("handsegnet", 0.5)
+    t = tab()
+    user = stack.users["admin"]
+    sign_in(t, stack.base_url, user.email, user.password, "admin")
+    page = t.page
+    live = f'.round-progress .live[data-job="{round_job_id}"]'
+    page.wait_for_selector(f"{live} .phase.running")
+    assert "train HandSegNet (45 of 90 s)" in page.inner_text(f"{live} .live-head")
+    first = int(page.get_attribute(f"{live} [role=progressbar]", "aria-valuenow"))
+    report("handsegnet", 1.0)
+    report("mvnet", 0.5)  # while the page is open
+    page.wait_for_function("""(sel) => { const el = document.querySelector(sel);
+        return el && el.textContent.includes("train MVNet (120 of 240 s)"); }""", arg=f"{live} .live-head")
+    now = int(page.get_attribute(f"{live} [role=progressbar]", "aria-valuenow"))
+    states = page.eval_on_selector_all(f"{live} .phase", "els => els.map((e) => [e.textContent, e.dataset.state])")
+    assert [s for _, s in states] == ["done", "running", "pending", "pending", "pending"], states
+    assert states[0][0].startswith("train HandSegNet") and states[1][0].startswith("train MVNet"), states
+    assert first < now and now >= 50, (first, now)  # training is most of the round: most of the bar
+    t.shot("admin-round-phases")
+    with ctx.session_factory.begin() as session:
+        jobs.finish(session, round_job_id, JobState.succeeded)
+    page.wait_for_selector(f'{live}[data-state="succeeded"]')
+    assert "train MVNet" not in page.inner_text(f"{live} .live-head")  # no stale phase message
+    ctx.session_factory.kw["bind"].dispose()
+    assert not t.errors, t.errors

@@ -192,3 +192,47 @@ def test_a_round_job_reported_failed_twice_is_undone_once_and_its_round_stays_ov
     assert [(r["index"], r["state"]) for r in rounds] == [(0, "running"), (1, "failed")]
     cancelled = env.client.post(f"/api/admin/rounds/{rounds[1]['id']}/cancel", headers=env.headers(ADMIN))
     assert cancelled.status_code == 409  # a failed round is over
+
+
+def test_the_round_progress_follows_its_phases_and_training_by_elapsed_budget(env, h):
+    from workers.tasks import round_progress
+    from workers.tasks.context import build_context
+    from workers.tasks.round_steps import start_round
+
+    ids = h.seed(env, frames=4, cameras=1, state="fitting")
+    for sample_id in ids[:2]:
+        h.record_fit(env, sample_id, prediction={"confidences": [0.95] * 21})
+    h.set_state(env, ids[2:], "unlabeled")  # what the round will predict and fit
+    launched = env.client.post("/api/admin/rounds", headers=env.headers(ADMIN), json={}).json()
+    settings = env.settings.model_copy(update={"round_handsegnet_budget_s": 90.0, "round_mvnet_budget_s": 240.0})
+    ctx = build_context(settings, job_queue=env.queue)
+    try:
+        train = dict(zip(("handsegnet", "mvnet"), start_round(ctx, launched["job_id"]), strict=True))
+        total_s = 90 + 240 + 2 * (round_progress.PREDICT_S_PER_SAMPLE + round_progress.FIT_S_PER_SAMPLE) \
+            + round_progress.FINISH_S
+
+        def round_job() -> dict:
+            return env.client.get(f"/api/admin/jobs/{launched['job_id']}", headers=env.headers(ADMIN)).json()
+
+        assert round_job()["progress"] == 0.0 and "train HandSegNet" in round_job()["message"]
+        with ctx.session_factory.begin() as session:  # HandSegNet 45 of its 90 s in
+            jobs.update_progress(session, train["handsegnet"], 0.5, "training")
+            round_progress.refresh(session, launched["job_id"], settings)
+        job = round_job()
+        assert abs(job["progress"] - 45 / total_s) < 1e-3, job
+        assert job["message"] == "round 1: train HandSegNet (45 of 90 s), phase 1 of 5", job["message"]
+        with ctx.session_factory.begin() as session:  # HandSegNet done, MVNet 120 of 240 s
+            jobs.finish(session, train["handsegnet"], JobState.succeeded)
+            jobs.update_progress(session, train["mvnet"], 0.5, "training")
+            round_progress.refresh(session, launched["job_id"], settings)
+        job = round_job()
+        assert abs(job["progress"] - (90 + 120) / total_s) < 1e-3, job  # most of the bar: training is most
+        assert "train MVNet (120 of 240 s), phase 2 of 5" in job["message"]
+        assert [(p["name"], p["state"]) for p in job["result"]["phases"]] == [
+            ("train HandSegNet", "done"), ("train MVNet", "running"), ("predict", "pending"), ("fit", "pending"),
+            ("heuristic and review queue", "pending")]
+        with ctx.session_factory.begin() as session:
+            jobs.finish(session, launched["job_id"], JobState.succeeded)
+    finally:
+        ctx.session_factory.kw["bind"].dispose()
+    assert round_job()["message"] == ""  # finished: no stale phase message

@@ -27,6 +27,8 @@ class RoundPublic(Public):
     counts: dict[str, Any]
     created_at: datetime
     finished_at: datetime | None
+    failure: str | None = Field(default=None, description="Why the round's job failed (state 'failed'); the "
+                                "round before it was opened again.")
 
 
 class RoundLaunched(Public):

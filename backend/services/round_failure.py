@@ -42,6 +42,7 @@ def reopen_previous(session: Session, round_job: Job, error: str | None) -> Roun
     now = utcnow()
     round_.state = RoundState.failed
     round_.finished_at = now
+    round_.failure = (error or "its job failed")[:2000]
     # The other network may still be training for this round: it is stopped (its progress reporter sees this).
     for job in session.execute(select(Job).where(Job.round_id == round_.id, Job.kind == JobKind.train,
                                                  Job.state.in_([JobState.queued, JobState.running]))).scalars():

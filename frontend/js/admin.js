@@ -102,7 +102,8 @@ class AdminPage {
     const rows = s.rounds.map((r) => {
       const meta = this.rounds.find((x) => x.id === r.round_id) || {};
       return h("tr", { dataset: { round: String(r.index) } },
-        h("td", {}, `D${sub(r.index)}`), h("td", {}, r.state),
+        h("td", {}, `D${sub(r.index)}`), h("td", { class: "round-state" }, r.state,
+          meta.failure ? h("div", { class: "error round-failure" }, meta.failure) : null),
         ...STREAMS.map((st) => h("td", { class: "num" }, String(r.added[st.name]))),
         h("td", { class: "num" }, String(r.added_total)), h("td", { class: "num strong" }, String(r.dataset_size_after)),
         h("td", { class: "muted" }, [meta.mvnet_version, meta.handsegnet_version].filter(Boolean).join(" / ") || "–"),

@@ -4,8 +4,8 @@ jobs.started_at: when the job's current attempt started (services.jobs.claim set
 jobs list can show how long the work took apart from the time the job waited in the queue. NULL for a job no
 worker has started (and for jobs finished before this revision: their start was not recorded).
 
-rounds.state 'failed': a round whose job failed (services.round_failure); the round before it is open again,
-as it was before the launch. Only the CHECK constraint of rounds.state changes.
+rounds.state 'failed' and rounds.failure: a round whose job failed, and why (services.round_failure); the round
+before it is open again, as it was before the launch.
 
 Revision ID: 0006
 Revises: 0005
@@ -36,6 +36,7 @@ def upgrade() -> None:
     with op.batch_alter_table('jobs', schema=None) as batch_op:
         batch_op.add_column(sa.Column('started_at', sa.DateTime(timezone=True), nullable=True))
     with op.batch_alter_table('rounds', schema=None) as batch_op:
+        batch_op.add_column(sa.Column('failure', sa.Text(), nullable=True))
         batch_op.drop_constraint(batch_op.f('ck_rounds_state_valid'), type_='check')
         batch_op.create_check_constraint(batch_op.f('ck_rounds_state_valid'), _state_check(ROUND_STATES_AFTER))
 
@@ -46,5 +47,6 @@ def downgrade() -> None:
     with op.batch_alter_table('rounds', schema=None) as batch_op:
         batch_op.drop_constraint(batch_op.f('ck_rounds_state_valid'), type_='check')
         batch_op.create_check_constraint(batch_op.f('ck_rounds_state_valid'), _state_check(ROUND_STATES_BEFORE))
+        batch_op.drop_column('failure')
     with op.batch_alter_table('jobs', schema=None) as batch_op:
         batch_op.drop_column('started_at')

@@ -116,3 +116,25 @@ def test_the_round_progress_bar_follows_its_phases_live(live_stack, tab):
     assert "train MVNet" not in page.inner_text(f"{live} .live-head")  # no stale phase message
     ctx.session_factory.kw["bind"].dispose()
     assert not t.errors, t.errors
+
+
+def test_a_failed_round_shows_why_and_the_round_before_it_open_again(live_stack, tab):
+    from backend.services import rounds
+
+    stack = live_stack(worker=False)
+    factory = stack.session_factory()
+    with factory() as session, session.begin():
+        _, job = rounds.launch(session, InMemoryJobQueue(), None, None, None, "", min_training_samples=0)
+    with factory() as session, session.begin():  # as a worker reports a training that failed
+        jobs.finish(session, job.id, JobState.failed, error="training mvnet: 1 accepted samples; a round needs 2")
+    t = tab()
+    user = stack.users["admin"]
+    sign_in(t, stack.base_url, user.email, user.password, "admin")
+    page = t.page
+    states = page.eval_on_selector_all(".rounds-table tbody tr", "rows => rows.map((r) => [r.dataset.round, "
+                                       "r.querySelector('.round-state').firstChild.textContent])")
+    assert states == [["0", "running"], ["1", "failed"]], states
+    assert "a round needs 2" in page.inner_text('.rounds-table tr[data-round="1"] .round-failure')
+    assert page.inner_text("button.launch-round").startswith("Complete D₀")  # D_0 is the open round again
+    t.shot("admin-round-failed")
+    assert not t.errors, t.errors

@@ -164,6 +164,7 @@ def test_a_round_whose_training_fails_leaves_the_round_table_as_it_was(env, h):
     rounds = env.client.get("/api/admin/rounds", headers=env.headers(ADMIN)).json()
     assert [(r["index"], r["state"]) for r in rounds] == [(0, "running"), (1, "failed")]
     assert rounds[0]["finished_at"] is None and rounds[0]["counts"] == {}  # as before the launch
+    assert "at least 50" in rounds[1]["failure"] and rounds[0]["failure"] is None
     stats = env.client.get("/api/admin/rounds/statistics", headers=env.headers(ADMIN)).json()
     assert [(r["index"], r["added_total"]) for r in stats["rounds"]] == [(0, 3), (1, 0)]  # the late one joined D_0
     round_job = env.client.get(f"/api/admin/jobs/{launched['job_id']}", headers=env.headers(ADMIN)).json()
@@ -190,6 +191,7 @@ def test_a_round_job_reported_failed_twice_is_undone_once_and_its_round_stays_ov
         jobs.finish(session, launched["job_id"], JobState.failed, error="again")  # reported twice: once undone
     rounds = env.client.get("/api/admin/rounds", headers=env.headers(ADMIN)).json()
     assert [(r["index"], r["state"]) for r in rounds] == [(0, "running"), (1, "failed")]
+    assert rounds[1]["failure"] == "worker gave up"
     cancelled = env.client.post(f"/api/admin/rounds/{rounds[1]['id']}/cancel", headers=env.headers(ADMIN))
     assert cancelled.status_code == 409  # a failed round is over
 

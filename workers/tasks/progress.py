@@ -59,6 +59,8 @@ class ProgressReporter:
         fraction = min(1.0, max(0.0, float(fraction)))
         cancelled: list[int] = []
         with self.ctx.session_factory.begin() as session:
+            if self.round_of is not None:
+                round_progress.lock(session, self.round_of)  # the round before its children (lock order)
             for job_id in self.live:
                 try:
                     jobs.update_progress(session, job_id, fraction, message[:500])

@@ -111,12 +111,19 @@ def describe(steps: list[Phase], round_index: int | None) -> str:
     return f"{head}{where}, phase {number} of {len(steps)}"
 
 
+def lock(session: Session, round_job_id: int) -> Job | None:
+    """The round job's row, locked for this transaction. Train and predict jobs on several workers refresh the
+    same row (its result is read, then written); a reporter takes this lock before writing its own jobs, so
+    every transaction locks the round before a child (services.round_failure, from a failed child, locks the
+    other train jobs after the round: the other order would deadlock)."""
+    return session.execute(select(Job).where(Job.id == round_job_id).with_for_update()
+                           .execution_options(populate_existing=True)).scalar_one_or_none()
+
+
 def refresh(session: Session, round_job_id: int, settings: Settings) -> float | None:
     """Recompute and write the round job's progress, message and phases; the progress, or None when the job
     is gone or over (then nothing is written)."""
-    # Locked: train and predict jobs on several workers refresh the same row (its result is read, then written).
-    round_job = session.execute(select(Job).where(Job.id == round_job_id).with_for_update()
-                                .execution_options(populate_existing=True)).scalar_one_or_none()
+    round_job = lock(session, round_job_id)
     if round_job is None or JobState(round_job.state) in jobs.FINAL_STATES or round_job.round_id is None:
         return None
     steps = phases(session, round_job, settings)

@@ -222,6 +222,7 @@ class ReviewPage {
     this.keyAt = null;
     const { task } = this.current;
     this.deciding = true;
+    this.release3d();
     try {
       const url = `/api/review/samples/${task.sample_id}/decision`;
       let result;
@@ -251,8 +252,20 @@ class ReviewPage {
         next_sample_id: this.current ? this.current.task.sample_id : null });
     } catch (error) {
       this.deciding = false;
+      this.render3d(); // the same sample's 3D view back
       toast(`decision failed: ${error.message}`, "error", 8000);
     }
+  }
+
+  // The 3D view goes at the decision: viser's client is a same-origin iframe, so its rendering (in software
+  // where there is no GPU) runs on this page's main thread and held up the decision's answer and the next
+  // sample's drawing (1.1-1.3 s instead of 0.06-0.1 s in `bench ui` at load 13-17). render3d starts it again
+  // for the next sample, VIEWER_DELAY_MS after that sample is shown.
+  release3d() {
+    if (!this.viewer.querySelector("iframe")) return;
+    clearTimeout(this.viewerTimer);
+    this.viewerSample = null;
+    fill(this.viewer, h("div", { class: "muted viewer-wait" }, "3D view loading…"));
   }
 
   pickReason(index) {

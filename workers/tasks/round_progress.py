@@ -115,7 +115,9 @@ def lock(session: Session, round_job_id: int) -> Job | None:
     """The round job's row, locked for this transaction. Train and predict jobs on several workers refresh the
     same row (its result is read, then written); a reporter takes this lock before writing its own jobs, so
     every transaction locks the round before a child (services.round_failure, from a failed child, locks the
-    other train jobs after the round: the other order would deadlock)."""
+    other train jobs after the round: the other order would deadlock). Pending changes are flushed first (the
+    sessions do not autoflush): re-reading the row must not drop what the caller just merged into its result."""
+    session.flush()
     return session.execute(select(Job).where(Job.id == round_job_id).with_for_update()
                            .execution_options(populate_existing=True)).scalar_one_or_none()
 

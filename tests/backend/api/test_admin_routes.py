@@ -199,7 +199,7 @@ def test_a_round_job_reported_failed_twice_is_undone_once_and_its_round_stays_ov
 def test_the_round_progress_follows_its_phases_and_training_by_elapsed_budget(env, h):
     from workers.tasks import round_progress
     from workers.tasks.context import build_context
-    from workers.tasks.round_steps import start_round
+    from workers.tasks.round_steps import build_review_queue, run_heuristic, start_round
 
     ids = h.seed(env, frames=4, cameras=1, state="fitting")
     for sample_id in ids[:2]:
@@ -233,6 +233,14 @@ def test_the_round_progress_follows_its_phases_and_training_by_elapsed_budget(en
         assert [(p["name"], p["state"]) for p in job["result"]["phases"]] == [
             ("train HandSegNet", "done"), ("train MVNet", "running"), ("predict", "pending"), ("fit", "pending"),
             ("heuristic and review queue", "pending")]
+        # The last steps merge their summaries into the result; the phases' refresh keeps them.
+        with ctx.session_factory.begin() as session:
+            jobs.finish(session, train["mvnet"], JobState.succeeded)
+        assert run_heuristic(ctx, launched["job_id"]) is not None
+        assert build_review_queue(ctx, launched["job_id"]) is not None
+        job = round_job()
+        assert {"heuristic", "review_queue", "candidates_estimate"} <= set(job["result"]), job["result"]
+        assert job["result"]["phases"][-1]["state"] == "done"
         with ctx.session_factory.begin() as session:
             jobs.finish(session, launched["job_id"], JobState.succeeded)
     finally:

@@ -33,6 +33,9 @@ class Job(Base):
     created_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
     updated_at: Mapped[datetime] = mapped_column(default=utcnow, onupdate=utcnow)
+    # When the current attempt started (services.jobs.claim): the jobs list's duration runs from here, not
+    # from created_at (which includes the wait in the queue).
+    started_at: Mapped[datetime | None]
     finished_at: Mapped[datetime | None]
     # Hand-off to the workers (backend.broker.outbox): when the task was sent to the broker (NULL: not
     # yet, or the send failed and the outbox re-sends it), how many times a worker started it, and which one.

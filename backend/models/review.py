@@ -45,6 +45,7 @@ class Round(Base):
     created_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
     finished_at: Mapped[datetime | None]
+    failure: Mapped[str | None] = mapped_column(Text)  # why its job failed (state 'failed')
 
 
 class RoundMember(Base):

@@ -27,6 +27,8 @@ class RoundPublic(Public):
     counts: dict[str, Any]
     created_at: datetime
     finished_at: datetime | None
+    failure: str | None = Field(default=None, description="Why the round's job failed (state 'failed'); the "
+                                "round before it was opened again.")
 
 
 class RoundLaunched(Public):
@@ -45,6 +47,8 @@ class JobPublic(Public):
     round_id: int | None
     created_at: datetime
     updated_at: datetime
+    started_at: datetime | None = Field(default=None, description="When the current attempt started; null: "
+                                        "no worker has started it.")
     finished_at: datetime | None
     result: dict[str, Any] | None = None  # what the worker recorded, e.g. a round's counts and model versions
     attempts: int = 0  # how many times a worker started it (more than 1: redelivered or taken over)

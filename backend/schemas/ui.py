@@ -35,6 +35,7 @@ class ClickPublic(Public):
     x: float | None
     y: float | None
     visibility: str
+    from_proposal: bool = Field(default=False, description="Accepted from a proposal, not placed by hand.")
 
 
 class ProposalSource(Public):

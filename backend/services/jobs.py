@@ -19,7 +19,7 @@ from sqlalchemy.orm import Session
 from backend.db.base import utcnow
 from backend.models.enums import JobKind, JobState
 from backend.models.jobs import Job
-from backend.services import audit, fit_samples, queues, worker_processes
+from backend.services import audit, fit_samples, queues, round_failure, worker_processes
 from backend.services.errors import ConflictError, InvalidInputError, NotFoundError, ServiceUnavailableError
 from backend.services.transactions import after_commit
 
@@ -184,6 +184,7 @@ def claim(session: Session, job_id: int, worker: str, stale_after_s: float, now:
     job.worker = worker[:200]
     job.worker_process = process
     job.updated_at = now
+    job.started_at = now  # this attempt's start: a taken-over job's duration counts the attempt that ended it
     job.message = f"taken over by {worker} (attempt {job.attempts})" if reason else f"started by {worker}"
     audit.record(session, None, "job.start", "job", job.id, attempt=job.attempts, worker=worker)
     return job
@@ -226,9 +227,12 @@ def finish(session: Session, job_id: int, state: JobState, *, error: str | None 
     job.error = error
     job.result = result
     job.finished_at = utcnow()
+    job.message = ""  # the last progress message ("predicting 0/16") no longer says what the job is doing
     if state is JobState.succeeded:
         job.progress = 1.0
     audit.record(session, None, "job.finish", "job", job.id, state=state.value, error=error)
+    if state is JobState.failed and job.kind == JobKind.round:
+        round_failure.reopen_previous(session, job, error)  # the round table as it was before the launch
     return job
 
 
@@ -238,6 +242,7 @@ def cancel(session: Session, queue: JobQueue, job_id: int, actor_id: int | None)
         raise ConflictError(f"job {job_id} is already {job.state}")
     job.state = JobState.cancelled
     job.finished_at = utcnow()
+    job.message = ""
     audit.record(session, actor_id, "job.cancel", "job", job.id)
     if job.kind == JobKind.fit and job.sample_id is not None:
         fit_samples.release_cancelled_fit(session, job.sample_id, job.id)

@@ -38,10 +38,11 @@ class ClickRow:
     x: float | None
     y: float | None
     visibility: str
+    from_proposal: bool = False  # accepted from a proposal, not placed by hand
 
     def to_public(self) -> dict[str, Any]:
         return {"view_id": self.view_id, "keypoint": self.keypoint, "x": self.x, "y": self.y,
-                "visibility": self.visibility}
+                "visibility": self.visibility, "from_proposal": self.from_proposal}
 
 
 def end_reads(session: Session) -> None:
@@ -69,11 +70,11 @@ def clicks_of(session: Session, sample_id: int, submission_ids: list[int] | None
     if not submission_ids:
         return []
     rows = session.execute(
-        select(Click.view_id, Click.keypoint, Click.x_px, Click.y_px, Click.visibility)
+        select(Click.view_id, Click.keypoint, Click.x_px, Click.y_px, Click.visibility, Click.from_proposal)
         .where(Click.sample_id == sample_id, Click.submission_id.in_([int(i) for i in submission_ids]))
         .order_by(Click.submission_id, Click.id)
     ).all()
-    latest = {(r.view_id, r.keypoint): ClickRow(*r) for r in rows}
+    latest = {(r.view_id, r.keypoint): ClickRow(*r[:5], from_proposal=bool(r.from_proposal)) for r in rows}
     return list(latest.values())
 
 
@@ -166,6 +167,19 @@ def _residuals(fit_px: dict[int, np.ndarray], clicks: list[ClickRow]) -> dict[in
     return out
 
 
+def residual_summary(residuals: dict[int, dict[int, float]], clicks: list[ClickRow]) -> dict[str, dict[str, Any]]:
+    """The fit's distances to the points placed by hand ("clicked") apart from those accepted from proposals
+    ("accepted"): a fit always lands near the proposal it came from, so mixing them flatters it. Each: count,
+    mean and max (px; None without any)."""
+    accepted = {(c.view_id, c.keypoint) for c in clicks if c.from_proposal}
+    groups: dict[str, list[float]] = {"clicked": [], "accepted": []}
+    for view_id, per_keypoint in residuals.items():
+        for keypoint, value in per_keypoint.items():
+            groups["accepted" if (view_id, keypoint) in accepted else "clicked"].append(value)
+    return {name: {"n": len(values), "mean_px": round(float(np.mean(values)), 2) if values else None,
+                   "max_px": round(float(np.max(values)), 2) if values else None} for name, values in groups.items()}
+
+
 def _b64(array: np.ndarray, dtype: str) -> str:
     return base64.b64encode(np.ascontiguousarray(array, dtype=dtype).tobytes()).decode("ascii")
 
@@ -225,6 +239,7 @@ def review_overlay(session: Session, user: Actor, sample_id: int, *, secret_key:
             "clicks": [c.to_public() for c in clicks if c.view_id == cam.view_id],
         })
     all_res = [v for r in residuals.values() for v in r.values()]
+    by_origin = residual_summary(residuals, clicks) if clicks else None
     mesh, mesh_note, offset_mm = _mesh_payload(fit, mano_path) if with_mesh else (None, "not requested", None)
     ticket = scene_tickets.issue(secret_key, user.id, sample_id, fit.id, token_version=user.token_version)
     keypoints = np.asarray(fit.keypoints_m, dtype=np.float64)
@@ -239,6 +254,7 @@ def review_overlay(session: Session, user: Actor, sample_id: int, *, secret_key:
                 "mean_residual_px": round(float(np.mean(all_res)), 2) if all_res else None,
                 "max_residual_px": round(float(np.max(all_res)), 2) if all_res else None,
                 "residual_reference": "clicks" if clicks else ("mvnet" if prediction is not None else None),
+                "residual_by_origin": by_origin,
                 "mesh_keypoint_offset_mm": offset_mm, "created_at": fit.created_at.isoformat()},
         "prediction": None if prediction is None else {
             "mvnet_version": prediction.mvnet_version, "mean_confidence": round(float(prediction.mean_confidence), 4),

@@ -2,8 +2,8 @@
 
 One round is open ('running') at a time; accepted samples join it by stream. Launching round i+1
 completes round i and queues the round job (train MVNet and HandSegNet on D_{i+1}, predict the rest, fit,
-heuristic, build the review queue) for the workers. A decision with no round open opens round 0 (the
-initial, manually annotated D_0).
+heuristic, build the review queue) for the workers; if that job fails, round i is open again as it was
+(services.round_failure). A decision with no round open opens round 0 (the initial, manually annotated D_0).
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from backend.models.jobs import Job
 from backend.models.labels import Click, Submission
 from backend.models.review import Round, RoundMember
 from backend.schemas.admin import RoundStats, Statistics, StreamCounts
-from backend.services import audit, jobs
+from backend.services import audit, jobs, round_failure
 from backend.services.errors import ConflictError, NotFoundError
 
 
@@ -88,18 +88,20 @@ def launch(session: Session, queue: jobs.JobQueue, actor_id: int, mvnet_version:
     if refusal is not None:
         raise ConflictError(f"cannot launch a round yet: {refusal}")
     current = open_round(session, actor_id)
+    before = round_failure.snapshot(current)  # restored if the round's job fails (services.round_failure)
     current.state = RoundState.completed
     current.finished_at = utcnow()
     current.counts = _counts(session, current.id)
     audit.record(session, actor_id, "round.complete", "round", current.id, counts=current.counts)
     session.flush()
-    round_ = Round(index=current.index + 1, state=RoundState.running, mvnet_version=mvnet_version,
+    last = session.execute(select(func.max(Round.index))).scalar_one()  # a failed round keeps its index
+    round_ = Round(index=max(current.index, last) + 1, state=RoundState.running, mvnet_version=mvnet_version,
                    handsegnet_version=handsegnet_version, note=note, counts={}, created_by_id=actor_id)
     session.add(round_)
     session.flush()
     audit.record(session, actor_id, "round.launch", "round", round_.id, index=round_.index)
     job = jobs.create(session, queue, JobKind.round, actor_id=actor_id, round_id=round_.id,
-                      payload={"train_on_rounds_up_to": current.index})
+                      payload={"train_on_rounds_up_to": current.index, "reopen_on_failure": before})
     return round_, job
 
 

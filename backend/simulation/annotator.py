@@ -193,7 +193,8 @@ class SimulatedAnnotator:
             for k in keypoints:
                 if k in points:
                     x, y, visibility = points[k]
-                    clicks.append({"view_id": view["id"], "keypoint": k, "x": x, "y": y, "visibility": visibility})
+                    clicks.append({"view_id": view["id"], "keypoint": k, "x": x, "y": y, "visibility": visibility,
+                                   "from_proposal": k in taken})  # the fit weighs accepted proposals as such
                 else:
                     clicks.append({"view_id": view["id"], "keypoint": k, "visibility": "not_annotated"})
         masks = []

@@ -102,7 +102,8 @@ class AdminPage {
     const rows = s.rounds.map((r) => {
       const meta = this.rounds.find((x) => x.id === r.round_id) || {};
       return h("tr", { dataset: { round: String(r.index) } },
-        h("td", {}, `D${sub(r.index)}`), h("td", {}, r.state),
+        h("td", {}, `D${sub(r.index)}`), h("td", { class: "round-state" }, r.state,
+          meta.failure ? h("div", { class: "error round-failure" }, meta.failure) : null),
         ...STREAMS.map((st) => h("td", { class: "num" }, String(r.added[st.name]))),
         h("td", { class: "num" }, String(r.added_total)), h("td", { class: "num strong" }, String(r.dataset_size_after)),
         h("td", { class: "muted" }, [meta.mvnet_version, meta.handsegnet_version].filter(Boolean).join(" / ") || "–"),
@@ -226,14 +227,14 @@ class AdminPage {
   renderJobs() {
     const rows = this.jobs.map((j) => h("tr", { dataset: { job: String(j.id), state: j.state } },
       h("td", {}, String(j.id)), h("td", {}, j.kind), h("td", {}, j.sample_id === null ? "–" : String(j.sample_id)),
-      h("td", {}, j.state), h("td", { class: "muted" }, new Date(j.created_at).toLocaleTimeString()),
-      h("td", { class: "num" }, duration(j)),
+      h("td", {}, j.state), h("td", { class: "muted started" }, started(j)),
+      h("td", { class: "num took" }, duration(j)),
       h("td", {}, progressBar(j.progress)),
       h("td", { class: "muted msg" }, jobMessage(j)),
       h("td", {}, j.state === "queued" || j.state === "running"
         ? h("button", { class: "small", onclick: () => this.cancelJob(j.id) }, "Cancel") : "")));
     fill(this.sections.jobs, h("h2", {}, "Jobs"), h("table", { class: "table" },
-      h("thead", {}, h("tr", {}, ...["id", "kind", "sample", "state", "created", "took", "progress", "message", ""]
+      h("thead", {}, h("tr", {}, ...["id", "kind", "sample", "state", "started", "took", "progress", "message", ""]
         .map((t) => h("th", {}, t)))),
       h("tbody", {}, rows)));
   }
@@ -290,7 +291,8 @@ class AdminPage {
     fill(this.progress, bar);
     const draw = (job) => fill(bar, 
       h("div", { class: "live-head" }, `${job.kind || "round"} job ${job.id}: ${job.state}`, h("span", { class: "muted" },
-        ` ${FINAL.has(job.state) ? "" : job.message || ""}`)), progressBar(job.progress, true), job.error ? h("div", { class: "error" }, job.error) : null);
+        ` ${FINAL.has(job.state) ? "" : job.message || ""}`)), progressBar(job.progress, true), phaseSteps(job),
+      job.error ? h("div", { class: "error" }, job.error) : null);
     this.api.events(`/api/admin/jobs/${jobId}/events`, (name, job) => {
       if (!job) return;
       draw(job);
@@ -396,10 +398,27 @@ function sub(i) {
 const FINAL = new Set(["succeeded", "failed", "cancelled"]);
 
 // From creation to the end (or to now while it runs), e.g. "42 s", "3.5 min".
+// When a worker started the job's current attempt; a job no worker has started shows since when it waits.
+function started(job) {
+  if (job.started_at) return new Date(job.started_at).toLocaleTimeString();
+  const created = new Date(job.created_at).toLocaleTimeString();
+  return FINAL.has(job.state) ? `never (created ${created})` : `waiting since ${created}`;
+}
+
+// From the attempt's start (not the job's creation: the wait in the queue is not the work) to its end.
 function duration(job) {
+  if (!job.started_at) return "–";
   const end = job.finished_at ? Date.parse(job.finished_at) : Date.now();
-  const s = Math.max(0, (end - Date.parse(job.created_at)) / 1000);
-  return `${s < 120 ? s.toFixed(0) + " s" : (s / 60).toFixed(1) + " min"}${job.finished_at ? "" : " so far"}`;
+  const s = Math.max(0, (end - Date.parse(job.started_at)) / 1000);
+  return `${s < 120 ? s.toFixed(1) + " s" : (s / 60).toFixed(1) + " min"}${job.finished_at ? "" : " so far"}`;
+}
+
+// A round's phases (workers.tasks.round_progress) as steps: done, running (with what it has done), pending.
+function phaseSteps(job) {
+  const phases = job.result?.phases;
+  if (!phases?.length) return null;
+  return h("ol", { class: "phases" }, phases.map((p) => h("li", { class: `phase ${p.state}`, dataset: { state: p.state } },
+    p.name, p.state === "running" && p.detail ? h("span", { class: "muted" }, ` ${p.detail}`) : null)));
 }
 
 // A finished job shows how it ended, not its last progress message ("predicting 0/16").

@@ -222,6 +222,7 @@ class ReviewPage {
     this.keyAt = null;
     const { task } = this.current;
     this.deciding = true;
+    this.release3d();
     try {
       const url = `/api/review/samples/${task.sample_id}/decision`;
       let result;
@@ -251,8 +252,20 @@ class ReviewPage {
         next_sample_id: this.current ? this.current.task.sample_id : null });
     } catch (error) {
       this.deciding = false;
+      this.render3d(); // the same sample's 3D view back
       toast(`decision failed: ${error.message}`, "error", 8000);
     }
+  }
+
+  // The 3D view goes at the decision: viser's client is a same-origin iframe, so its rendering (in software
+  // where there is no GPU) runs on this page's main thread and held up the decision's answer and the next
+  // sample's drawing (1.1-1.3 s instead of 0.06-0.1 s in `bench ui` at load 13-17). render3d starts it again
+  // for the next sample, VIEWER_DELAY_MS after that sample is shown.
+  release3d() {
+    if (!this.viewer.querySelector("iframe")) return;
+    clearTimeout(this.viewerTimer);
+    this.viewerSample = null;
+    fill(this.viewer, h("div", { class: "muted viewer-wait" }, "3D view loading…"));
   }
 
   pickReason(index) {
@@ -408,7 +421,7 @@ class ReviewPage {
     fill(this.banner, 
       h("span", { class: model.stand_in ? "badge warn" : "badge" }, `Fit ${overlay.fit_id}: ${model.label}`),
       h("span", { class: "muted" }, ` · mean IoU ${fmt(overlay.fit.mean_iou, 2)} · mean residual ` +
-        `${fmt(overlay.fit.mean_residual_px, 1, " px")} (vs ${overlay.fit.residual_reference ?? "–"})`),
+        residualBanner(overlay.fit)),
       overlay.mesh ? null : h("span", { class: "badge warn" }, overlay.mesh_note || "no mesh"));
     this.grid.classList.remove("focused");
     fill(this.grid, ...this.current.views.map((view, i) => {
@@ -496,7 +509,9 @@ class ReviewPage {
         const p = s([c.x, c.y]);
         const f = fitPx[c.keypoint];
         if (f) segment(ctx, p, s(f), "#ff4d6d", 1.5, [3, 2]);
-        marker(ctx, p[0], p[1], c.keypoint, { style: c.visibility === "occluded" ? "occluded" : "solid", r: 4 });
+        // An accepted proposal is drawn as a proposal (dashed ring): the fit landing on it proves little.
+        const style = c.from_proposal ? "proposal" : c.visibility === "occluded" ? "occluded" : "solid";
+        marker(ctx, p[0], p[1], c.keypoint, { style, r: 4 });
       }
     }
     if (L.mvnet && info.prediction_keypoints_px) {
@@ -617,7 +632,7 @@ class ReviewPage {
       h("dl", { class: "facts" },
         h("dt", {}, "fitted from"), h("dd", {}, fit.source),
         h("dt", {}, "mean IoU"), h("dd", {}, fmt(fit.mean_iou, 3)),
-        h("dt", {}, "residual"), h("dd", {}, `${fmt(fit.mean_residual_px, 1)} px mean, ${fmt(fit.max_residual_px, 1)} max`),
+        ...residualFacts(fit),
         pred ? [h("dt", {}, "MVNet"), h("dd", {}, `${pred.mvnet_version}, confidence ${fmt(pred.mean_confidence, 2)}`)] : null,
         heur ? [h("dt", {}, "heuristic"), h("dd", {}, heur.accepted ? "passed" : `failed: ${(heur.failed || []).join(", ")}`)] : null),
       this.reason ? this.reasonBox() : h("div", { class: "decide" },
@@ -677,4 +692,28 @@ function handCrop(projected, info, margin = 0.35, minFraction = 0.2) {
   const hh = Math.max((y1 - y0) * (1 + 2 * margin), info.height * minFraction);
   const cx = (x0 + x1) / 2, cy = (y0 + y1) / 2;
   return [cx - w / 2, cy - hh / 2, cx + w / 2, cy + hh / 2];
+}
+
+// The fit's residuals, the points placed by hand apart from those accepted from proposals (a fit lands near
+// the proposal it came from: counted together, the accepted ones would make the fit look better than the
+// evidence).
+function residualFacts(fit) {
+  const split = fit.residual_by_origin;
+  if (!split || !split.accepted.n) {
+    return [h("dt", {}, "residual"), h("dd", { class: "residual-clicked" },
+      `${fmt(fit.mean_residual_px, 1)} px mean, ${fmt(fit.max_residual_px, 1)} max`)];
+  }
+  const line = (g, what) => `${fmt(g.mean_px, 1)} px mean, ${fmt(g.max_px, 1)} max over ${g.n} ${what}`;
+  return [
+    h("dt", {}, "residual, clicked"), h("dd", { class: "residual-clicked" },
+      split.clicked.n ? line(split.clicked, "points placed by hand") : "none placed by hand"),
+    h("dt", {}, "residual, accepted"), h("dd", { class: "residual-accepted" },
+      line(split.accepted, "accepted proposals")),
+  ];
+}
+
+function residualBanner(fit) {
+  const split = fit.residual_by_origin;
+  if (!split || !split.accepted.n) return `${fmt(fit.mean_residual_px, 1, " px")} (vs ${fit.residual_reference ?? "–"})`;
+  return `${fmt(split.clicked.mean_px, 1, " px")} vs clicks, ${fmt(split.accepted.mean_px, 1, " px")} vs accepted proposals`;
 }

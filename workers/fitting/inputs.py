@@ -11,6 +11,12 @@ from workers.handmodel.keypoints import NUM_KEYPOINTS
 
 # Weight of a click marked "occluded (best guess)" relative to a visible one.
 OCCLUDED_CLICK_WEIGHT = 0.3
+# Factor on the weight of a point the annotator accepted from a proposal (triangulation of their own clicks,
+# the fit, MVNet, the detector) instead of placing it: inverse variance, (sigma_click / sigma_accepted)^2 with
+# sigma_click ~ 2 px (the simulated annotators' click noise) and sigma_accepted ~ 4 px (an accepted proposal
+# is one a person let through at a glance; the bench's scripted annotator corrects those more than 4 px off).
+# A triangulated proposal is moreover the annotator's own clicks again, not new evidence.
+PROPOSAL_CLICK_WEIGHT = 0.25
 
 
 class FitInputError(ValueError):
@@ -23,7 +29,8 @@ class FrameObservations:
 
     Attributes:
         clicks_px: (C, 21, 2) clicked pixel positions per view and FreiHAND keypoint; NaN = none.
-        click_weights: (C, 21) >= 0: 1 visible, OCCLUDED_CLICK_WEIGHT for a best guess, 0 none.
+        click_weights: (C, 21) >= 0: 1 visible, OCCLUDED_CLICK_WEIGHT for a best guess, 0 none; times
+            PROPOSAL_CLICK_WEIGHT for a point accepted from a proposal.
         masks: optional per view (H_c, W_c) bool mask, or None for a view without one.
         masks_include_forearm: True for foreground masks that continue into the forearm (chroma key,
             and corrections of them): they are cut at the wrist before use. False for hand-only masks

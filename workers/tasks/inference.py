@@ -7,7 +7,6 @@ A redelivered job skips the samples it already recorded (predictions are unique 
 
 from __future__ import annotations
 
-import contextlib
 import logging
 from typing import Any
 
@@ -21,6 +20,7 @@ from backend.models.fits import Prediction
 from backend.models.jobs import Job
 from backend.services import jobs, records
 from backend.services.errors import DomainError
+from workers.tasks import round_progress
 from workers.tasks.context import WorkerContext
 from workers.tasks.inputs import InputError, load_frames, rig_of
 from workers.tasks.progress import JobCancelledError, ProgressReporter
@@ -64,7 +64,7 @@ def run_prediction_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
             frames = load_frames(ctx, session, [s for s in sample_ids if s not in done])
             todo = [f for f in frames.values() if f.state in PREDICTABLE]
             cameras = list(rig_of(ctx, session, todo[0].project_id).cameras) if todo else []
-        reporter = ProgressReporter(ctx, [job_id], heartbeat_of=int(round_job_id) if round_job_id else None)
+        reporter = ProgressReporter(ctx, [job_id], round_of=int(round_job_id) if round_job_id else None)
         summary = {"predicted": 0, "not_localised": 0, "skipped": len(sample_ids) - len(todo)}
         chunk = 4
         for start in range(0, len(todo), chunk):
@@ -149,19 +149,6 @@ def _fit_jobs_of(ctx: WorkerContext, predict_job_id: int) -> list[int]:
 
 
 def touch_round(ctx: WorkerContext, round_job_id: int) -> None:
-    """The round's progress during inference: its share of predict and fit jobs that are final."""
-    from sqlalchemy import func
-
+    """The round's progress after one of its predict or fit jobs ended (workers.tasks.round_progress)."""
     with ctx.session_factory.begin() as session:
-        round_job = session.get(Job, round_job_id)
-        if round_job is None or round_job.state != JobState.running:
-            return
-        counts = dict(session.execute(
-            select(Job.state, func.count()).where(Job.round_id == round_job.round_id, Job.kind.in_(["predict", "fit"]))
-            .group_by(Job.state)).all())
-        total = sum(counts.values())
-        final = sum(n for state, n in counts.items() if state in {s.value for s in jobs.FINAL_STATES})
-        fraction = 0.45 + 0.5 * (final / total if total else 1.0)
-        with contextlib.suppress(DomainError):
-            jobs.update_progress(session, round_job_id, min(0.95, fraction),
-                                 f"predicting and fitting: {final}/{total} jobs done")
+        round_progress.refresh(session, round_job_id, ctx.settings)

@@ -25,7 +25,7 @@ from backend.models.fits import Prediction
 from backend.models.jobs import Job
 from backend.models.labels import Click, Mask, Submission
 from workers.capture.schema import Capture, FrameRef, HandModelInfo
-from workers.fitting.inputs import OCCLUDED_CLICK_WEIGHT, FrameObservations
+from workers.fitting.inputs import OCCLUDED_CLICK_WEIGHT, PROPOSAL_CLICK_WEIGHT, FrameObservations
 from workers.geometry.camera import Camera
 from workers.tasks.context import WorkerContext
 
@@ -164,21 +164,31 @@ def _submission_of(session: Session, job: Job) -> Submission:
     return submission
 
 
+def click_weight(visibility: str, from_proposal: bool) -> float:
+    """A stored click's weight in the fit: by its visibility, lower for a point accepted from a proposal
+    (PROPOSAL_CLICK_WEIGHT: it is the proposal's evidence, not a person's placement)."""
+    weight = CLICK_WEIGHT.get(visibility, 0.0)
+    return weight * PROPOSAL_CLICK_WEIGHT if from_proposal else weight
+
+
 def from_annotation(ctx: WorkerContext, session: Session, job: Job, frame: SampleFrame, rig: Rig) -> FitInput:
-    """Clicks of the job's submission; per view the newest corrected mask, else the chroma-key mask."""
+    """Clicks of the job's submission (points accepted from proposals weighed as such, `click_weight`); per
+    view the newest corrected mask, else the chroma-key mask."""
     submission = _submission_of(session, job)
     C = len(rig.cameras)
     column = {view_id: c for c, view_id in enumerate(frame.view_ids)}
     clicks = np.full((C, NUM_KEYPOINTS, 2), np.nan)
     weights = np.zeros((C, NUM_KEYPOINTS))
+    accepted = np.zeros((C, NUM_KEYPOINTS), dtype=bool)
     for click in session.execute(select(Click).where(Click.submission_id == submission.id)).scalars():
         c = column.get(click.view_id)
         if c is None:
             raise InputError(f"submission {submission.id}: click on view {click.view_id}, not a view of the sample")
-        weight = CLICK_WEIGHT.get(click.visibility, 0.0)
+        weight = click_weight(click.visibility, bool(click.from_proposal))
         if weight > 0 and click.x_px is not None and click.y_px is not None:
             clicks[c, click.keypoint] = (click.x_px, click.y_px)
             weights[c, click.keypoint] = weight
+            accepted[c, click.keypoint] = bool(click.from_proposal)
     masks, mask_ids = [], []
     newest = newest_masks(session, list(frame.view_ids), (MaskKind.corrected, MaskKind.chroma_key))
     for c, (view_id, cam) in enumerate(zip(frame.view_ids, rig.cameras, strict=True)):
@@ -190,8 +200,10 @@ def from_annotation(ctx: WorkerContext, session: Session, job: Job, frame: Sampl
         mask_ids.append(row.id)
     observations = FrameObservations(clicks, weights, masks=tuple(masks) if any(m is not None for m in masks) else None,
                                      masks_include_forearm=True)
+    used = weights > 0
     inputs = {"source": "annotation", "submission_ids": [submission.id], "mask_ids": mask_ids,
-              "clicks": int((weights > 0).sum())}
+              "clicks": int(used.sum()), "clicked": int((used & ~accepted).sum()),
+              "accepted_proposals": int((used & accepted).sum()), "proposal_weight": PROPOSAL_CLICK_WEIGHT}
     return FitInput(job.id, frame.sample_id, "annotation", rig, frame.view_ids, observations, inputs,
                     round_id=job.round_id)
 

@@ -14,6 +14,7 @@ from collections.abc import Iterable
 
 from backend.services import jobs
 from backend.services.errors import ConflictError, NotFoundError
+from workers.tasks import round_progress
 from workers.tasks.context import WorkerContext
 
 log = logging.getLogger(__name__)
@@ -31,15 +32,18 @@ class ProgressReporter:
         job_ids: the jobs doing this work.
         parent: (job id, start, end): also set the parent's progress to start + fraction (end - start).
         heartbeat_of: a job (the round) kept alive by each write, its progress left alone.
+        round_of: a round job whose progress is recomputed from its phases after each write (its heartbeat too,
+            workers.tasks.round_progress).
         interval_s: least time between writes (capped below the heartbeat timeout).
     """
 
     def __init__(self, ctx: WorkerContext, job_ids: Iterable[int], *, parent: tuple[int, float, float] | None = None,
-                 heartbeat_of: int | None = None, interval_s: float = 2.0) -> None:
+                 heartbeat_of: int | None = None, round_of: int | None = None, interval_s: float = 2.0) -> None:
         self.ctx = ctx
         self.live = list(dict.fromkeys(job_ids))
         self.parent = parent
         self.heartbeat_of = heartbeat_of
+        self.round_of = round_of
         self.interval_s = min(interval_s, ctx.settings.job_heartbeat_timeout_s / 4)
         self._last = 0.0
 
@@ -55,6 +59,8 @@ class ProgressReporter:
         fraction = min(1.0, max(0.0, float(fraction)))
         cancelled: list[int] = []
         with self.ctx.session_factory.begin() as session:
+            if self.round_of is not None:
+                round_progress.lock(session, self.round_of)  # the round before its children (lock order)
             for job_id in self.live:
                 try:
                     jobs.update_progress(session, job_id, fraction, message[:500])
@@ -62,6 +68,9 @@ class ProgressReporter:
                     cancelled.append(job_id)
             if self.heartbeat_of is not None:
                 jobs.touch(session, self.heartbeat_of)
+            if self.round_of is not None:
+                session.flush()  # the phases read the rows just written
+                round_progress.refresh(session, self.round_of, self.ctx.settings)
             if self.parent is not None:
                 parent_id, start, end = self.parent
                 try:

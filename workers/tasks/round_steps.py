@@ -10,7 +10,8 @@ Backend round index r (r >= 1) collects the streams that networks trained on rou
 D_{i+1} = D_i + D^h_i + D^m_i + D^l_i, where D^h joins as fits pass the heuristic, D^m and D^l as reviewers
 verify the queue built here. Every step re-reads the database and is safe to run again: if the round's
 canvas is lost (a worker died and the broker did not deliver its tasks again), the outbox re-sends the
-round job once its heartbeat is stale and `start_round` continues from what is done.
+round job once its heartbeat is stale and `start_round` continues from what is done. The round job's progress
+follows these phases (workers.tasks.round_progress).
 """
 
 from __future__ import annotations
@@ -29,13 +30,12 @@ from backend.models.jobs import Job
 from backend.models.review import Round, RoundMember
 from backend.services import jobs, review
 from backend.services.verification import HeuristicThresholds, ReviewPolicy, heuristic_verdict
+from workers.tasks import round_progress
 from workers.tasks.context import WorkerContext
 from workers.tasks.inference import PREDICTABLE
 from workers.tasks.training import NETS, checkpoint_of, version_of
 
 log = logging.getLogger(__name__)
-
-TRAIN_SPAN = (0.02, 0.45)  # share of the round's progress bar spent training (the rest: inference, fits)
 
 
 @dataclass(frozen=True)
@@ -68,11 +68,6 @@ def start_round(ctx: WorkerContext, round_job_id: int) -> list[int] | None:
         if round_ is None or round_.state != RoundState.running:
             _fail(session, job, f"round job {round_job_id}: its round is {getattr(round_, 'state', 'missing')}")
             return None
-        budgets = {"handsegnet": ctx.settings.round_handsegnet_budget_s, "mvnet": ctx.settings.round_mvnet_budget_s}
-        spans, start = {}, TRAIN_SPAN[0]
-        for net in NETS:
-            width = (TRAIN_SPAN[1] - TRAIN_SPAN[0]) * budgets[net] / sum(budgets.values())
-            spans[net], start = (start, start + width), start + width
         existing = {(j.payload or {}).get("net"): j for j in _jobs_of(session, round_.id, JobKind.train)}
         to_run = []
         for net in NETS:
@@ -93,13 +88,15 @@ def start_round(ctx: WorkerContext, round_job_id: int) -> list[int] | None:
                 return None
             if previous is None:
                 previous = jobs.create(session, ctx.job_queue, JobKind.train, round_id=round_.id, enqueue=False,
-                                       payload={"net": net, "round_job_id": round_job_id,
-                                                "progress_span": list(spans[net])})
+                                       payload={"net": net, "round_job_id": round_job_id})
             to_run.append(previous.id)
-        _merge_result(job, round_index=round_.index,
+        # The samples it will predict, as the progress bar's estimate until the predict jobs exist.
+        estimate = session.execute(select(func.count()).select_from(Sample)
+                                   .where(Sample.state.in_(PREDICTABLE))).scalar_one()
+        _merge_result(job, round_index=round_.index, candidates_estimate=int(estimate),
                       train_on_rounds_up_to=(job.payload or {}).get("train_on_rounds_up_to"))
-        job.message = f"round {round_.index}: training" if to_run else f"round {round_.index}: models ready"
         session.flush()
+        round_progress.refresh(session, round_job_id, ctx.settings)
         return to_run
 
 
@@ -156,9 +153,8 @@ def plan_inference(ctx: WorkerContext, round_job_id: int) -> InferencePlan | Non
                     if JobState(j.state) not in jobs.FINAL_STATES and (j.payload or {}).get("predict_job_id") in done]
         size = ctx.settings.fit_batch_size
         batches = [leftover[i:i + size] for i in range(0, len(leftover), size)]
-        jobs.update_progress(session, round_job_id, TRAIN_SPAN[1],
-                             f"round {round_.index}: predicting {len(pending)} batches, fitting")
         _merge_result(job, mvnet_version=versions["mvnet"], handsegnet_version=versions["handsegnet"])
+        round_progress.refresh(session, round_job_id, ctx.settings)
         return InferencePlan(pending, batches)
 
 
@@ -192,7 +188,7 @@ def run_heuristic(ctx: WorkerContext, round_job_id: int) -> dict[str, Any] | Non
         summary = {"evaluated": evaluated, "accepted": accepted,
                    "failures": dict(sorted(reasons.items(), key=lambda kv: -kv[1])[:8])}
         _merge_result(job, heuristic=summary)
-        jobs.update_progress(session, round_job_id, 0.96, f"heuristic: {accepted} of {evaluated} accepted")
+        round_progress.refresh(session, round_job_id, ctx.settings)
         return summary
 
 
@@ -213,7 +209,7 @@ def build_review_queue(ctx: WorkerContext, round_job_id: int) -> dict[str, Any] 
         picked = review.build_queue(session, ReviewPolicy.from_settings(ctx.settings), None)
         summary = {"queued": len(picked)}
         _merge_result(job, review_queue=summary)
-        jobs.update_progress(session, round_job_id, 0.98, f"review queue: {len(picked)} samples")
+        round_progress.refresh(session, round_job_id, ctx.settings)
         return summary
 
 

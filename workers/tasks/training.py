@@ -151,7 +151,6 @@ def run_training_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
             return {"job_id": job_id, "skipped": True}
         net = (job.payload or {}).get("net")
         round_job_id = (job.payload or {}).get("round_job_id")
-        span = tuple((job.payload or {}).get("progress_span") or (0.0, 0.45))
     try:
         with ctx.session_factory() as session:
             if net not in NETS:
@@ -169,7 +168,7 @@ def run_training_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
         config = get_config(ctx.settings.nets_config)
         folder = ctx.settings.checkpoints_dir.resolve() / f"round-{round_index:03d}"
         budget = ctx.settings.round_handsegnet_budget_s if net == "handsegnet" else ctx.settings.round_mvnet_budget_s
-        reporter = ProgressReporter(ctx, [job_id], parent=(int(round_job_id), float(span[0]), float(span[1])))
+        reporter = ProgressReporter(ctx, [job_id], round_of=int(round_job_id))  # training: elapsed share of its budget
         reporter(0.0, f"{net}: preparing {len(tset)} samples", force=True)
         result = _train(ctx, net, tset, labels_masks, config, budget, folder, reporter,
                         seed=ctx.settings.round_seed + round_index,

@@ -138,3 +138,111 @@ def test_images_and_masks_are_served_with_cache_headers(sqlite_env, h):
     png = env.client.get(f"/api/files/masks/{mask_id}", headers=env.headers(Role.annotator))
     assert png.status_code == 200 and png.content.startswith(b"\x89PNG")
     assert env.client.get("/api/files/masks/999", headers=env.headers(Role.annotator)).status_code == 404
+
+
+def test_a_round_whose_training_fails_leaves_the_round_table_as_it_was(env, h):
+    # The launch completes D_0 before anything trains; the training then fails (the worker asks for more
+    # labels than the API did). D_0 must be open again as it was, D_1 marked failed, not left "running".
+    from workers.tasks.context import build_context
+    from workers.tasks.round_steps import start_round
+    from workers.tasks.training import run_training_job
+
+    first, second, late = h.seed(env, frames=3, cameras=1, state="fitting")
+    for sample_id in (first, second):
+        h.record_fit(env, sample_id, prediction={"confidences": [0.95] * 21})
+    launched = env.client.post("/api/admin/rounds", headers=env.headers(ADMIN), json={"note": "first"}).json()
+    h.record_fit(env, late, prediction={"confidences": [0.95] * 21})  # accepted while D_1 is open: joins it
+    strict = env.settings.model_copy(update={"round_min_training_samples": 50})
+    ctx = build_context(strict, job_queue=env.queue)
+    try:
+        train_ids = start_round(ctx, launched["job_id"])
+        assert len(train_ids) == 2
+        outcome = run_training_job(ctx, train_ids[0])
+    finally:
+        ctx.session_factory.kw["bind"].dispose()
+    assert "at least 50" in outcome["failed"]
+    rounds = env.client.get("/api/admin/rounds", headers=env.headers(ADMIN)).json()
+    assert [(r["index"], r["state"]) for r in rounds] == [(0, "running"), (1, "failed")]
+    assert rounds[0]["finished_at"] is None and rounds[0]["counts"] == {}  # as before the launch
+    assert "at least 50" in rounds[1]["failure"] and rounds[0]["failure"] is None
+    stats = env.client.get("/api/admin/rounds/statistics", headers=env.headers(ADMIN)).json()
+    assert [(r["index"], r["added_total"]) for r in stats["rounds"]] == [(0, 3), (1, 0)]  # the late one joined D_0
+    round_job = env.client.get(f"/api/admin/jobs/{launched['job_id']}", headers=env.headers(ADMIN)).json()
+    assert round_job["state"] == "failed" and "at least 50" in round_job["error"]
+    other = env.client.get(f"/api/admin/jobs/{train_ids[1]}", headers=env.headers(ADMIN)).json()
+    assert other["state"] == "cancelled" and "round 1 failed" in other["error"]  # the other network stops
+    # Launching again completes D_0 (now 3 labels) and opens the round after the failed one.
+    again = env.client.post("/api/admin/rounds", headers=env.headers(ADMIN), json={})
+    assert again.status_code == 201, again.text
+    rounds = env.client.get("/api/admin/rounds", headers=env.headers(ADMIN)).json()
+    assert [(r["index"], r["state"]) for r in rounds] == [(0, "completed"), (1, "failed"), (2, "running")]
+    assert rounds[0]["counts"] == {"heuristic": 3}
+    job = env.client.get(f"/api/admin/jobs/{again.json()['job_id']}", headers=env.headers(ADMIN)).json()
+    assert job["state"] == "queued"
+
+
+def test_a_round_job_reported_failed_twice_is_undone_once_and_its_round_stays_over(env, h):
+    ids = h.seed(env, frames=2, cameras=1, state="fitting")
+    for sample_id in ids:
+        h.record_fit(env, sample_id, prediction={"confidences": [0.95] * 21})
+    launched = env.client.post("/api/admin/rounds", headers=env.headers(ADMIN), json={}).json()
+    with env.session() as session, session.begin():
+        jobs.finish(session, launched["job_id"], JobState.failed, error="worker gave up")
+        jobs.finish(session, launched["job_id"], JobState.failed, error="again")  # reported twice: once undone
+    rounds = env.client.get("/api/admin/rounds", headers=env.headers(ADMIN)).json()
+    assert [(r["index"], r["state"]) for r in rounds] == [(0, "running"), (1, "failed")]
+    assert rounds[1]["failure"] == "worker gave up"
+    cancelled = env.client.post(f"/api/admin/rounds/{rounds[1]['id']}/cancel", headers=env.headers(ADMIN))
+    assert cancelled.status_code == 409  # a failed round is over
+
+
+def test_the_round_progress_follows_its_phases_and_training_by_elapsed_budget(env, h):
+    from workers.tasks import round_progress
+    from workers.tasks.context import build_context
+    from workers.tasks.round_steps import build_review_queue, run_heuristic, start_round
+
+    ids = h.seed(env, frames=4, cameras=1, state="fitting")
+    for sample_id in ids[:2]:
+        h.record_fit(env, sample_id, prediction={"confidences": [0.95] * 21})
+    h.set_state(env, ids[2:], "unlabeled")  # what the round will predict and fit
+    launched = env.client.post("/api/admin/rounds", headers=env.headers(ADMIN), json={}).json()
+    settings = env.settings.model_copy(update={"round_handsegnet_budget_s": 90.0, "round_mvnet_budget_s": 240.0})
+    ctx = build_context(settings, job_queue=env.queue)
+    try:
+        train = dict(zip(("handsegnet", "mvnet"), start_round(ctx, launched["job_id"]), strict=True))
+        total_s = 90 + 240 + 2 * (round_progress.PREDICT_S_PER_SAMPLE + round_progress.FIT_S_PER_SAMPLE) \
+            + round_progress.FINISH_S
+
+        def round_job() -> dict:
+            return env.client.get(f"/api/admin/jobs/{launched['job_id']}", headers=env.headers(ADMIN)).json()
+
+        assert round_job()["progress"] == 0.0 and "train HandSegNet" in round_job()["message"]
+        with ctx.session_factory.begin() as session:  # HandSegNet 45 of its 90 s in
+            jobs.update_progress(session, train["handsegnet"], 0.5, "training")
+            round_progress.refresh(session, launched["job_id"], settings)
+        job = round_job()
+        assert abs(job["progress"] - 45 / total_s) < 1e-3, job
+        assert job["message"] == "round 1: train HandSegNet (45 of 90 s), phase 1 of 5", job["message"]
+        with ctx.session_factory.begin() as session:  # HandSegNet done, MVNet 120 of 240 s
+            jobs.finish(session, train["handsegnet"], JobState.succeeded)
+            jobs.update_progress(session, train["mvnet"], 0.5, "training")
+            round_progress.refresh(session, launched["job_id"], settings)
+        job = round_job()
+        assert abs(job["progress"] - (90 + 120) / total_s) < 1e-3, job  # most of the bar: training is most
+        assert "train MVNet (120 of 240 s), phase 2 of 5" in job["message"]
+        assert [(p["name"], p["state"]) for p in job["result"]["phases"]] == [
+            ("train HandSegNet", "done"), ("train MVNet", "running"), ("predict", "pending"), ("fit", "pending"),
+            ("heuristic and review queue", "pending")]
+        # The last steps merge their summaries into the result; the phases' refresh keeps them.
+        with ctx.session_factory.begin() as session:
+            jobs.finish(session, train["mvnet"], JobState.succeeded)
+        assert run_heuristic(ctx, launched["job_id"]) is not None
+        assert build_review_queue(ctx, launched["job_id"]) is not None
+        job = round_job()
+        assert {"heuristic", "review_queue", "candidates_estimate"} <= set(job["result"]), job["result"]
+        assert job["result"]["phases"][-1]["state"] == "done"
+        with ctx.session_factory.begin() as session:
+            jobs.finish(session, launched["job_id"], JobState.succeeded)
+    finally:
+        ctx.session_factory.kw["bind"].dispose()
+    assert round_job()["message"] == ""  # finished: no stale phase message

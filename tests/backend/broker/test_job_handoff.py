@@ -54,6 +54,25 @@ def test_claim_starts_skips_duplicates_and_takes_over_dead_jobs(env):
         assert jobs.claim(session, job_id, "w3:3", stale_after_s=0) is None  # final: nothing to do
 
 
+def test_an_attempt_records_its_start_and_a_finished_job_keeps_no_progress_message(env):
+    job_id = _new_job(env)
+    with env.session() as session, session.begin():
+        assert jobs.get(session, job_id).started_at is None  # queued: no worker has started it
+        session.execute(text("UPDATE jobs SET created_at = :t WHERE id = :i"),
+                        {"t": utcnow() - timedelta(seconds=300), "i": job_id})  # it waited 5 minutes
+    before = utcnow()
+    with env.session() as session, session.begin():
+        jobs.claim(session, job_id, "w1:1", stale_after_s=60)
+        jobs.update_progress(session, job_id, 0.0, "predicting 0/16")
+    with env.session() as session, session.begin():
+        jobs.finish(session, job_id, JobState.succeeded)
+    with env.session() as session:
+        job = jobs.get(session, job_id)
+        assert job.started_at >= before and job.finished_at >= job.started_at
+        assert (job.started_at - job.created_at).total_seconds() >= 300  # the wait is not in the duration
+        assert job.message == "" and job.progress == 1.0
+
+
 @pytest.fixture
 def dead_process() -> str:
     """The identity of a process of this machine that has exited (services.worker_processes)."""

@@ -12,6 +12,7 @@ from backend.models.capture import Sample
 from backend.models.enums import JobState, SampleState
 from backend.models.fits import Fit
 from backend.models.jobs import Job
+from backend.models.labels import Click
 from backend.services import jobs
 from backend.services.jobs import InMemoryJobQueue
 from backend.settings import Settings
@@ -38,9 +39,13 @@ def world(tmp_path, capture_cache):
     app.state.engine.dispose()
 
 
-def _submit(settings, client, *, views: int | None = None) -> int:
+def _submit(settings, client, *, views: int | None = None, accepted_views: int = 0) -> int:
+    """Clicks from the truth; in the first `accepted_views` views marked as accepted from a proposal."""
     task = client.post("/api/annotate/next").json()
     body = _clicks(task)
+    accepted = {v["id"] for v in task["views"][:accepted_views]}
+    for click in body["clicks"]:
+        click["from_proposal"] = click["view_id"] in accepted and click["visibility"] != "not_annotated"
     if views is not None:  # clicks in fewer views: the hand cannot be placed in 3D
         keep = {v["id"] for v in task["views"][:views]}
         body["clicks"] = [c for c in body["clicks"] if c["view_id"] in keep]
@@ -101,3 +106,26 @@ def test_a_cancelled_fit_job_is_not_fitted_and_releases_its_sample(world):
         assert sample.state == SampleState.needs_annotation  # no earlier fit to fall back to
     summary = run_fit_jobs(ctx, [job_id])
     assert summary.skipped == [job_id] and not summary.fitted
+
+
+def test_points_accepted_from_proposals_weigh_less_than_clicks_in_the_fit_input(world):
+    from workers.fitting.inputs import PROPOSAL_CLICK_WEIGHT
+    from workers.tasks.fit_sources import fit_input
+
+    settings, client, _, ctx = world
+    job_id = _submit(settings, client, accepted_views=3)
+    with ctx.session_factory() as session:
+        job = session.get(Job, job_id)
+        given = fit_input(ctx, session, job)
+        weights = given.observations.click_weights  # (C, 21), views in rig order
+        view_ids = list(given.view_ids)
+        placed = {(r.view_id, r.keypoint): r.from_proposal for r in session.execute(
+            select(Click).where(Click.sample_id == job.sample_id, Click.x_px.is_not(None))).scalars()}
+    accepted = [w for (v, k), from_proposal in placed.items() if from_proposal
+                for w in [weights[view_ids.index(v), k]]]
+    clicked = [w for (v, k), from_proposal in placed.items() if not from_proposal
+               for w in [weights[view_ids.index(v), k]]]
+    assert accepted and clicked
+    assert set(clicked) == {1.0} and set(accepted) == {PROPOSAL_CLICK_WEIGHT} and PROPOSAL_CLICK_WEIGHT < 1
+    assert given.inputs["clicked"] == len(clicked) and given.inputs["accepted_proposals"] == len(accepted)
+    assert given.inputs["clicks"] == len(placed)

@@ -8,7 +8,6 @@ exactly. Because the ring follows the skin, the regressed joints follow shape ch
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import nnls
 
 from workers.handmodel.builtin.skeleton import Skeleton
 from workers.handmodel.keypoints import NUM_JOINTS
@@ -38,6 +37,10 @@ def _ring(vertices: np.ndarray, weights: np.ndarray, skel: Skeleton, j: int) -> 
 
 def joint_regressor(vertices: np.ndarray, weights: np.ndarray, skel: Skeleton) -> np.ndarray:
     """Dense (16, V) regressor: rows >= 0, sum to 1, and J_regressor @ vertices == skel.joints at rest."""
+    # deferred: scipy.optimize takes 1-2 s to import; only building the hand needs it, not loading it from its
+    # cache (the API's first review page after a start paid for it)
+    from scipy.optimize import nnls
+
     reg = np.zeros((NUM_JOINTS, vertices.shape[0]))
     for j in range(NUM_JOINTS):
         ids, prior = _ring(vertices, weights, skel, j)

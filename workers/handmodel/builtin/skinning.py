@@ -9,11 +9,15 @@ of radius r, which keeps bent joints round instead of pinched.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-import scipy.sparse as sp
 
 from workers.handmodel.builtin.skeleton import FINGER_JOINTS, Skeleton
 from workers.handmodel.keypoints import NUM_JOINTS
+
+if TYPE_CHECKING:
+    import scipy.sparse as sp
 
 
 def point_segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -40,6 +44,9 @@ def bone_segments(skel: Skeleton) -> list[tuple[int, np.ndarray, np.ndarray]]:
 
 def vertex_adjacency(faces: np.ndarray, num_vertices: int) -> sp.csr_matrix:
     """Row-normalised (V, V) adjacency of the mesh graph (uniform umbrella operator)."""
+    # deferred: scipy.sparse takes ~0.5 s to import; only building the hand needs it, not loading it from its cache
+    import scipy.sparse as sp
+
     e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
     e = np.concatenate([e, e[:, ::-1]])
     adj = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(num_vertices, num_vertices)).tocsr()

@@ -43,6 +43,37 @@ def test_residuals_grow_with_a_shifted_fit(sqlite_env, ui, ui_capture):
     assert data["fit"]["mean_residual_px"] > 0.5  # 1 cm at ~1 m with f ~ 100 px: about a pixel or more
 
 
+def test_residuals_keep_points_accepted_from_proposals_apart_from_clicks(sqlite_env, ui, ui_capture):
+    # Clicked points exact, accepted proposals 3 px off: together they would read as one middling figure.
+    import uuid
+
+    env = sqlite_env
+    ui.import_capture(env, ui_capture)
+    task = env.client.post("/api/annotate/next", headers=env.headers(Role.annotator)).json()
+    clicks = ui.clicks_from_truth(task, ui_capture)
+    accepted_views = {v["id"] for v in task["views"][:4]}
+    for click in clicks:
+        if click["view_id"] in accepted_views and click["visibility"] == "visible":
+            click.update(x=click["x"] + 3.0 if click["x"] < task["views"][0]["width"] - 4 else click["x"] - 3.0,
+                         from_proposal=True)
+    body = {"submission_id": uuid.uuid4().hex, "lease_token": task["lease_token"], "time_spent_s": 30.0,
+            "clicks": clicks}
+    submitted = env.client.post(f"/api/annotate/samples/{task['sample_id']}/submissions", json=body,
+                                headers=env.headers(Role.annotator))
+    assert submitted.status_code == 201, submitted.text
+    ui.record_truth_fit(env, task["sample_id"], task["frame_index"], ui_capture, submitted.json()["id"])
+    review = env.client.post("/api/review/next", headers=env.headers(Role.reviewer)).json()
+    data = env.client.get(f"/api/review/samples/{review['sample_id']}/overlay?mesh=false",
+                          headers=env.headers(Role.reviewer)).json()
+    split = data["fit"]["residual_by_origin"]
+    n_accepted = sum(1 for c in clicks if c.get("from_proposal"))
+    n_clicked = sum(1 for c in clicks if c["visibility"] == "visible") - n_accepted
+    assert (split["accepted"]["n"], split["clicked"]["n"]) == (n_accepted, n_clicked) and n_accepted and n_clicked
+    assert split["clicked"]["mean_px"] < 0.05 and abs(split["accepted"]["mean_px"] - 3.0) < 0.05
+    shown = [c for view in data["views"] for c in view["clicks"]]
+    assert sum(c["from_proposal"] for c in shown) == n_accepted  # the page can draw them as what they are
+
+
 def test_overlay_needs_the_review_lease(sqlite_env, ui, ui_capture):
     env = sqlite_env
     task = ui.in_review(env, ui_capture)

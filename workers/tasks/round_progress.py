@@ -1,0 +1,138 @@
+"""A round's progress, phase by phase: train HandSegNet -> train MVNet -> predict -> fit -> heuristic and
+review queue.
+
+Each phase weighs what it is expected to take: a network's training its time budget (training stops at the
+budget, so the elapsed share of it is its progress), prediction and fitting their sample count times the
+per-sample cost the benchmarks measured, the last step a few seconds. The round job's progress is the
+weighted share done, recomputed from the rows of its train, predict and fit jobs whenever one of them
+reports (so two networks training at once on two workers do not overwrite each other's share), and its
+message names the phase(s) running. The phases are also kept in the round job's result (`phases`), for the
+admin page's steps.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from dataclasses import dataclass
+from typing import Any
+
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from backend.models.enums import JobKind, JobState
+from backend.models.jobs import Job
+from backend.services import jobs
+from backend.services.errors import DomainError
+from backend.settings import Settings
+
+# Expected seconds per sample, from the benchmarks (docs/benchmarks.md): MVNet + HandSegNet inference on an
+# 8-view frame 124-460 ms (`bench nets`), a fit from predictions 0.25-0.8 s (`bench jobs`).
+PREDICT_S_PER_SAMPLE = 0.3
+FIT_S_PER_SAMPLE = 0.6
+FINISH_S = 5.0  # heuristic summary, review queue, counts: a few queries
+NET_LABELS = {"handsegnet": "HandSegNet", "mvnet": "MVNet"}
+
+
+@dataclass(frozen=True)
+class Phase:
+    """One phase: `weight_s` expected seconds, `done` in [0, 1], `detail` what it has done so far."""
+
+    name: str
+    weight_s: float
+    done: float
+    detail: str = ""
+
+    @property
+    def state(self) -> str:
+        return "done" if self.done >= 1.0 else ("running" if self.done > 0 else "pending")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "state": self.state, "done": round(self.done, 4), "detail": self.detail}
+
+
+def _fraction(job: Job) -> float:
+    if job.state == JobState.succeeded:
+        return 1.0
+    if JobState(job.state) in jobs.FINAL_STATES:
+        return 1.0  # failed or cancelled: nothing more will happen in this phase for it
+    return min(1.0, max(0.0, float(job.progress or 0.0)))
+
+
+def phases(session: Session, round_job: Job, settings: Settings) -> list[Phase]:
+    """The round's phases now, from its jobs' rows and its result (`candidates`: the samples it predicts, known
+    once the predict jobs exist; before, start_round's `candidates_estimate`)."""
+    round_jobs = session.execute(select(Job).where(Job.round_id == round_job.round_id,
+                                                   Job.kind.in_([JobKind.train, JobKind.predict, JobKind.fit]))
+                                 ).scalars().all()
+    by_kind: dict[str, list[Job]] = {}
+    for job in round_jobs:
+        by_kind.setdefault(str(job.kind), []).append(job)
+    out: list[Phase] = []
+    budgets = {"handsegnet": settings.round_handsegnet_budget_s, "mvnet": settings.round_mvnet_budget_s}
+    trains = {(j.payload or {}).get("net"): j for j in by_kind.get(JobKind.train.value, [])}
+    for net, budget in budgets.items():
+        job = trains.get(net)
+        if job is None:
+            continue  # launched with an existing model (or not started yet): nothing to train
+        done = _fraction(job)
+        detail = "done" if job.state == JobState.succeeded else str(job.state) if done >= 1 else \
+            f"{done * budget:.0f} of {budget:.0f} s"
+        out.append(Phase(f"train {NET_LABELS[net]}", budget, done, detail))
+    result = round_job.result or {}
+    predicts = by_kind.get(JobKind.predict.value, [])
+    candidates = max(int(result.get("candidates", result.get("candidates_estimate", 1))), 1)
+    sizes = {j.id: len((j.payload or {}).get("sample_ids") or []) for j in predicts}
+    predicted = sum(_fraction(j) * sizes[j.id] for j in predicts)
+    out.append(Phase("predict", candidates * PREDICT_S_PER_SAMPLE, min(1.0, predicted / candidates),
+                     f"{predicted:.0f} of {candidates} samples"))
+    fits = by_kind.get(JobKind.fit.value, [])
+    all_predicted = bool(predicts) and all(JobState(j.state) in jobs.FINAL_STATES for j in predicts)
+    expected = len(fits) if all_predicted else max(len(fits), candidates)
+    fitted = sum(_fraction(j) for j in fits)
+    out.append(Phase("fit", candidates * FIT_S_PER_SAMPLE, fitted / expected if expected else float(all_predicted),
+                     f"{fitted:.0f} of {expected} samples"))
+    finish = 0.5 * ("heuristic" in result) + 0.5 * ("review_queue" in result)
+    out.append(Phase("heuristic and review queue", FINISH_S, finish, "done" if finish >= 1 else ""))
+    return out
+
+
+def overall(steps: list[Phase]) -> float:
+    """The weighted share done, in [0, 1]."""
+    total = sum(p.weight_s for p in steps)
+    return min(1.0, sum(p.weight_s * p.done for p in steps) / total) if total > 0 else 0.0
+
+
+def describe(steps: list[Phase], round_index: int | None) -> str:
+    """'round 1: train MVNet (120 of 240 s), phase 2 of 5': the phases running (or the next one)."""
+    running = [p for p in steps if p.state == "running"] or [p for p in steps if p.state == "pending"][:1]
+    where = " + ".join(f"{p.name} ({p.detail})" if p.detail else p.name for p in running) or "finishing"
+    number = steps.index(running[0]) + 1 if running else len(steps)
+    head = f"round {round_index}: " if round_index is not None else ""
+    return f"{head}{where}, phase {number} of {len(steps)}"
+
+
+def lock(session: Session, round_job_id: int) -> Job | None:
+    """The round job's row, locked for this transaction. Train and predict jobs on several workers refresh the
+    same row (its result is read, then written); a reporter takes this lock before writing its own jobs, so
+    every transaction locks the round before a child (services.round_failure, from a failed child, locks the
+    other train jobs after the round: the other order would deadlock). Pending changes are flushed first (the
+    sessions do not autoflush): re-reading the row must not drop what the caller just merged into its result."""
+    session.flush()
+    return session.execute(select(Job).where(Job.id == round_job_id).with_for_update()
+                           .execution_options(populate_existing=True)).scalar_one_or_none()
+
+
+def refresh(session: Session, round_job_id: int, settings: Settings) -> float | None:
+    """Recompute and write the round job's progress, message and phases; the progress, or None when the job
+    is gone or over (then nothing is written)."""
+    round_job = lock(session, round_job_id)
+    if round_job is None or JobState(round_job.state) in jobs.FINAL_STATES or round_job.round_id is None:
+        return None
+    steps = phases(session, round_job, settings)
+    fraction = overall(steps)
+    index = (round_job.result or {}).get("round_index")
+    with contextlib.suppress(DomainError):  # cancelled meanwhile
+        jobs.update_progress(session, round_job_id, fraction, describe(steps, index)[:500])
+        round_job.result = {**(round_job.result or {}), "phases": [p.to_dict() for p in steps]}
+        return fraction
+    return None

@@ -2,7 +2,7 @@
 // per view (keys pick the keypoint, mark it occluded or not annotated), accept or drag proposals, correct
 // the automatic mask with brush and eraser, undo and redo, submit; the next task is prefetched.
 import { Annotation, inside, proposals as computeProposals, triangulateClicked } from "./annotation.js";
-import { fitCanvas, fmt, h, isTyping, toast, fill } from "./dom.js";
+import { fitCanvas, fmt, h, handSide, isTyping, toast, fill } from "./dom.js";
 import { epipolarCurve, projectPoint } from "./geometry.js";
 import { marker, segment } from "./draw.js";
 import { History } from "./history.js";
@@ -1120,6 +1120,7 @@ class AnnotatePage {
       h("div", { class: "sample-head" },
         h("h2", {}, `Sample ${t.sample_id}`),
         h("div", { class: "muted" }, `${t.sequence ?? `sequence ${t.sequence_id}`} · frame ${t.frame_index}`),
+        handSide(t.side),
         h("div", { class: "clock muted" }, ""),
         h("div", { class: "draft-state muted" }, draftLabel(document.body.dataset.draftState))),
       this.reviewNote ? h("div", { class: "callout" }, h("strong", {}, "Reviewer: "), this.reviewNote) : null,

@@ -109,21 +109,22 @@ class LiveStack:
         self.stack.stop()
 
 
-def tiny_capture(root: Path, *, frames: int = 3, sequences: int = 1, width: int = 160, seed: int = 0) -> Path:
-    """A synthetic capture under `root` (reused when it is already there and valid)."""
+def tiny_capture(root: Path, *, frames: int = 3, sequences: int = 1, width: int = 160, seed: int = 0,
+                 side: str = "right") -> Path:
+    """A synthetic capture of a `side` hand under `root` (reused when it is already there and valid)."""
     from workers.capture import CaptureError, read_capture
     from workers.synth.generator import generate_capture
     from workers.synth.plan import SynthConfig
 
-    out = root / f"capture-s{sequences}-f{frames}-w{width}-seed{seed}"
+    out = root / (f"capture-s{sequences}-f{frames}-w{width}-seed{seed}" + ("-left" if side == "left" else ""))
     if out.exists():
         try:
             read_capture(out, check_images=False)
             return out
         except CaptureError:
             pass
-    generate_capture(out, SynthConfig(num_sequences=sequences, frames_per_sequence=frames, seed=seed, width_px=width),
-                     workers=1, force=True)
+    generate_capture(out, SynthConfig(num_sequences=sequences, frames_per_sequence=frames, seed=seed, width_px=width,
+                                      side=side), workers=1, force=True)
     return out
 
 

@@ -20,6 +20,9 @@ class Project(Base):
     description: Mapped[str] = mapped_column(String(2000), default="")
     hand_model: Mapped[str] = mapped_column(String(200), default="")
     synthetic: Mapped[bool] = mapped_column(default=False)
+    # capture.json's working_width_px: views wider than it are shown (and served) at this width, derived
+    # from the full-resolution originals in storage; None: as they are.
+    working_width_px: Mapped[int | None] = mapped_column(default=None)
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
 
 

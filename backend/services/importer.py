@@ -52,7 +52,7 @@ def write_project(session: Session, storage: Storage, capture: Any, name: str, *
     """The rows and stored files of a capture already read and verified (`import_capture`'s last step, timed
     alone by `handloop bench verify`). `capture`: a workers.capture.Capture."""
     project = Project(name=name, hand_model=capture.hand_model.name, synthetic=capture.synthetic,
-                      description=f"imported from {capture.root}")
+                      description=f"imported from {capture.root}", working_width_px=capture.working_width_px)
     session.add(project)
     session.flush()
     cameras = {}

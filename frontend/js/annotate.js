@@ -911,7 +911,7 @@ class AnnotatePage {
     ctx.fillRect(0, 0, width, height);
     this.vp.apply(ctx, dpr);
     ctx.imageSmoothingEnabled = this.vp.scale < 3;
-    if (view.image) ctx.drawImage(view.image, 0, 0);
+    if (view.image) ctx.drawImage(view.image, 0, 0, view.width, view.height);  // a working-width copy: full-resolution units
     // Points mode shows the mask's outline only, so the skin under it stays visible.
     if (this.showMask && view.overlay) ctx.drawImage(this.mode === "points" ? view.overlay.outline() : view.overlay.canvas, 0, 0);
     ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
@@ -978,7 +978,7 @@ class AnnotatePage {
     // Image point (u, v) at the loupe's centre: screen = (px + 0.5) * scale + o.
     ctx.setTransform(scale * dpr, 0, 0, scale * dpr, (g.cx - (u + 0.5) * scale) * dpr, (g.cy - (v + 0.5) * scale) * dpr);
     ctx.imageSmoothingEnabled = false;
-    ctx.drawImage(view.image, 0, 0);
+    ctx.drawImage(view.image, 0, 0, view.width, view.height);
     if (this.showMask && view.overlay) ctx.drawImage(view.overlay.outline(), 0, 0);
     ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
     ctx.strokeStyle = "rgba(255, 255, 255, 0.9)";
@@ -1080,7 +1080,7 @@ class AnnotatePage {
     ctx.fillStyle = "#111";
     ctx.fillRect(0, 0, width, height);
     vp.apply(ctx, dpr);
-    if (view.image) ctx.drawImage(view.image, 0, 0);
+    if (view.image) ctx.drawImage(view.image, 0, 0, view.width, view.height);  // a working-width copy: full-resolution units
     if (this.showMask && view.overlay) ctx.drawImage(view.overlay.canvas, 0, 0);
     ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
     this.drawPoints(ctx, view, vp, { r: 3 });

@@ -441,7 +441,7 @@ class ReviewPage {
     ctx.fillStyle = "#111";
     ctx.fillRect(0, 0, width, height);
     vp.apply(ctx, dpr);
-    ctx.drawImage(view.image, 0, 0);
+    ctx.drawImage(view.image, 0, 0, view.width, view.height);
     ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
     const { mesh } = this.current;
     const info = view.info;

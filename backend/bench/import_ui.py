@@ -8,11 +8,15 @@ first visit (empty cache) in a new browser context on a warm server; median of `
 warm-up load (the server's one-off imports, reported apart). Measured twice: with the capture's working
 width (the page gets working-width copies of the images, derived on the first request: the warm-up load
 derives those of the first sample, the timed loads see them stored) and with the full-resolution images
-(the project's working width cleared), so the working width's effect is a number.
+(the project's working width cleared), so the working width's effect is a number. And the first visit
+of a sample whose copies are not derived yet, on the warm server (`underived_interactive_ms`: the stored
+copies removed before each load): what the first annotator of a sample waits when the page's prefetch of
+the next sample has not derived them ahead.
 """
 
 from __future__ import annotations
 
+import shutil
 import statistics
 import sys
 import uuid
@@ -100,6 +104,7 @@ def measure(database_url: str, storage_dir: Path, project: str, *, working_width
     from playwright.sync_api import sync_playwright
 
     from backend.runtime import start_stack
+    from backend.services.working_images import DERIVED_PREFIX
     from backend.settings import Settings
 
     data_dir = storage_dir.parent
@@ -120,6 +125,13 @@ def measure(database_url: str, storage_dir: Path, project: str, *, working_width
                 if working_width is not None:
                     result["at_working_width"] = _series(browser, base, token, repeats,
                                                          f"working width {working_width} px")
+                    underived = []
+                    for _ in range(repeats):
+                        shutil.rmtree(storage_dir / DERIVED_PREFIX, ignore_errors=True)
+                        underived.append(_load(browser, base, token)["interactive_ms"])
+                    result["at_working_width"]["underived_interactive_ms"] = round(statistics.median(underived), 1)
+                    result["at_working_width"]["underived_runs_ms"] = [round(v, 1) for v in underived]
+                    _progress(f"annotate page interactive, copies not derived yet: {underived}")
                 _set_working_width(database_url, project, None)
                 result["at_full_resolution"] = _series(browser, base, token, repeats, "full resolution")
             finally:

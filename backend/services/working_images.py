@@ -51,16 +51,24 @@ def working_image_key(session: Session, storage: Storage, view: View) -> str:
         return key
     except NotFoundError:
         pass
-    storage.put_bytes(key, _resized_jpeg(storage.get_bytes(view.image_key), working_size(view.width, view.height,
-                                                                                         width), view.image_key))
+    size = working_size(view.width, view.height, width)
+    storage.put_bytes(key, _resized_jpeg(storage.get_bytes(view.image_key), view.width, size, view.image_key))
     return key
 
 
-def _resized_jpeg(data: bytes, size: tuple[int, int], what: str) -> bytes:
+def _resized_jpeg(data: bytes, full_width: int, size: tuple[int, int], what: str) -> bytes:
     import cv2  # deferred: the API's start-up stays free of OpenCV
     import numpy as np
 
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    # A JPEG decoded at 1/2, 1/4 or 1/8 scale (libjpeg's DCT scaling) where that stays at least the working
+    # width: 2048 -> 1024 px for a 640 px copy decodes ~2.7x faster than in full (425 vs 160 ms loaded).
+    flag = cv2.IMREAD_COLOR
+    for factor, reduced in ((8, cv2.IMREAD_REDUCED_COLOR_8), (4, cv2.IMREAD_REDUCED_COLOR_4),
+                            (2, cv2.IMREAD_REDUCED_COLOR_2)):
+        if full_width // factor >= size[0]:
+            flag = reduced
+            break
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), flag)
     if image is None:
         raise NotFoundError(f"image {what!r} in storage cannot be decoded")
     resized = cv2.resize(image, size, interpolation=cv2.INTER_AREA)

@@ -242,8 +242,8 @@ def live_stack(tmp_path: Path, capture_cache: Path) -> Iterator[Callable[..., Li
     databases = ExitStack()
 
     def make(*, frames: int = 3, sequences: int = 1, width: int = 160, seed: int = 0, database: str = "sqlite",
-             **options: Any) -> LiveStack:
-        capture = tiny_capture(capture_cache, frames=frames, sequences=sequences, width=width, seed=seed)
+             side: str = "right", **options: Any) -> LiveStack:
+        capture = tiny_capture(capture_cache, frames=frames, sequences=sequences, width=width, seed=seed, side=side)
         data_dir = tmp_path / f"stack-{len(stacks)}"
         if database == "postgres" and "database_url" not in options:
             options["database_url"] = databases.enter_context(fresh_postgres())

@@ -72,7 +72,7 @@ def write_project(session: Session, storage: Storage, capture: Any, name: str, *
     for seq in capture.sequences:
         seq_row = Sequence(project_id=project.id, subject_id=subjects[seq.subject_id].id, external_id=seq.id,
                            split=seq.split, green_screen=seq.green_screen, fps=seq.fps,
-                           holds_object=seq.holds_object, side=capture.hand_model.side)
+                           holds_object=seq.holds_object, side=seq.hand_side or capture.hand_model.side)
         session.add(seq_row)
         session.flush()
         for frame in seq.frames:

@@ -182,22 +182,27 @@ def _variant(capture_dir: Path, out: Path, **header: object) -> Path:
 
 def test_the_captures_hand_side_is_stored_per_sequence_and_named_on_the_task(sqlite_env, capture_dir, tmp_path):
     env = sqlite_env
-    for name, side in (("right-hands", None), ("left-hands", "left")):
-        path = _variant(capture_dir, tmp_path / name, hand_model_side=side) if side else capture_dir
+    # A right-hand capture whose one sequence says it is a left hand (sequence.json 'hand_side', version 2).
+    mixed = _variant(capture_dir, tmp_path / "mixed", version=2)
+    sequence_json = next((mixed / "sequences").iterdir()) / "sequence.json"
+    sequence_json.write_text(json.dumps({**json.loads(sequence_json.read_text()), "hand_side": "left"}))
+    for name, path in (("right-hands", capture_dir), ("left-hands", _variant(capture_dir, tmp_path / "left",
+                                                                             hand_model_side="left")),
+                       ("mixed", mixed)):
         response = env.client.post("/api/admin/imports", headers=env.headers(Role.admin),
                                    json={"path": str(path), "project": name})
         assert response.status_code == 201, response.text
     with env.session() as s:
         sides = dict(s.execute(text("SELECT p.name, q.side FROM sequences q JOIN projects p ON p.id = q.project_id"))
                      .all())
-    assert sides == {"right-hands": "right", "left-hands": "left"}
+    assert sides == {"right-hands": "right", "left-hands": "left", "mixed": "left"}
     task = env.client.post("/api/annotate/next", headers=env.headers(Role.annotator)).json()
     assert task["side"] == "right"  # the right hands' project came first
     with env.session() as s, s.begin():  # only the left hands' samples left in the queue
         s.execute(text("UPDATE samples SET state = 'unlabeled', leased_by_id = NULL, lease_kind = NULL, "
                        "lease_token = NULL, lease_expires_at = NULL WHERE sequence_id IN "
                        "(SELECT q.id FROM sequences q JOIN projects p ON p.id = q.project_id "
-                       "WHERE p.name = 'right-hands')"))
+                       "WHERE p.name <> 'left-hands')"))
     task = env.client.post("/api/annotate/next", headers=env.headers(Role.annotator)).json()
     assert task["side"] == "left", task
 

@@ -4,6 +4,7 @@ project onto the synthetic ones; the same clicks fitted with the right model lan
 
 from __future__ import annotations
 
+import dataclasses
 import uuid
 
 import numpy as np
@@ -85,7 +86,7 @@ def test_a_left_hand_capture_imports_as_left_and_fits_with_the_left_model(left_w
         fi = fit_input(ctx, session, session.get(Job, job_id))
     assert fi.side == "left"
     config = fit_config(ctx, fi.source)
-    right = engine_for(ctx, type(fi)(**{**fi.__dict__, "side": "right"}), config).fit([fi.observations])[0]
+    right = engine_for(ctx, dataclasses.replace(fi, side="right"), config).fit([fi.observations])[0]
     assert engine_for(ctx, fi, config).arrays.side == "left"
 
     summary = run_fit_jobs(ctx, [job_id])
@@ -98,6 +99,6 @@ def test_a_left_hand_capture_imports_as_left_and_fits_with_the_left_model(left_w
     right_px = _reprojection_px(capture_dir, right.keypoints, truth)
     left_mm = 1000 * np.linalg.norm(keypoints - truth.keypoints_3d, axis=1).mean()
     right_mm = 1000 * np.linalg.norm(right.keypoints - truth.keypoints_3d, axis=1).mean()
-    print(f"left model {left_px:.2f} px {left_mm:.1f} mm; right model {right_px:.2f} px {right_mm:.1f} mm")
+    # Seen: left model 0.69 px / 5.0 mm, right model 1.93 px / 13.9 mm (built-in hand, the tests' iterations).
     assert left_px < 3.0, left_px
     assert right_px > 2 * left_px and right_mm > 2 * left_mm, (left_px, right_px, left_mm, right_mm)

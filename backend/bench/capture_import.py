@@ -160,8 +160,13 @@ def write_videos(folder: Path, cameras: list[Any], frames: int, progress: Any = 
         return sum(pool.map(one, range(len(cameras))))
 
 
-def run(*, quick: bool = False, workers: int = 0, videos: bool = False, emit_json: bool = True) -> dict[str, Any]:
-    """Run the benchmark and return its record (printed as the last stdout line when `emit_json`)."""
+def run(*, quick: bool = False, workers: int = 0, videos: bool = False, emit_json: bool = True,
+        ui: bool = True, ui_repeats: int = 3, working_width: int | None = None) -> dict[str, Any]:
+    """Run the benchmark and return its record (printed as the last stdout line when `emit_json`).
+
+    `ui`: then measure the annotate page's time to interactive on the imported project in headless Chromium
+    (backend.bench.import_ui; `ui_repeats` loads). `working_width`: the capture's working width (default
+    assemble's own)."""
     from tqdm import tqdm
 
     from backend.db.migrate import upgrade
@@ -195,7 +200,8 @@ def run(*, quick: bool = False, workers: int = 0, videos: bool = False, emit_jso
 
             t0 = time.perf_counter()
             source = {"videos": tmp / "sources"} if videos else {"images": tmp / "sources"}
-            assemble_capture(cameras, tmp / "capture", **source, workers=workers, progress=progress)
+            assemble_capture(cameras, tmp / "capture", **source, workers=workers, progress=progress,
+                             working_width_px=working_width)
             assemble_s = time.perf_counter() - t0
             assemble_peak = memory.peak
 
@@ -214,7 +220,14 @@ def run(*, quick: bool = False, workers: int = 0, videos: bool = False, emit_jso
                 import_peak = memory.peak
         finally:
             engine.dispose()
-    load_after = os.getloadavg()
+        load_after = os.getloadavg()
+        annotate_page: dict[str, Any] | None = None
+        if ui:
+            from backend.bench.import_ui import measure
+            from workers.capture import read_capture
+
+            width = read_capture(tmp / "capture", check_images=False).working_width_px
+            annotate_page = measure(url, tmp / "storage", "bench", working_width=width, repeats=ui_repeats)
     record = {
         "end_to_end_frames_per_s": round(frames / (assemble_s + import_s), 3),
         "assemble_frames_per_s": round(frames / assemble_s, 3),
@@ -230,9 +243,13 @@ def run(*, quick: bool = False, workers: int = 0, videos: bool = False, emit_jso
         "memory_vs_frames": memory_vs_frames,
         "views_imported": result.views,
         "target_frames_per_s": 10.0,
+        "annotate_interactive_ms": None if annotate_page is None else annotate_page["interactive_ms"],
+        "annotate_page": annotate_page,
+        "target_annotate_interactive_ms": 1000.0,
         "load_average": {"before": [round(v, 2) for v in load_before], "after": [round(v, 2) for v in load_after]},
     }
     settings = {"quick": quick, "source": "mjpg videos" if videos else "jpeg folders",
                 "workers": workers or min(num_cameras, os.cpu_count() or 1),
-                "source_jpeg_quality": SOURCE_JPEG_QUALITY}
+                "source_jpeg_quality": SOURCE_JPEG_QUALITY, "ui": ui, "ui_repeats": ui_repeats,
+                "working_width_px": working_width}
     return emit("import", record, settings, started) if emit_json else record

@@ -9,7 +9,7 @@ from sqlalchemy import ForeignKey, Index, String, UniqueConstraint
 from sqlalchemy.orm import Mapped, mapped_column, relationship
 
 from backend.db.base import Base, utcnow
-from backend.models.enums import SampleState, Split, enum_check
+from backend.models.enums import HandSide, SampleState, Split, enum_check
 
 
 class Project(Base):
@@ -20,6 +20,9 @@ class Project(Base):
     description: Mapped[str] = mapped_column(String(2000), default="")
     hand_model: Mapped[str] = mapped_column(String(200), default="")
     synthetic: Mapped[bool] = mapped_column(default=False)
+    # capture.json's working_width_px: views wider than it are shown (and served) at this width, derived
+    # from the full-resolution originals in storage; None: as they are.
+    working_width_px: Mapped[int | None] = mapped_column(default=None)
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
 
 
@@ -51,7 +54,8 @@ class Subject(Base):
 
 class Sequence(Base):
     __tablename__ = "sequences"
-    __table_args__ = (UniqueConstraint("project_id", "external_id"), enum_check("split", Split))
+    __table_args__ = (UniqueConstraint("project_id", "external_id"), enum_check("split", Split),
+                      enum_check("side", HandSide))
 
     id: Mapped[int] = mapped_column(primary_key=True)
     project_id: Mapped[int] = mapped_column(ForeignKey("projects.id", ondelete="CASCADE"), index=True)
@@ -61,6 +65,8 @@ class Sequence(Base):
     green_screen: Mapped[bool] = mapped_column(default=True)
     fps: Mapped[float] = mapped_column(default=0.0)
     holds_object: Mapped[bool] = mapped_column(default=False)
+    # Which hand: the fit loads this side's model; rows from before the column are right hands.
+    side: Mapped[str] = mapped_column(String(10), default=HandSide.right.value, server_default=HandSide.right.value)
 
 
 class Sample(Base):

@@ -38,6 +38,13 @@ class Split(StrEnum):
     evaluation = "evaluation"
 
 
+class HandSide(StrEnum):
+    """Which hand a sequence shows: its fits use that side's hand model (issue 18)."""
+
+    right = "right"
+    left = "left"
+
+
 class LeaseKind(StrEnum):
     annotate = "annotate"
     review = "review"

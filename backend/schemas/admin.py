@@ -109,7 +109,9 @@ class PreannotateRequest(Strict):
     rest: Literal["annotate", "keep"] = Field(
         default="annotate", description="Samples the reviewers' queue does not take, and those with no detector "
         "fit: to the annotators (with the detector's keypoints as proposals), or left as they are.")
-    handedness: Literal["right", "left"] = "right"
+    handedness: Literal["right", "left"] | None = Field(
+        default=None, description="Which hand the detector looks for, for every chosen sample; default each "
+        "sample's sequence's side (recorded at import).")
 
 
 class PreannotateLaunched(Public):

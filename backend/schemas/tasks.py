@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from pydantic import ConfigDict, Field, model_validator
 
@@ -30,6 +30,7 @@ class TaskPublic(Public):
     lease_expires_at: datetime
     sequence_id: int
     sequence: str | None = Field(default=None, description="The sequence's name in the capture and exports.")
+    side: Literal["right", "left"] = Field(default="right", description="Which hand the sequence shows.")
     frame_index: int
     time_s: float
     keypoints_to_click: list[int]

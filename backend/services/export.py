@@ -21,7 +21,8 @@ FOREGROUND_KINDS = (MaskKind.chroma_key.value, MaskKind.corrected.value)
 
 
 def _members_query(up_to_round: int | None, project: str | None):
-    query = (select(RoundMember, Round.index, Sample, Sequence.external_id, Fit, Project.name, Project.hand_model)
+    query = (select(RoundMember, Round.index, Sample, Sequence.external_id, Fit, Project.name, Project.hand_model,
+                    Sequence.side)
              .join(Round, Round.id == RoundMember.round_id)
              .join(Sample, Sample.id == RoundMember.sample_id)
              .join(Sequence, Sequence.id == Sample.sequence_id)
@@ -61,11 +62,12 @@ def dataset(session: Session, up_to_round: int | None = None, project: str | Non
     _check_round(session, up_to_round)
     samples = [
         {"sample_id": sample.id, "sequence": seq, "sequence_id": sample.sequence_id, "frame_index": sample.frame_index,
-         "split": sample.split, "project": project_name, "round": index, "stream": member.stream,
+         "split": sample.split, "side": side, "project": project_name, "round": index, "stream": member.stream,
          "fit": None if fit is None else {"id": fit.id, "params": fit.params, "keypoints_m": fit.keypoints_m,
                                           "model_file": fit.model_file, "prediction_id": fit.prediction_id,
                                           "heuristic": fit.heuristic, "source": fit_source(fit)}}
-        for member, index, sample, seq, fit, project_name, _ in session.execute(_members_query(up_to_round, project))
+        for member, index, sample, seq, fit, project_name, _, side
+        in session.execute(_members_query(up_to_round, project))
     ]
     hand_models = sorted({row[6] for row in session.execute(_members_query(up_to_round, project))} - {""})
     return {"count": len(samples), "hand_models": hand_models, "samples": samples}
@@ -76,14 +78,15 @@ def sample_index(session: Session, project: str | None = None) -> dict[str, Any]
     server's ids to a capture's frames (e.g. to compare with ground truth)."""
     _check_project(session, project)
     query = (select(Sample.id, Sample.sequence_id, Sequence.external_id, Sample.frame_index, Sample.time_s,
-                    Sample.split, Sample.state, Sample.current_fit_id, Sample.confidence, Project.name)
+                    Sample.split, Sample.state, Sample.current_fit_id, Sample.confidence, Project.name,
+                    Sequence.side)
              .join(Sequence, Sequence.id == Sample.sequence_id)
              .join(Project, Project.id == Sequence.project_id)
              .order_by(Sample.id))
     if project is not None:
         query = query.where(Project.name == project)
     keys = ("sample_id", "sequence_id", "sequence", "frame_index", "time_s", "split", "state", "current_fit_id",
-            "confidence", "project")
+            "confidence", "project", "side")
     samples = [dict(zip(keys, row, strict=True)) for row in session.execute(query)]
     return {"count": len(samples), "samples": samples}
 
@@ -111,7 +114,7 @@ def export_records(session: Session, up_to_round: int | None = None, project: st
     _check_project(session, project)
     _check_round(session, up_to_round)
     records = []
-    for member, index, sample, seq, fit, _, _ in session.execute(_members_query(up_to_round, project)):
+    for member, index, sample, seq, fit, _, _, side in session.execute(_members_query(up_to_round, project)):
         if fit is None:
             raise InvalidInputError(f"sample {sample.id} was accepted without a fit; it cannot be exported")
         newest_foreground = (select(Mask.storage_key).where(Mask.view_id == View.id, Mask.kind.in_(FOREGROUND_KINDS))
@@ -129,5 +132,5 @@ def export_records(session: Session, up_to_round: int | None = None, project: st
             sample_id=sample.id, fit_id=fit.id, sequence=seq, frame_index=sample.frame_index, split=sample.split,
             green_screen=sample.green_screen, round_index=index, stream=member.stream,
             params=np.asarray(fit.params, np.float64), keypoints_m=np.asarray(fit.keypoints_m, np.float64),
-            model_file=fit.model_file, views=tuple(views), fit_source=fit_source(fit)))
+            model_file=fit.model_file, views=tuple(views), fit_source=fit_source(fit), side=side))
     return records

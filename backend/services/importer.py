@@ -52,7 +52,7 @@ def write_project(session: Session, storage: Storage, capture: Any, name: str, *
     """The rows and stored files of a capture already read and verified (`import_capture`'s last step, timed
     alone by `handloop bench verify`). `capture`: a workers.capture.Capture."""
     project = Project(name=name, hand_model=capture.hand_model.name, synthetic=capture.synthetic,
-                      description=f"imported from {capture.root}")
+                      description=f"imported from {capture.root}", working_width_px=capture.working_width_px)
     session.add(project)
     session.flush()
     cameras = {}
@@ -72,7 +72,7 @@ def write_project(session: Session, storage: Storage, capture: Any, name: str, *
     for seq in capture.sequences:
         seq_row = Sequence(project_id=project.id, subject_id=subjects[seq.subject_id].id, external_id=seq.id,
                            split=seq.split, green_screen=seq.green_screen, fps=seq.fps,
-                           holds_object=seq.holds_object)
+                           holds_object=seq.holds_object, side=seq.hand_side or capture.hand_model.side)
         session.add(seq_row)
         session.flush()
         for frame in seq.frames:

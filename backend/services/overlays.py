@@ -187,9 +187,9 @@ def _b64(array: np.ndarray, dtype: str) -> str:
 def _mesh_payload(fit: Fit, mano_path: Path | None) -> tuple[dict[str, Any] | None, str | None, float | None]:
     """(mesh, note, keypoint offset mm): the fit's mesh as little-endian float32 vertices (V, 3) and int32
     faces (F, 3), base64; or None and why not."""
-    from backend.viewer.hand_mesh import load_arrays, posed_mesh
+    from backend.viewer.hand_mesh import fit_side, load_arrays, posed_mesh
 
-    arrays = load_arrays(fit.model_file, mano_path)
+    arrays = load_arrays(fit.model_file, mano_path, fit_side(fit.diagnostics))
     if arrays is None:
         return None, f"no mesh: the fit used {fit.model_file} and this server has no HANDLOOP_MANO_PATH", None
     mesh = posed_mesh(arrays, np.asarray(fit.params))
@@ -205,7 +205,7 @@ def _mesh_payload(fit: Fit, mano_path: Path | None) -> tuple[dict[str, Any] | No
 def review_overlay(session: Session, user: Actor, sample_id: int, *, secret_key: str, mano_path: Path | None = None,
                    with_mesh: bool = True) -> dict[str, Any]:
     """Everything the review page draws for a sample under the caller's review lease."""
-    from backend.viewer.hand_mesh import hand_model_label, is_stand_in
+    from backend.viewer.hand_mesh import fit_side, hand_model_label, is_stand_in
 
     sample = _held(session, user, sample_id, LeaseKind.review)
     if sample.current_fit_id is None:
@@ -247,7 +247,7 @@ def review_overlay(session: Session, user: Actor, sample_id: int, *, secret_key:
         "sample_id": sample_id,
         "fit_id": fit.id,
         "hand_model": {"model_file": fit.model_file, "stand_in": is_stand_in(fit.model_file),
-                       "label": hand_model_label(fit.model_file)},
+                       "label": hand_model_label(fit.model_file), "side": fit_side(fit.diagnostics)},
         "fit": {"keypoints_m": keypoints.round(6).tolist(), "source": "annotations" if submission_ids else
                 "prediction", "heuristic": fit.heuristic, "pose_distance": round(float(fit.pose_distance), 4),
                 "mean_iou": round(float(np.mean(list(ious.values()))), 4) if ious else None,

@@ -76,14 +76,14 @@ def scene_bytes(session: Session, storage: Storage, fit: Fit, mano_path: Path | 
     cached = _cached(key)
     if cached is not None:
         return cached
-    from backend.viewer.hand_mesh import hand_model_label, load_arrays, posed_mesh
+    from backend.viewer.hand_mesh import fit_side, hand_model_label, load_arrays, posed_mesh
     from backend.viewer.scene import SampleScene, record_scene, scene_camera, thumbnail
 
     prediction = session.get(Prediction, fit.prediction_id) if fit.prediction_id else None
     keys = dict(session.execute(select(View.id, View.image_key).where(View.sample_id == fit.sample_id)).all())
     views = view_cameras(session, fit.sample_id)
     end_reads(session)
-    arrays = load_arrays(fit.model_file, mano_path)
+    arrays = load_arrays(fit.model_file, mano_path, fit_side(fit.diagnostics))
     mesh = posed_mesh(arrays, np.asarray(fit.params)) if arrays is not None else None
     cameras = [scene_camera(c.name, c.width, c.height, c.K, c.R, c.t, thumbnail(storage.get_bytes(keys[c.view_id])))
                for c in views]

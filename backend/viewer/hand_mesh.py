@@ -48,17 +48,24 @@ def hand_model_label(model_file: str) -> str:
     return STAND_IN_LABEL if is_stand_in(model_file) else f"MANO ({Path(model_file).name})"
 
 
-def load_arrays(model_file: str, mano_path: Path | None) -> HandModelArrays | None:
-    """The arrays of the model that made a fit, or None when this process cannot load them (a MANO
-    fit but no HANDLOOP_MANO_PATH here)."""
+def fit_side(diagnostics: dict | None) -> str:
+    """The hand a fit posed, as the fit job records it (diagnostics 'hand_side'); fits from before left
+    hands were fitted are right hands."""
+    side = (diagnostics or {}).get("hand_side")
+    return "left" if side == "left" else "right"
+
+
+def load_arrays(model_file: str, mano_path: Path | None, side: str = "right") -> HandModelArrays | None:
+    """The arrays of the model (of this side) that made a fit, or None when this process cannot load them
+    (a MANO fit but no HANDLOOP_MANO_PATH here)."""
     from workers.handmodel.loading import load_hand_model  # numpy and scipy only
 
     if is_stand_in(model_file):
-        return load_hand_model(None, "right")
+        return load_hand_model(None, side)
     if mano_path is None:
         logger.warning("fit made with %s but HANDLOOP_MANO_PATH is unset here: no mesh", model_file)
         return None
-    return load_hand_model(Path(mano_path), "right")
+    return load_hand_model(Path(mano_path), side)
 
 
 def axis_angle_to_matrix(rotvecs: np.ndarray) -> np.ndarray:

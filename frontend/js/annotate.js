@@ -2,7 +2,7 @@
 // per view (keys pick the keypoint, mark it occluded or not annotated), accept or drag proposals, correct
 // the automatic mask with brush and eraser, undo and redo, submit; the next task is prefetched.
 import { Annotation, inside, proposals as computeProposals, triangulateClicked } from "./annotation.js";
-import { fitCanvas, fmt, h, isTyping, toast, fill } from "./dom.js";
+import { fitCanvas, fmt, h, handSide, isTyping, toast, fill } from "./dom.js";
 import { epipolarCurve, projectPoint } from "./geometry.js";
 import { marker, segment } from "./draw.js";
 import { History } from "./history.js";
@@ -911,7 +911,7 @@ class AnnotatePage {
     ctx.fillRect(0, 0, width, height);
     this.vp.apply(ctx, dpr);
     ctx.imageSmoothingEnabled = this.vp.scale < 3;
-    if (view.image) ctx.drawImage(view.image, 0, 0);
+    if (view.image) ctx.drawImage(view.image, 0, 0, view.width, view.height);  // a working-width copy: full-resolution units
     // Points mode shows the mask's outline only, so the skin under it stays visible.
     if (this.showMask && view.overlay) ctx.drawImage(this.mode === "points" ? view.overlay.outline() : view.overlay.canvas, 0, 0);
     ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
@@ -978,7 +978,7 @@ class AnnotatePage {
     // Image point (u, v) at the loupe's centre: screen = (px + 0.5) * scale + o.
     ctx.setTransform(scale * dpr, 0, 0, scale * dpr, (g.cx - (u + 0.5) * scale) * dpr, (g.cy - (v + 0.5) * scale) * dpr);
     ctx.imageSmoothingEnabled = false;
-    ctx.drawImage(view.image, 0, 0);
+    ctx.drawImage(view.image, 0, 0, view.width, view.height);
     if (this.showMask && view.overlay) ctx.drawImage(view.overlay.outline(), 0, 0);
     ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
     ctx.strokeStyle = "rgba(255, 255, 255, 0.9)";
@@ -1080,7 +1080,7 @@ class AnnotatePage {
     ctx.fillStyle = "#111";
     ctx.fillRect(0, 0, width, height);
     vp.apply(ctx, dpr);
-    if (view.image) ctx.drawImage(view.image, 0, 0);
+    if (view.image) ctx.drawImage(view.image, 0, 0, view.width, view.height);  // a working-width copy: full-resolution units
     if (this.showMask && view.overlay) ctx.drawImage(view.overlay.canvas, 0, 0);
     ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
     this.drawPoints(ctx, view, vp, { r: 3 });
@@ -1120,6 +1120,7 @@ class AnnotatePage {
       h("div", { class: "sample-head" },
         h("h2", {}, `Sample ${t.sample_id}`),
         h("div", { class: "muted" }, `${t.sequence ?? `sequence ${t.sequence_id}`} · frame ${t.frame_index}`),
+        handSide(t.side),
         h("div", { class: "clock muted" }, ""),
         h("div", { class: "draft-state muted" }, draftLabel(document.body.dataset.draftState))),
       this.reviewNote ? h("div", { class: "callout" }, h("strong", {}, "Reviewer: "), this.reviewNote) : null,

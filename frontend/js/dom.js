@@ -62,3 +62,10 @@ export function fitCanvas(canvas) {
   }
   return { width: rect.width, height: rect.height, dpr };
 }
+
+// Which hand the sample's sequence shows: a left hand is called out (the fit uses the left hand model).
+export function handSide(side) {
+  const left = side === "left";
+  return h("div", { class: left ? "hand-side callout" : "hand-side muted", "data-side": left ? "left" : "right" },
+    left ? "left hand" : "right hand");
+}

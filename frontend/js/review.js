@@ -1,7 +1,7 @@
 // The review page: the fit's outline, wireframe, keypoints and skeleton over every view (toggleable), with
 // per-view IoU and residuals; the sample's 3D scene in viser's client; accept / reject / needs annotation
 // with one key (a reason for the last two); the next sample is prefetched and drawn ahead.
-import { fitCanvas, fmt, h, isTyping, toast, fill } from "./dom.js";
+import { fitCanvas, fmt, h, handSide, isTyping, toast, fill } from "./dom.js";
 import { DraftSaver } from "./drafts.js";
 import { marker, segment } from "./draw.js";
 import { loadViews } from "./images.js";
@@ -454,7 +454,7 @@ class ReviewPage {
     ctx.fillStyle = "#111";
     ctx.fillRect(0, 0, width, height);
     vp.apply(ctx, dpr);
-    ctx.drawImage(view.image, 0, 0);
+    ctx.drawImage(view.image, 0, 0, view.width, view.height);
     ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
     const { mesh } = this.current;
     const info = view.info;
@@ -627,6 +627,7 @@ class ReviewPage {
       h("div", { class: "sample-head" },
         h("h2", {}, `Sample ${task.sample_id}`),
         h("div", { class: "muted" }, `${task.sequence ?? `sequence ${task.sequence_id}`} · frame ${task.frame_index} · fit ${overlay.fit_id}`),
+        handSide(task.side),
         h("div", { class: "clock muted" }, "")),
       h("div", { class: overlay.hand_model.stand_in ? "callout warn" : "callout" }, overlay.hand_model.label),
       h("dl", { class: "facts" },

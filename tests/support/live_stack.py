@@ -109,21 +109,22 @@ class LiveStack:
         self.stack.stop()
 
 
-def tiny_capture(root: Path, *, frames: int = 3, sequences: int = 1, width: int = 160, seed: int = 0) -> Path:
-    """A synthetic capture under `root` (reused when it is already there and valid)."""
+def tiny_capture(root: Path, *, frames: int = 3, sequences: int = 1, width: int = 160, seed: int = 0,
+                 side: str = "right") -> Path:
+    """A synthetic capture of a `side` hand under `root` (reused when it is already there and valid)."""
     from workers.capture import CaptureError, read_capture
     from workers.synth.generator import generate_capture
     from workers.synth.plan import SynthConfig
 
-    out = root / f"capture-s{sequences}-f{frames}-w{width}-seed{seed}"
+    out = root / (f"capture-s{sequences}-f{frames}-w{width}-seed{seed}" + ("-left" if side == "left" else ""))
     if out.exists():
         try:
             read_capture(out, check_images=False)
             return out
         except CaptureError:
             pass
-    generate_capture(out, SynthConfig(num_sequences=sequences, frames_per_sequence=frames, seed=seed, width_px=width),
-                     workers=1, force=True)
+    generate_capture(out, SynthConfig(num_sequences=sequences, frames_per_sequence=frames, seed=seed, width_px=width,
+                                      side=side), workers=1, force=True)
     return out
 
 
@@ -241,8 +242,8 @@ def live_stack(tmp_path: Path, capture_cache: Path) -> Iterator[Callable[..., Li
     databases = ExitStack()
 
     def make(*, frames: int = 3, sequences: int = 1, width: int = 160, seed: int = 0, database: str = "sqlite",
-             **options: Any) -> LiveStack:
-        capture = tiny_capture(capture_cache, frames=frames, sequences=sequences, width=width, seed=seed)
+             side: str = "right", **options: Any) -> LiveStack:
+        capture = tiny_capture(capture_cache, frames=frames, sequences=sequences, width=width, seed=seed, side=side)
         data_dir = tmp_path / f"stack-{len(stacks)}"
         if database == "postgres" and "database_url" not in options:
             options["database_url"] = databases.enter_context(fresh_postgres())

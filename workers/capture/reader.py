@@ -300,6 +300,9 @@ def _read_sequence(seq_dir: Path, cameras: tuple[Camera, ...], subjects: dict[st
         if key in data:
             _typed(data, key, str, where)
     chroma_key = _read_chroma_key(data, version, where)
+    hand_side = data.get("hand_side")
+    if hand_side is not None and hand_side not in ("right", "left"):
+        raise CaptureError(f"{where}: field 'hand_side' must be 'right' or 'left', got {hand_side!r}")
 
     allowed = {IMAGES_DIR, MASKS_DIR, GROUND_TRUTH_DIR, SEQUENCE_FILE}
     unknown = sorted(p.name for p in _visible_entries(seq_dir) if p.name not in allowed)
@@ -353,7 +356,8 @@ def _read_sequence(seq_dir: Path, cameras: tuple[Camera, ...], subjects: dict[st
     )
     return Sequence(id=seq_id, subject_id=subject, split=split, green_screen=green_screen, fps=fps,
                     holds_object=holds_object, frames=frames, object_kind=object_kind,
-                    background=data.get("background", ""), image_format=image_format, chroma_key=chroma_key)
+                    background=data.get("background", ""), image_format=image_format, chroma_key=chroma_key,
+                    hand_side=hand_side)
 
 
 def read_capture(path: Path | str, *, check_images: bool = True) -> Capture:

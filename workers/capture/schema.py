@@ -19,7 +19,7 @@ FORMAT_NAME = "handloop-capture"
 FORMAT_VERSION = 2
 # Keys added in version 2 (bring-your-own-rig captures); version-1 files must not carry them.
 VERSION_2_CAPTURE_KEYS = frozenset({"working_width_px"})
-VERSION_2_SEQUENCE_KEYS = frozenset({"chroma_key"})
+VERSION_2_SEQUENCE_KEYS = frozenset({"chroma_key", "hand_side"})
 
 CAPTURE_FILE = "capture.json"
 CALIBRATION_FILE = "calibration.json"
@@ -148,6 +148,8 @@ class Sequence:
         image_format: "jpg" or "png".
         chroma_key: the keyer settings the masks were made with (workers.capture.chroma.ChromaKey as a
             dict; version 2), or None.
+        hand_side: "right" or "left" where this sequence's hand differs from the capture's
+            hand_model.side (version 2), or None: the capture's.
     """
 
     id: str
@@ -161,6 +163,7 @@ class Sequence:
     background: str = ""
     image_format: str = "jpg"
     chroma_key: dict[str, Any] | None = None
+    hand_side: str | None = None
 
     @property
     def has_masks(self) -> bool:

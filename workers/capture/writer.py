@@ -87,11 +87,14 @@ def write_sequence(root: Path, sequence_id: str, *, subject_id: str, split: str,
                    fps: float, num_frames: int, holds_object: bool, camera_names: list[str],
                    image_format: str = "jpg", object_kind: str | None = None, background: str = "",
                    with_masks: bool = False, with_ground_truth: bool = False,
-                   chroma_key: dict[str, Any] | None = None) -> Path:
+                   chroma_key: dict[str, Any] | None = None, hand_side: str | None = None) -> Path:
     """Write sequences/<id>/sequence.json and create its folders; returns the sequence folder.
 
-    `chroma_key` (the keyer settings of the masks, a version-2 key) needs a version-2 capture.json.
+    `chroma_key` (the keyer settings of the masks) and `hand_side` (this sequence's hand where it differs
+    from the capture's hand_model.side), version-2 keys, need a version-2 capture.json.
     """
+    if hand_side is not None and hand_side not in ("right", "left"):
+        raise ValueError(f"hand_side must be 'right' or 'left', got {hand_side!r}")
     if not math.isfinite(fps) or fps <= 0:
         raise ValueError(f"fps must be a positive number, got {fps}")
     seq_dir = Path(root) / SEQUENCES_DIR / sequence_id
@@ -104,6 +107,8 @@ def write_sequence(root: Path, sequence_id: str, *, subject_id: str, split: str,
         data["background"] = background
     if chroma_key is not None:
         data["chroma_key"] = dict(chroma_key)
+    if hand_side is not None:
+        data["hand_side"] = hand_side
     for cam in camera_names:
         (seq_dir / IMAGES_DIR / cam).mkdir(parents=True, exist_ok=True)
         if with_masks:

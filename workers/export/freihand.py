@@ -6,7 +6,8 @@ OUT/
   evaluation_K.json  ... (the same five for the evaluation split)
   training/rgb/%08d.jpg  training/mask/%08d.jpg  evaluation/rgb/%08d.jpg  evaluation/mask/%08d.jpg
   meshes/<sample id>.ply|.obj      fitted mesh per multi-view sample, world frame, metres
-  handloop_export.json             manifest: hand model, per FreiHAND index its sample, camera, extrinsics
+  handloop_export.json             manifest: hand model, per FreiHAND index its sample, camera, extrinsics,
+                                   side ("right"/"left": FreiHAND's files have no side field)
   README.txt                       which hand model made the labels
 ```
 
@@ -228,30 +229,41 @@ def _dump(path: Path, value: Any) -> None:
 
 def write_freihand(samples: Sequence[SampleRecord], out_dir: Path, read_bytes: Callable[[str], bytes],
                    arrays: HandModelArrays, options: ExportOptions | None = None,
-                   progress: Callable[[int], None] | None = None) -> ExportSummary:
+                   progress: Callable[[int], None] | None = None, *,
+                   other_side: HandModelArrays | None = None) -> ExportSummary:
     """Write `samples` in FreiHAND's layout to `out_dir`.
 
     Args:
         samples: accepted samples with their fits (backend.services.export.export_records).
         out_dir: the folder to create (must be absent or empty unless options.force).
         read_bytes: storage key -> file bytes (images and masks).
-        arrays: the hand model that made the fits (checked against each fit's keypoints).
+        arrays: the hand model that made the fits (checked against each fit's keypoints), of its side.
         progress: called with 1 after each multi-view sample.
+        other_side: the other side's hand model, needed when samples of that side are exported (a left hand's
+            fit poses the left model). FreiHAND's label files have no side: each sample's is in the
+            manifest (handloop_export.json, sets.<set>.samples[i].side).
     Everything is written into a temporary sibling folder that replaces `out_dir` at the end: a failed
     export leaves nothing behind.
     """
     options = options or ExportOptions()
     if not samples:
         raise ExportError("nothing to export: no accepted samples")
+    models = {arrays.side: arrays}
+    if other_side is not None:
+        models[other_side.side] = other_side
     for record in samples:
         if record.split not in SPLITS:
             raise ExportError(f"sample {record.sample_id}: unknown split {record.split!r}")
-        if not model_matches(record.model_file, arrays):
+        if record.side not in models:
+            raise ExportError(f"sample {record.sample_id} is a {record.side} hand, but the export was given only "
+                              f"the {' and '.join(sorted(models))} hand model")
+        if not model_matches(record.model_file, models[record.side]):
             raise ExportError(f"fit {record.fit_id} of sample {record.sample_id} was made with "
                               f"{record.model_file!r}, but the hand model loaded for the export is {arrays.name!r}; "
                               "set HANDLOOP_MANO_PATH to the model the fits used")
     tmp = _prepare_out_dir(out_dir, options.force)
-    poser = _Poser(arrays)
+    posers = {side: _Poser(model) for side, model in models.items()
+              if any(r.side == side for r in samples)}
     rng = np.random.default_rng(options.seed)
     quality = [cv2.IMWRITE_JPEG_QUALITY, options.jpeg_quality]
     labels: dict[str, dict[str, list]] = {s: {"K": [], "mano": [], "xyz": [], "scale": [], "verts": []}
@@ -266,16 +278,18 @@ def write_freihand(samples: Sequence[SampleRecord], out_dir: Path, read_bytes: C
             (tmp / set_name / "mask").mkdir(parents=True)
         for record in samples:
             set_name = SPLITS[record.split]
-            keypoints_model, vertices = poser.world(record.params)
+            side_model = models[record.side]
+            keypoints_model, vertices = posers[record.side].world(record.params)
             gap = float(np.linalg.norm(keypoints_model - record.keypoints_m, axis=1).max())
             if gap > KEYPOINT_TOLERANCE_M:
                 raise ExportError(f"fit {record.fit_id} of sample {record.sample_id}: its keypoints differ by "
-                                  f"{gap * 1000:.1f} mm from those of {arrays.name} posed with its parameters; "
+                                  f"{gap * 1000:.1f} mm from those of {side_model.name} ({record.side}) posed "
+                                  "with its parameters; "
                                   "the export's hand model is not the one that made the fit")
             mesh_files = []
             for fmt in options.mesh_formats:
                 rel = f"meshes/{record.sample_id:08d}.{fmt}"
-                write_mesh(tmp / rel, vertices, arrays.faces)
+                write_mesh(tmp / rel, vertices, side_model.faces)
                 mesh_files.append(rel)
                 meshes += 1
             for view in record.views:
@@ -284,7 +298,7 @@ def write_freihand(samples: Sequence[SampleRecord], out_dir: Path, read_bytes: C
                 verts = vertices @ view.R.T + view.t
                 label = labels[set_name]
                 label["K"].append(view.K.tolist())
-                label["mano"].append([freihand_theta(record.params, view, xyz, arrays).tolist()])
+                label["mano"].append([freihand_theta(record.params, view, xyz, side_model).tolist()])
                 label["xyz"].append(xyz.tolist())
                 label["scale"].append(float(np.linalg.norm(xyz[REFERENCE_BONE[0]] - xyz[REFERENCE_BONE[1]])))
                 label["verts"].append(verts.tolist())
@@ -294,7 +308,7 @@ def write_freihand(samples: Sequence[SampleRecord], out_dir: Path, read_bytes: C
                     raise ExportError(f"{where}: image is {image.shape[1]}x{image.shape[0]}, the camera "
                                       f"{view.width}x{view.height}")
                 cv2.imwrite(str(tmp / set_name / "rgb" / f"{i:08d}.jpg"), image, quality)
-                silhouette = model_mask(vertices, arrays.faces, _pinhole(view))
+                silhouette = model_mask(vertices, side_model.faces, _pinhole(view))
                 cv2.imwrite(str(tmp / set_name / "mask" / f"{i:08d}.jpg"),
                             np.where(silhouette, 255, 0).astype(np.uint8), quality)
                 images[set_name] += 1
@@ -313,7 +327,8 @@ def write_freihand(samples: Sequence[SampleRecord], out_dir: Path, read_bytes: C
                 index[set_name].append({
                     "index": i, "sample_id": record.sample_id, "fit_id": record.fit_id, "sequence": record.sequence,
                     "frame_index": record.frame_index, "camera": view.name, "round": record.round_index,
-                    "stream": record.stream, "fit_source": record.fit_source, "R": view.R.tolist(),
+                    "stream": record.stream, "fit_source": record.fit_source, "side": record.side,
+                    "R": view.R.tolist(),
                     "t": view.t.tolist(), "dist": view.dist.tolist(), "composites": composited, "meshes": mesh_files,
                 })
             if progress is not None:
@@ -326,7 +341,7 @@ def write_freihand(samples: Sequence[SampleRecord], out_dir: Path, read_bytes: C
             "format": "freihand", "generator": "handloop", "version": 1,
             "created_at": datetime.now(UTC).isoformat(timespec="seconds"),
             "hand_model": {"name": arrays.name, "is_mano": arrays.is_mano, "num_vertices": arrays.num_vertices,
-                           "notice": notice},
+                           "notice": notice, "sides": sorted(posers)},
             "units": "metres; keypoints and vertices in each view's camera frame; meshes/ in the world frame",
             "image_versions": ["original"] + [f"cut_and_paste_{v}" for v in range(1, options.composites + 1)],
             "sets": {s: {"count": len(index[s]), "images": images[s], "samples": index[s]} for s in index},

@@ -44,6 +44,7 @@ class SampleRecord:
         views: the sample's views in camera order.
         fit_source: what the fit was made from (its inputs' source): annotators' clicks, MVNet's prediction, or
             the pretrained detector (pre-annotation, round 0 without clicks).
+        side: the hand, "right" or "left" (its sequence's): which hand model `params` pose.
     """
 
     sample_id: int
@@ -59,8 +60,11 @@ class SampleRecord:
     model_file: str
     views: tuple[ViewRecord, ...]
     fit_source: str = "unknown"  # what the fit was made from: "annotation", "prediction" or "detector"
+    side: str = "right"
 
     def __post_init__(self) -> None:
+        if self.side not in ("right", "left"):
+            raise ValueError(f"sample {self.sample_id}: side must be 'right' or 'left', got {self.side!r}")
         if np.shape(self.params) != (NUM_PARAMS,):
             raise ValueError(f"sample {self.sample_id}: params must have shape ({NUM_PARAMS},), "
                              f"got {np.shape(self.params)}")

@@ -55,11 +55,12 @@ class WorkerContext:
             raise TypeError(f"workers need file storage (LocalDiskStorage on a shared folder), not {self.storage!r}")
         return self.storage.local_path(key)
 
-    def hand_model(self) -> Any:
-        """The hand model's arrays (HANDLOOP_MANO_PATH, else the built-in hand), loaded once per process."""
+    def hand_model(self, side: str = "right") -> Any:
+        """The arrays of this side's hand model ("right" or "left"; HANDLOOP_MANO_PATH, else the built-in
+        hand, whose left is the mirror of its right), loaded once per process and side."""
         from workers.handmodel.loading import load_hand_model
 
-        return load_hand_model(self.settings.mano_path)
+        return load_hand_model(self.settings.mano_path, side)
 
 
 _CONTEXT: WorkerContext | None = None

@@ -3,6 +3,8 @@ networks, or the pretrained detector's detection (pre-annotation)."""
 
 from __future__ import annotations
 
+import dataclasses
+
 from sqlalchemy.orm import Session
 
 from backend.models.jobs import Job
@@ -21,8 +23,8 @@ from workers.tasks.inputs import (
 
 def fit_input(ctx: WorkerContext, session: Session, job: Job, frames: dict[int, SampleFrame] | None = None
               ) -> FitInput:
-    """The fit input of a fit job. `frames`: frames already loaded for several jobs (load_frames), to save the
-    queries."""
+    """The fit input of a fit job, for the hand of the sample's sequence (`side`). `frames`: frames already
+    loaded for several jobs (load_frames), to save the queries."""
     if job.sample_id is None:
         raise InputError(f"fit job {job.id} names no sample")
     if frames is None or job.sample_id not in frames:
@@ -33,7 +35,9 @@ def fit_input(ctx: WorkerContext, session: Session, job: Job, frames: dict[int, 
     rig = rig_of(ctx, session, frame.project_id)
     source = str((job.payload or {}).get("source", "annotation"))
     if source == "prediction":
-        return from_prediction(ctx, session, job, frame, rig)
-    if source == "detector":
-        return fit_input_from_detection(ctx, session, job, frame, rig)
-    return from_annotation(ctx, session, job, frame, rig)
+        fi = from_prediction(ctx, session, job, frame, rig)
+    elif source == "detector":
+        fi = fit_input_from_detection(ctx, session, job, frame, rig)
+    else:
+        fi = from_annotation(ctx, session, job, frame, rig)
+    return dataclasses.replace(fi, side=frame.side)

@@ -77,11 +77,11 @@ def fit_config(ctx: WorkerContext, source: str) -> FitConfig:
 
 
 def engine_for(ctx: WorkerContext, fi: FitInput, config: FitConfig) -> Any:
-    """A FittingEngine for this rig and configuration, built once per process."""
+    """A FittingEngine for this rig, configuration and hand side, built once per process."""
     from workers.fitting.engine import FittingEngine
 
-    return ctx.cached(("engine", fi.rig.digest, config),
-                      lambda: FittingEngine(ctx.hand_model(), list(fi.rig.cameras), config))
+    return ctx.cached(("engine", fi.rig.digest, config, fi.side),
+                      lambda: FittingEngine(ctx.hand_model(fi.side), list(fi.rig.cameras), config))
 
 
 def run_fit_jobs(ctx: WorkerContext, job_ids: list[int], *, parent: tuple[int, float, float] | None = None,
@@ -91,13 +91,13 @@ def run_fit_jobs(ctx: WorkerContext, job_ids: list[int], *, parent: tuple[int, f
     started = time.perf_counter()
     summary = FitSummary()
     claimed = _claim_and_load_all(ctx, job_ids, summary)
-    groups: dict[tuple[str, str], list[FitInput]] = defaultdict(list)
+    groups: dict[tuple[str, str, str], list[FitInput]] = defaultdict(list)
     for fi in claimed:
-        groups[(fi.rig.digest, fi.source)].append(fi)
+        groups[(fi.rig.digest, fi.source, fi.side)].append(fi)
     progress = ProgressReporter(ctx, [fi.job_id for fi in claimed], parent=parent, heartbeat_of=heartbeat_of)
     done = 0
     try:
-        for (_, source), group in groups.items():
+        for (_, source, _side), group in groups.items():
             config = fit_config(ctx, source)
             engine = engine_for(ctx, group[0], config)
 
@@ -226,6 +226,7 @@ def _record_all(ctx: WorkerContext, fitted: list[tuple[FitInput, Any]], config: 
                 for view_id, iou in zip(fi.view_ids, result.diagnostics.iou_per_view, strict=True) if np.isfinite(iou)}
         diagnostics = json_safe({
             **result.diagnostics.to_dict(), "model_mask_keys": mask_keys, "hand_model": result.hand_model,
+            "hand_side": fi.side,
             "weights": {"kp2d": config.weights.kp2d, "kp3d": config.weights.kp3d, "seg": config.weights.seg},
             "iterations_schedule": [config.global_iterations, config.full_iterations]})
         rows.append((fi, result, ious, diagnostics))

@@ -60,6 +60,7 @@ class SampleFrame:
     state: str
     view_ids: tuple[int, ...]
     frame: FrameRef  # image and chroma-key mask files in storage; no ground truth (never used for labels)
+    side: str = "right"  # the sequence's hand: which hand model fits it
 
 
 def load_rig(session: Session, project_id: int) -> Rig:
@@ -90,7 +91,8 @@ def load_frames(ctx: WorkerContext, session: Session, sample_ids: list[int]) -> 
     if not sample_ids:
         return {}
     samples = session.execute(
-        select(Sample.id, Sample.frame_index, Sample.time_s, Sample.state, Sequence.project_id, Sequence.external_id)
+        select(Sample.id, Sample.frame_index, Sample.time_s, Sample.state, Sequence.project_id, Sequence.external_id,
+               Sequence.side)
         .join(Sequence, Sequence.id == Sample.sequence_id).where(Sample.id.in_(sample_ids))
     ).all()
     views = session.execute(
@@ -105,7 +107,7 @@ def load_frames(ctx: WorkerContext, session: Session, sample_ids: list[int]) -> 
         .order_by(Mask.version)
     ).all()) if view_ids else {}
     out: dict[int, SampleFrame] = {}
-    for sample_id, frame_index, time_s, state, project_id, sequence_key in samples:
+    for sample_id, frame_index, time_s, state, project_id, sequence_key, side in samples:
         rig = rig_of(ctx, session, project_id)
         have = by_sample.get(sample_id, {})
         missing = [cam.name for cam, cid in zip(rig.cameras, rig.camera_ids, strict=True) if cid not in have]
@@ -120,7 +122,7 @@ def load_frames(ctx: WorkerContext, session: Session, sample_ids: list[int]) -> 
         frame = FrameRef(sequence_id=sequence_key, index=frame_index, time_s=time_s, image_paths=image_paths,
                          mask_paths=mask_paths, ground_truth_path=None)
         out[sample_id] = SampleFrame(sample_id, project_id, sequence_key, frame_index, time_s, state,
-                                     tuple(v for v, _ in ordered), frame)
+                                     tuple(v for v, _ in ordered), frame, side)
     return out
 
 
@@ -152,6 +154,7 @@ class FitInput:
     inputs: dict[str, Any]
     prediction_id: int | None = None
     round_id: int | None = None
+    side: str = "right"  # the sample's sequence's hand: the hand model the fit uses
 
 
 def _submission_of(session: Session, job: Job) -> Submission:

@@ -85,6 +85,11 @@ def _states(session: Session, sample_ids: Sequence[int]) -> dict[int, str]:
     return out
 
 
+def _side(frame: SampleFrame) -> Handedness:
+    """The hand of the sample's sequence, as the detector names it."""
+    return "left" if frame.side == "left" else "right"
+
+
 def _detect_sample(ctx: WorkerContext, frame: SampleFrame, rig: Rig, handedness: Handedness
                    ) -> tuple[dict[str, Any] | None, str]:
     """(detection record, "") or (None, why there is nothing to fit: bad input, no hand, or the detector failing
@@ -187,7 +192,8 @@ def _settle(ctx: WorkerContext, job_id: int, sample_ids: Sequence[int], rest: st
 
 def run_preannotation_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
     """Claim a preannotate job (payload: project_id, sample_ids, rest, handedness) and run it; returns its
-    result (also stored on the job)."""
+    result (also stored on the job). Without a handedness in the payload the detector looks for each sample's
+    sequence's hand (`SampleFrame.side`)."""
     from workers.tasks.fits import run_fit_jobs
 
     started = time.perf_counter()
@@ -198,7 +204,8 @@ def run_preannotation_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
         payload = dict(job.payload or {})
         sample_ids = [int(s) for s in payload.get("sample_ids", [])]
         rest = str(payload.get("rest", "annotate"))
-        handedness: Handedness = "left" if payload.get("handedness") == "left" else "right"
+        chosen = payload.get("handedness")
+        handedness: Handedness | None = chosen if chosen in ("right", "left") else None
         project_id = payload.get("project_id")
         problem = preannotation.detector_problem()
         if problem is None:
@@ -231,7 +238,8 @@ def run_preannotation_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
             for i, sample_id in enumerate(part):
                 _stop_if_cancelled(ctx, job_id)
                 frame = frames.get(sample_id)
-                record, why = _detect_sample(ctx, frame, rig, handedness) if frame else (None, "sample is gone")
+                record, why = (_detect_sample(ctx, frame, rig, handedness or _side(frame)) if frame
+                               else (None, "sample is gone"))
                 reporter(span[0] + (span[1] - span[0]) * 0.5 * (i + 1) / len(part),
                          f"detecting hands: {start + i + 1}/{len(todo)} samples")
                 if record is None:

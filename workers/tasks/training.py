@@ -111,20 +111,20 @@ def model_masks(ctx: WorkerContext, session: Session, tset: TrainingSet) -> list
                     raise InputError(f"fit {fit_id} has no stored mask of view {view_id}")
                 masks[cam.name] = read_mask(ctx, key, (cam.height, cam.width), f"fit {fit_id}")
         except InputError:
-            masks = render_masks(ctx, tset.rig, np.asarray(fit.params, np.float64))
+            masks = render_masks(ctx, tset.rig, np.asarray(fit.params, np.float64), frame.side)
         out.append(masks)
     return out
 
 
-def render_masks(ctx: WorkerContext, rig: Rig, theta: np.ndarray) -> dict[str, np.ndarray]:
-    """Silhouettes of the hand model with parameters theta (61,) in every camera of the rig."""
+def render_masks(ctx: WorkerContext, rig: Rig, theta: np.ndarray, side: str = "right") -> dict[str, np.ndarray]:
+    """Silhouettes of `side`'s hand model with parameters theta (61,) in every camera of the rig."""
     import torch
 
     from workers.handmodel.layer import HandLayer
     from workers.rendering import model_mask
 
-    arrays = ctx.hand_model()
-    layer = ctx.cached(("layer", arrays.name), lambda: HandLayer(arrays, dtype=torch.float64))
+    arrays = ctx.hand_model(side)
+    layer = ctx.cached(("layer", arrays.name, side), lambda: HandLayer(arrays, dtype=torch.float64))
     t = torch.as_tensor(theta[None], dtype=torch.float64)
     with torch.no_grad():
         out = layer(betas=t[:, :10], pose=t[:, 10:55], global_orient=t[:, 55:58], transl=t[:, 58:61])

@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import mimetypes
 
-from fastapi import APIRouter, Request, Response
+from fastapi import APIRouter, Query, Request, Response
 
 from backend.api.deps import AnnotatorUser, SessionDep, SettingsDep, StorageDep
 from backend.schemas.base import Id
 from backend.services.samples import get_mask, get_view
+from backend.services.working_images import working_image_key
 
 router = APIRouter(prefix="/files", tags=["files"])
 
@@ -25,8 +26,13 @@ def _serve(request: Request, storage: StorageDep, key: str, max_age_s: int) -> R
 @router.get("/views/{view_id}/image", response_class=Response,
             responses={200: {"content": {"image/png": {}, "image/jpeg": {}}}, 304: {}})
 def view_image(view_id: Id, request: Request, session: SessionDep, settings: SettingsDep, storage: StorageDep,
-               _user: AnnotatorUser) -> Response:
-    return _serve(request, storage, get_view(session, view_id).image_key, settings.image_cache_seconds)
+               _user: AnnotatorUser,
+               full: bool = Query(False, description="The full-resolution original even where the project has a "
+                                  "narrower working width (the default image is then the working-width copy).")
+               ) -> Response:
+    view = get_view(session, view_id)
+    key = view.image_key if full else working_image_key(session, storage, view)
+    return _serve(request, storage, key, settings.image_cache_seconds)
 
 
 @router.get("/masks/{mask_id}", response_class=Response, responses={200: {"content": {"image/png": {}}}, 304: {}})

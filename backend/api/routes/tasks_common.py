@@ -16,9 +16,11 @@ from backend.services.samples import get_sample, views_of
 from workers.handmodel.keypoints import SPARSE_KEYPOINTS
 
 
-def sequence_name(session: Session, sequence_id: int) -> str | None:
-    """The sequence's name in the capture and in exports ("seq000"): one primary-key lookup."""
-    return session.execute(select(Sequence.external_id).where(Sequence.id == sequence_id)).scalar_one_or_none()
+def sequence_name_and_side(session: Session, sequence_id: int) -> tuple[str | None, str]:
+    """The sequence's name in the capture and in exports ("seq000") and its hand ("right" or "left"): one
+    primary-key lookup."""
+    row = session.execute(select(Sequence.external_id, Sequence.side).where(Sequence.id == sequence_id)).first()
+    return (None, "right") if row is None else (row[0], row[1])
 
 
 def task_of(session: Session, lease: Lease, with_fit: bool = False) -> TaskPublic:
@@ -37,10 +39,11 @@ def task_of(session: Session, lease: Lease, with_fit: bool = False) -> TaskPubli
         if row is not None:
             fit = {"id": row.id, "keypoints_m": row.keypoints_m, "params": row.params, "view_ious": row.view_ious,
                    "heuristic": row.heuristic, "pose_distance": row.pose_distance, "model_file": row.model_file}
+    sequence, side = sequence_name_and_side(session, sample.sequence_id)
     return TaskPublic.model_construct(
         sample_id=sample.id, state=SampleState(sample.state), lease_token=lease.token,
         lease_expires_at=lease.expires_at, sequence_id=sample.sequence_id,
-        sequence=sequence_name(session, sample.sequence_id), frame_index=sample.frame_index,
+        sequence=sequence, side=side, frame_index=sample.frame_index,
         time_s=sample.time_s, keypoints_to_click=list(SPARSE_KEYPOINTS), views=views, fit=fit)
 
 

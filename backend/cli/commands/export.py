@@ -60,11 +60,19 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         finally:
             engine.dispose()
         arrays = load_hand_model(settings.mano_path)
+        # Left hands' fits pose the left model (a MANO folder then needs MANO_LEFT.pkl too).
+        left = None
+        if any(r.side == "left" for r in records):
+            try:
+                left = load_hand_model(settings.mano_path, "left")
+            except (OSError, ValueError) as exc:
+                fail(f"the export holds left hands but the left hand model cannot be loaded: {exc}")
         typer.echo(hand_model_notice(arrays), err=True)
         storage = LocalDiskStorage(settings.storage_dir)
         try:
             with tqdm(total=len(records), unit="sample", desc="exporting", file=sys.stderr) as bar:
-                summary = write_freihand(records, out, storage.get_bytes, arrays, options, progress=bar.update)
+                summary = write_freihand(records, out, storage.get_bytes, arrays, options, progress=bar.update,
+                                         other_side=left)
         except (ExportError, DomainError) as exc:
             fail(getattr(exc, "message", None) or str(exc))
         result = {"out": str(summary.out_dir), "hand_model": summary.hand_model, "is_mano": summary.is_mano,

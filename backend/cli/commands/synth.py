@@ -18,6 +18,8 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         width: int | None = typer.Option(None, min=32, max=4096,
                                          help="Image width in pixels (default: HANDLOOP_RENDER_WIDTH_PX)."),
         workers: int = typer.Option(0, min=0, max=256, help="Processes (0 = one per CPU core)."),
+        side: str = typer.Option("right", "--side", help="Which hand: right or left (ground truth from that "
+                                 "side's hand model, recorded in capture.json's hand_model)."),
         force: bool = typer.Option(False, "--force", help="Replace an earlier capture in --out."),
     ) -> None:
         """Render synthetic multi-view sequences of a hand with ground truth.
@@ -32,9 +34,11 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         from workers.synth.generator import SynthError, generate_capture
         from workers.synth.plan import SynthConfig
 
+        if side not in ("right", "left"):
+            raise typer.BadParameter(f"--side must be right or left, not {side!r}")
         settings = get_settings()
         config = SynthConfig(num_sequences=sequences, frames_per_sequence=frames, seed=seed,
-                             width_px=width or settings.render_width_px)
+                             width_px=width or settings.render_width_px, side=side)
         with tqdm(total=sequences * frames, unit="frame", desc="synth", file=sys.stderr, dynamic_ncols=True) as bar:
             try:
                 result = generate_capture(out, config, workers=workers, force=force, mano_path=settings.mano_path,

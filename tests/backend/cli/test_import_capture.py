@@ -166,3 +166,70 @@ def test_cli_import_with_the_pre_annotation_setting(capture_dir, tmp_path):
         assert any(p.is_file() for p in (tmp_path / "broker" / "messages").rglob("*"))  # handed to the workers
     else:
         assert result["preannotation"] == f"not run: {problem}" and result["preannotation_job_id"] is None
+
+
+def _variant(capture_dir: Path, out: Path, **header: object) -> Path:
+    """A copy of the capture with capture.json's fields changed (`hand_model_side` sets hand_model.side)."""
+    subprocess.run(["cp", "-r", str(capture_dir), str(out)], check=True)
+    data = json.loads((out / "capture.json").read_text())
+    side = header.pop("hand_model_side", None)
+    if side is not None:
+        data["hand_model"]["side"] = side
+    data.update(header)
+    (out / "capture.json").write_text(json.dumps(data))
+    return out
+
+
+def test_the_captures_hand_side_is_stored_per_sequence_and_named_on_the_task(sqlite_env, capture_dir, tmp_path):
+    env = sqlite_env
+    # A right-hand capture whose one sequence says it is a left hand (sequence.json 'hand_side', version 2).
+    mixed = _variant(capture_dir, tmp_path / "mixed", version=2)
+    sequence_json = next((mixed / "sequences").iterdir()) / "sequence.json"
+    sequence_json.write_text(json.dumps({**json.loads(sequence_json.read_text()), "hand_side": "left"}))
+    for name, path in (("right-hands", capture_dir), ("left-hands", _variant(capture_dir, tmp_path / "left",
+                                                                             hand_model_side="left")),
+                       ("mixed", mixed)):
+        response = env.client.post("/api/admin/imports", headers=env.headers(Role.admin),
+                                   json={"path": str(path), "project": name})
+        assert response.status_code == 201, response.text
+    with env.session() as s:
+        sides = dict(s.execute(text("SELECT p.name, q.side FROM sequences q JOIN projects p ON p.id = q.project_id"))
+                     .all())
+    assert sides == {"right-hands": "right", "left-hands": "left", "mixed": "left"}
+    task = env.client.post("/api/annotate/next", headers=env.headers(Role.annotator)).json()
+    assert task["side"] == "right"  # the right hands' project came first
+    with env.session() as s, s.begin():  # only the left hands' samples left in the queue
+        s.execute(text("UPDATE samples SET state = 'unlabeled', leased_by_id = NULL, lease_kind = NULL, "
+                       "lease_token = NULL, lease_expires_at = NULL WHERE sequence_id IN "
+                       "(SELECT q.id FROM sequences q JOIN projects p ON p.id = q.project_id "
+                       "WHERE p.name <> 'left-hands')"))
+    task = env.client.post("/api/annotate/next", headers=env.headers(Role.annotator)).json()
+    assert task["side"] == "left", task
+
+
+def test_a_working_width_narrower_than_the_images_serves_a_derived_copy_and_keeps_the_original(
+        sqlite_env, capture_dir, tmp_path):
+    import cv2
+    import numpy as np
+
+    env = sqlite_env
+    path = _variant(capture_dir, tmp_path / "wide", version=2, working_width_px=32)
+    response = env.client.post("/api/admin/imports", headers=env.headers(Role.admin),
+                               json={"path": str(path), "project": "wide"})
+    assert response.status_code == 201, response.text
+    task = env.client.post("/api/annotate/next", headers=env.headers(Role.annotator)).json()
+    view = task["views"][0]
+    assert view["width"] == 64  # the view (and its clicks) stay in full-resolution pixels
+
+    def decoded(url: str) -> np.ndarray:
+        answer = env.client.get(url, headers=env.headers(Role.annotator))
+        assert answer.status_code == 200, answer.text
+        return cv2.imdecode(np.frombuffer(answer.content, np.uint8), cv2.IMREAD_COLOR)
+
+    working, original = decoded(view["image_url"]), decoded(view["image_url"] + "?full=true")
+    assert working.shape[1] == 32 and original.shape[1] == 64
+    assert working.shape[0] == round(original.shape[0] * 32 / 64)
+    # The copy is the original averaged down, not another image.
+    expected = cv2.resize(original, (32, working.shape[0]), interpolation=cv2.INTER_AREA).astype(float)
+    assert np.abs(working.astype(float) - expected).mean() < 4.0
+    assert decoded(view["image_url"]).shape == working.shape  # derived once, then served from storage

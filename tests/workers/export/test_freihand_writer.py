@@ -111,3 +111,32 @@ def test_wrong_hand_model_and_inconsistent_fits_are_refused(capture, tmp_path):
         write_freihand([], tmp_path / "c", read_file, arrays)
     with pytest.raises(ValueError, match="params must have shape"):
         SampleRecord(**{**bad[0].__dict__, "params": np.zeros(60)})
+
+
+def test_left_hands_are_posed_with_the_left_model_and_named_in_the_manifest(tmp_path):
+    import json
+
+    from workers.synth.generator import generate_capture
+    from workers.synth.plan import SynthConfig
+
+    out = tmp_path / "left-capture"
+    generate_capture(out, SynthConfig(num_sequences=1, frames_per_sequence=1, seed=5, width_px=64, side="left"),
+                     workers=1)
+    left_capture = read_capture(out)
+    records = [SampleRecord(**{**r.__dict__, "side": "left"}) for r in records_of(left_capture)]
+    right, left = load_hand_model(None, "right"), load_hand_model(None, "left")
+    with pytest.raises(ExportError, match=r"sample 1 is a left hand, but the export was given only the right"):
+        write_freihand(records, tmp_path / "a", read_file, right, ExportOptions(mesh_formats=()))
+    # Posed with the right model, the left hand's parameters do not give its keypoints: refused, not mislabelled.
+    wrong = [SampleRecord(**{**r.__dict__, "side": "right"}) for r in records]
+    with pytest.raises(ExportError, match=r"\(right\) posed with its parameters"):
+        write_freihand(wrong, tmp_path / "b", read_file, right, ExportOptions(mesh_formats=()))
+    summary = write_freihand(records, tmp_path / "c", read_file, right, ExportOptions(mesh_formats=()),
+                             other_side=left)
+    assert summary.samples["training"] == len(left_capture.cameras)
+    manifest = json.loads((tmp_path / "c" / "handloop_export.json").read_text())
+    assert manifest["hand_model"]["sides"] == ["left"]
+    assert {s["side"] for s in manifest["sets"]["training"]["samples"]} == {"left"}
+    data = read_freihand_set(tmp_path / "c", "training")
+    back, _ = mesh_from_freihand(left, np.asarray(data.mano[0]).reshape(-1), data.K[0])
+    np.testing.assert_allclose(back, data.xyz[0], atol=1e-6)  # FreiHAND's parameters pose the left model back

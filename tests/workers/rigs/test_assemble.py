@@ -169,6 +169,25 @@ def test_version_2_keys_in_a_version_1_capture_are_refused(rig, tmp_path: Path) 
 
 
 
+def test_a_sequence_names_its_own_hand_in_a_version_2_capture(rig, tmp_path: Path) -> None:
+    _, images = _write_sources(tmp_path, rig, {})
+    assemble_capture(rig, tmp_path / "c", images=images, workers=1)
+    path = tmp_path / "c" / "sequences" / "seq000" / "sequence.json"
+    data = json.loads(path.read_text())
+    assert read_capture(tmp_path / "c").sequences[0].hand_side is None  # the capture's hand_model.side
+    path.write_text(json.dumps({**data, "hand_side": "left"}))
+    assert read_capture(tmp_path / "c").sequences[0].hand_side == "left"
+    path.write_text(json.dumps({**data, "hand_side": "both"}))
+    with pytest.raises(CaptureError, match=r"sequence\.json: field 'hand_side' must be 'right' or 'left', got 'both'"):
+        read_capture(tmp_path / "c")
+    path.write_text(json.dumps({**data, "hand_side": "left"}))
+    header = json.loads((tmp_path / "c" / "capture.json").read_text())
+    del header["working_width_px"]
+    (tmp_path / "c" / "capture.json").write_text(json.dumps({**header, "version": 1}))
+    with pytest.raises(CaptureError, match=r"\['hand_side'\] need capture.json 'version' 2"):
+        read_capture(tmp_path / "c")
+
+
 def test_mjpeg_frames_are_stored_as_the_jpegs_in_the_video(rig, tmp_path: Path) -> None:
     videos, _ = _write_sources(tmp_path, rig, {})
     assemble_capture(rig, tmp_path / "m", videos=videos, every=2, workers=1)

@@ -346,3 +346,35 @@ def test_observations_keep_the_inlier_detections_inside_the_image_weighted_by_sc
     obs.validate(cameras)  # what the fit engine checks first
     with pytest.raises(preannotate.InputError, match="covers 3 views; the rig has 2"):
         detection_inputs.observations_from_detection(record, cameras[:2], None)
+
+
+def test_the_detector_looks_for_each_sequences_hand_unless_the_admin_names_one(tmp_path, capture_cache, monkeypatch):
+    """A left-hand capture: without `handedness` the detector is asked for left hands (the sequence's side);
+    an explicit "right" overrides it."""
+    capture = tiny_capture(capture_cache, frames=2, side="left")
+    settings = Settings(data_dir=tmp_path / "data", review_min_time_gap_s=0.0, review_min_pose_distance=0.0,
+                        **TEST_SETTINGS)
+    project_id = prepare_database(settings, capture, queue_for_annotation=False)
+    queue = InMemoryJobQueue()
+    ctx = build_context(settings, job_queue=queue)
+    fake = FakeDetector(capture)
+    asked: list[str] = []
+
+    def spy(images, cameras, masks=None, *, handedness="right"):
+        asked.append(handedness)
+        return fake(images, cameras, masks, handedness=handedness)
+
+    monkeypatch.setattr(preannotate, "detect", spy)
+    monkeypatch.setattr(preannotation, "detector_problem", lambda: None)
+    try:
+        with ctx.session_factory() as session:
+            samples = list(session.execute(select(Sample.id).order_by(Sample.id)).scalars())
+        preannotate.run_preannotation_job(ctx, _launch(ctx, queue, project_id, sample_ids=samples[:1]))
+        preannotate.run_preannotation_job(ctx, _launch(ctx, queue, project_id, sample_ids=samples[1:],
+                                                       handedness="right"))
+        assert asked == ["left", "right"]
+        with ctx.session_factory() as session:
+            fits = session.execute(select(Fit).order_by(Fit.id)).scalars().all()
+            assert [f.diagnostics["hand_side"] for f in fits] == ["left", "left"]  # the fit follows the sequence
+    finally:
+        ctx.session_factory.kw["bind"].dispose()

@@ -5,8 +5,8 @@ the fit loads that side's hand model. Rows from before the column are right hand
 as every fit so far used the right model. And projects.working_width_px (capture format v2's
 working_width_px, NULL for earlier imports): the width views are shown at, derived from the originals.
 
-Revision ID: 0008
-Revises: 0005 (rechained after 0006/0007 at merge)
+Revision ID: 0007
+Revises: 0006
 Create Date: 2026-12-02 14:45:00
 """
 
@@ -17,8 +17,8 @@ from collections.abc import Sequence
 import sqlalchemy as sa
 from alembic import op
 
-revision: str = '0008'
-down_revision: str | None = '0005'
+revision: str = '0007'
+down_revision: str | None = '0006'
 branch_labels: str | Sequence[str] | None = None
 depends_on: str | Sequence[str] | None = None
 

@@ -99,6 +99,9 @@ def _seed(url: str, annotators: int, samples: int, cameras: int, width: int) -> 
             seed_samples(session, project=f"bench{s}", frames=min(per_seq, samples - s * per_seq), cameras=cameras,
                          width=width, height=width)
         ids = dict(session.execute(select(User.email, User.id).where(User.email.in_(emails))).all())
+    if engine.dialect.name == "postgresql":  # statistics, as autovacuum keeps them in a server that has been running
+        with engine.connect().execution_options(isolation_level="AUTOCOMMIT") as conn:
+            conn.exec_driver_sql("ANALYZE")
     engine.dispose()
     return [ids[email] for email in emails]
 

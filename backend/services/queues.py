@@ -22,6 +22,8 @@ from backend.models.drafts import Draft
 from backend.models.enums import LeaseKind, SampleState
 from backend.services import audit
 from backend.services.errors import ConflictError, LeaseExpiredError, NotFoundError, PermissionDeniedError
+from backend.services.lease_statement import acquire_statement
+from backend.services.samples import ViewInfo
 from backend.services.users import Actor
 
 QUEUE_STATE = {LeaseKind.annotate: SampleState.needs_annotation, LeaseKind.review: SampleState.in_review}
@@ -46,6 +48,9 @@ class Lease:
     expires_at: datetime
     kind: LeaseKind
     head: SampleHead | None = None
+    # Returned with the lease by PostgreSQL's one-statement acquire (lease_statement): what a task shows.
+    views: tuple[ViewInfo, ...] | None = None
+    sequence: str | None = None
 
 
 def _lease_of(sample: Sample) -> Lease:
@@ -79,6 +84,8 @@ def acquire(session: Session, user: Actor, kind: LeaseKind, lease_seconds: int,
     expires = now + timedelta(seconds=lease_seconds)
     state = QUEUE_STATE[kind]
     conn = session.connection()
+    if conn.dialect.name == "postgresql":
+        return _acquire_in_one_statement(session, user, kind, expires, now)
     c = _SAMPLES.c
     mine = (c.leased_by_id == user.id, c.lease_kind == kind.value, c.state == state.value, c.lease_expires_at > now)
     # The conditions again outside the subquery: on PostgreSQL they are re-checked on the newest row
@@ -97,6 +104,18 @@ def acquire(session: Session, user: Actor, kind: LeaseKind, lease_seconds: int,
     # A free sample the caller left work on (its lease lapsed, or they signed out) before any other.
     return (take_free(session, user, kind, expires, now, drafted_by=user.id)
             or take_free(session, user, kind, expires, now))
+
+
+def _acquire_in_one_statement(session: Session, user: Actor, kind: LeaseKind, expires: datetime,
+                              now: datetime) -> Lease | None:
+    """PostgreSQL: `acquire` (lease, audit row, views, sequence name) in one round trip (lease_statement)."""
+    rows = session.connection().execute(acquire_statement(kind), {
+        "user_id": user.id, "now": now, "expires": expires, "token": secrets.token_urlsafe(16)}).all()
+    if not rows:
+        return None
+    first = rows[0]
+    views = tuple(ViewInfo(r.view_id, r.camera, r.width, r.height, r.mask_id) for r in rows if r.view_id is not None)
+    return Lease(first.id, first.lease_token, expires, kind, SampleHead(*first[:6]), views, first.sequence)
 
 
 def take_free(session: Session, user: Actor, kind: LeaseKind, expires: datetime, now: datetime, *,

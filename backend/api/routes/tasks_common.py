@@ -25,11 +25,12 @@ def task_of(session: Session, lease: Lease, with_fit: bool = False) -> TaskPubli
     """Built with `model_construct` from rows the database already typed: validating our own output again
     cost more than the queries on the annotators' hot path."""
     sample = lease.head or get_sample(session, lease.sample_id)  # head: returned by the lease statement
+    shown = lease.views if lease.views is not None else views_of(session, sample.id)  # PostgreSQL's acquire: with it
     views = [
         ViewPublic.model_construct(id=v.id, camera=v.camera, width=v.width, height=v.height,
                                    image_url=f"/api/files/views/{v.id}/image",
                                    mask_url=f"/api/files/masks/{v.mask_id}" if v.mask_id is not None else None)
-        for v in views_of(session, sample.id)
+        for v in shown
     ]
     fit = None
     if with_fit and sample.current_fit_id is not None:
@@ -40,7 +41,8 @@ def task_of(session: Session, lease: Lease, with_fit: bool = False) -> TaskPubli
     return TaskPublic.model_construct(
         sample_id=sample.id, state=SampleState(sample.state), lease_token=lease.token,
         lease_expires_at=lease.expires_at, sequence_id=sample.sequence_id,
-        sequence=sequence_name(session, sample.sequence_id), frame_index=sample.frame_index,
+        sequence=lease.sequence if lease.views is not None else sequence_name(session, sample.sequence_id),
+        frame_index=sample.frame_index,
         time_s=sample.time_s, keypoints_to_click=list(SPARSE_KEYPOINTS), views=views, fit=fit)
 
 

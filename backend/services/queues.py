@@ -74,18 +74,24 @@ HEAD_COLUMNS = (_SAMPLES.c.id, _SAMPLES.c.sequence_id, _SAMPLES.c.frame_index, _
 
 
 def acquire(session: Session, user: Actor, kind: LeaseKind, lease_seconds: int,
-            now: datetime | None = None) -> Lease | None:
+            now: datetime | None = None, *, sole_statement: bool = False) -> Lease | None:
     """The caller's live lease of this kind if it has one (renewed), else a new one; None if the queue is
     empty. Never hands a sample held by someone else.
+
+    PostgreSQL: one statement (lease_statement). `sole_statement`: the caller's request runs nothing else
+    in its transaction, so when the session has not begun one yet the statement runs in autocommit mode
+    (atomic on its own), sparing the BEGIN and COMMIT round trips.
 
     Core statements on the session's connection (no ORM objects): renewing the own lease is one
     UPDATE ... RETURNING (usually matching nothing), taking a free sample another; the audit row a third."""
     now = now or utcnow()
     expires = now + timedelta(seconds=lease_seconds)
     state = QUEUE_STATE[kind]
-    conn = session.connection()
-    if conn.dialect.name == "postgresql":
+    if session.get_bind().dialect.name == "postgresql":
+        if sole_statement and not session.in_transaction():
+            session.connection(execution_options={"isolation_level": "AUTOCOMMIT"})
         return _acquire_in_one_statement(session, user, kind, expires, now)
+    conn = session.connection()
     c = _SAMPLES.c
     mine = (c.leased_by_id == user.id, c.lease_kind == kind.value, c.state == state.value, c.lease_expires_at > now)
     # The conditions again outside the subquery: on PostgreSQL they are re-checked on the newest row

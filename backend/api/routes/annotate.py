@@ -16,10 +16,10 @@ router = APIRouter(prefix="/annotate", tags=["annotator queue"])
 @router.post("/next", response_model=TaskPublic, responses={204: {"description": "The queue is empty."}})
 def next_task(session: SessionDep, settings: SettingsDep, user: AnnotatorUser) -> Response:
     """Lease the next sample needing annotation (or return the one you already hold, renewed)."""
-    lease = queues.acquire(session, user, LeaseKind.annotate, settings.lease_seconds)
+    lease = queues.acquire(session, user, LeaseKind.annotate, settings.lease_seconds, sole_statement=True)
     if lease is None:
         return Response(status_code=204)
-    return json_response(task_of(session, lease))
+    return json_response(task_of(session, lease))  # PostgreSQL: built from the lease statement's rows alone
 
 
 @router.post("/samples/{sample_id}/lease/renew", response_model=LeasePublic)

@@ -18,7 +18,21 @@ from __future__ import annotations
 
 from functools import cache
 
-from sqlalchemy import JSON, String, bindparam, cast, exists, insert, literal, or_, select, union_all, update
+from sqlalchemy import (
+    JSON,
+    String,
+    bindparam,
+    cast,
+    column,
+    exists,
+    insert,
+    literal_column,
+    or_,
+    select,
+    text,
+    union_all,
+    update,
+)
 from sqlalchemy.sql import Select
 
 from backend.db.base import UTCDateTime
@@ -69,21 +83,24 @@ def acquire_statement(kind: LeaseKind) -> Select:
     a = AuditEvent.__table__.c
     aud = insert(AuditEvent.__table__).from_select(
         [a.at, a.actor_id, a.action, a.entity, a.entity_id, a.data],
-        select(now, user_id, literal("lease.acquire"), literal("sample"), cast(new.c.id, String),
+        select(now, user_id, literal_column("'lease.acquire'"), literal_column("'sample'"), cast(new.c.id, String),
                bindparam("audit_data", {"kind": kind.value}, type_=JSON()))
     ).cte("aud")
 
-    taken = union_all(*(select(*cte.c) for cte in (own, drafted_free, free))).subquery("taken")
+    # The three branches' rows as `SELECT *` and the views joined directly, not as labelled subqueries: the
+    # statement's text stays under psycopg's 4 KiB query cache (beyond it the text is parsed again on every
+    # execution; at 4.3 KiB it was ~0.6 ms of the cycle). The CTEs are named to the compiler with add_cte.
+    taken = (text("SELECT * FROM own UNION ALL SELECT * FROM drafted UNION ALL SELECT * FROM free")
+             .columns(*(column(col.name, col.type) for col in head)).subquery("taken"))
     v = _VIEWS.c
     newest = (select(Mask.id).where(Mask.view_id == v.id).order_by(Mask.version.desc()).limit(1)
               .correlate(_VIEWS).scalar_subquery())
-    views = (select(v.id.label("view_id"), v.sample_id, CameraCalibration.name.label("camera"), v.width, v.height,
-                    newest.label("mask_id"))
-             .join(CameraCalibration, CameraCalibration.id == v.camera_id).subquery("v"))
-    return (select(*taken.c, Sequence.external_id.label("sequence"), views.c.view_id, views.c.camera,
-                   views.c.width, views.c.height, views.c.mask_id)
-            .select_from(taken.outerjoin(views, views.c.sample_id == taken.c.id)
+    cameras = CameraCalibration.__table__
+    return (select(*taken.c, Sequence.external_id.label("sequence"), v.id.label("view_id"),
+                   cameras.c.name.label("camera"), v.width, v.height, newest.label("mask_id"))
+            .select_from(taken.outerjoin(_VIEWS, v.sample_id == taken.c.id)
+                         .outerjoin(cameras, cameras.c.id == v.camera_id)
                          .outerjoin(Sequence.__table__, Sequence.id == taken.c.sequence_id))
-            .order_by(views.c.view_id)
-            .add_cte(aud))
+            .order_by(v.id)
+            .add_cte(own, drafted_free, free, aud))
 

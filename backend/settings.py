@@ -109,8 +109,9 @@ class Settings(BaseSettings):
         default=2.0, ge=0, le=3600, description="The API trusts a successful broker check for this long before "
         "writing jobs (an unreachable broker answers 503 and writes nothing).")
     fit_dispatch_linger_s: float = Field(
-        default=0.02, ge=0, le=10, description="The API sends annotators' fit jobs to the broker several per message: "
-        "it waits this long for more (at most fit_batch_size) before sending.")
+        default=0.25, ge=0, le=10, description="The API sends annotators' fit jobs to the broker several per message: "
+        "it waits this long for more (at most fit_batch_size) before sending. A publish costs the API about as much "
+        "CPU as the rest of a submission; a fit takes seconds, so a quarter of a second more is not seen.")
     outbox_poll_s: float = Field(
         default=2.0, gt=0, le=3600, description="How often the API re-sends jobs whose hand-off to the broker failed.")
     job_redispatch_after_s: float = Field(

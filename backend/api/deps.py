@@ -37,7 +37,12 @@ async def get_session(request: Request) -> AsyncIterator[Session]:
     Async, with only the commit (or rollback) in the thread pool: creating a session does no I/O (the
     connection is taken at its first statement), and each thread-pool hop showed in the profile.
     GET and HEAD requests only read: their transactions do not take SQLite's writer lock
-    (backend.db.session.read_only_engine), so image serving never queues behind submissions."""
+    (backend.db.session.read_only_engine), so image serving never queues behind submissions.
+
+    A route may commit itself, at its end and in its own thread (`commit_in_route`): then the connection goes
+    back to the pool before the route's thread is freed, so a request never holds a pooled connection while it
+    waits for a thread (with more requests in flight than threads and connections, e.g. a thousand idle-paced
+    annotators, that wait exhausted the pool)."""
     state = request.app.state
     factory = state.read_session_factory if request.method in _SAFE_METHODS else state.session_factory
     session: Session = factory()
@@ -47,9 +52,23 @@ async def get_session(request: Request) -> AsyncIterator[Session]:
         with anyio.CancelScope(shield=True):  # even when the client went away: give the connection back
             await run_in_threadpool(_abort, session)
         raise
-    with anyio.CancelScope(shield=True):
-        await run_in_threadpool(_commit, session)
+    if session.in_transaction():
+        with anyio.CancelScope(shield=True):
+            await run_in_threadpool(_commit, session)
+    else:  # the route committed in its own thread (the annotators' hot path): no second thread-pool hop
+        session.close()
     run_after_commit(session)
+
+
+def commit_in_route(session: Session) -> None:
+    """Commit at the end of a (sync) route, in its thread: see get_session. A failed commit raises as the
+    dependency's would (the request writes nothing)."""
+    session.commit()
+
+
+def _load_principal(factory: Callable[[], Session], user_id: int) -> Principal | None:
+    with factory() as session:
+        return load_principal(session, user_id)
 
 
 def _commit(session: Session) -> None:
@@ -87,12 +106,13 @@ bearer = HTTPBearer(auto_error=False, description="Token from POST /api/auth/tok
 
 async def get_current_user(
     request: Request,
-    session: SessionDep,
     settings: SettingsDep,
     credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)],
 ) -> Principal:
     """The token's user, from the process's short-lived cache (services.auth_cache) or, on a miss or when the
-    token is newer than the cached row, one Core SELECT in the request's transaction (in the thread pool)."""
+    token is newer than the cached row, one Core SELECT in a read transaction of its own, whose connection is
+    back in the pool when the thread-pool call returns (the request's own session takes one only in the
+    route's thread)."""
     if credentials is None:
         raise AuthError("not authenticated: send 'Authorization: Bearer <token>'")
     user_id, version = parse_token(settings.signing_key, credentials.credentials)
@@ -100,7 +120,7 @@ async def get_current_user(
     user = cache.get(user_id)
     if user is None or user.token_version < version:
         generation = cache.generation(user_id)
-        user = await run_in_threadpool(load_principal, session, user_id)
+        user = await run_in_threadpool(_load_principal, request.app.state.read_session_factory, user_id)
         if user is not None:
             cache.put(user, generation)
     if user is None or user.token_version != version:

@@ -5,7 +5,6 @@ from __future__ import annotations
 import logging
 
 from fastapi import FastAPI, Request
-from fastapi.concurrency import run_in_threadpool
 from fastapi.exception_handlers import http_exception_handler
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
@@ -62,17 +61,14 @@ async def _unauthenticated(request: Request) -> JSONResponse | None:
     dependant = getattr(route, "dependant", None)
     if dependant is None or not depends_on(dependant, get_current_user):
         return None
-    session = request.app.state.read_session_factory()
     try:
-        await get_current_user(request, session, request.app.state.settings, await bearer(request))
+        await get_current_user(request, request.app.state.settings, await bearer(request))
     except AuthError as exc:
         return JSONResponse({"detail": exc.message}, status_code=401, headers={"WWW-Authenticate": "Bearer"})
     except OperationalError as exc:  # raised in a handler it would be a 500
         logger.warning("database unavailable or busy: %s", exc.orig)
         return JSONResponse({"detail": "database busy; nothing was written, retry"}, status_code=503,
                             headers={"Retry-After": "1"})
-    finally:
-        await run_in_threadpool(session.close)
     return None
 
 

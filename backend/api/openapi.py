@@ -47,7 +47,8 @@ def error_statuses(route: APIRoute) -> set[int]:
     statuses = set()
     if depends_on(dependant, get_current_user):
         statuses |= {401, 403}
-    if depends_on(dependant, get_session):
+    # The user's row is read in a session of its own (api.deps.get_current_user): its routes read the database too.
+    if depends_on(dependant, get_session) or depends_on(dependant, get_current_user):
         statuses |= {404, 409, 503}  # 409 on reads too: a sample in another state than the route shows
     if route.body_field is not None:
         statuses.add(413)

@@ -1,10 +1,13 @@
-"""`handloop bench api`: simulated annotators against a real server on PostgreSQL.
+"""`handloop bench api`: simulated annotators against a real server on PostgreSQL or the embedded SQLite.
 
-A fresh database is created and migrated, seeded with samples (rows only, no images) and annotator
-accounts; uvicorn (uvloop, httptools) serves the app on 127.0.0.1, with the scale-out broker (Redis, under a
-key prefix of its own, removed afterwards) receiving the fit jobs that submissions queue. N simulated
-annotators, coroutines in this one process with one keep-alive HTTP/1.1 connection each (so at most N
-requests in flight), loop next -> submit until the time is up:
+A fresh database is created and migrated (PostgreSQL: a database beside the maintenance one; SQLite: a file
+in a temporary folder), seeded with samples (rows only, no images) and annotator accounts; uvicorn (uvloop,
+httptools) serves the app on 127.0.0.1, with a broker receiving the fit jobs that submissions queue
+(PostgreSQL: the scale-out Redis broker under a key prefix of its own, removed afterwards; SQLite: the
+embedded filesystem broker, as in the demo). N simulated annotators, coroutines in this one process with one
+keep-alive HTTP/1.1 connection each (so at most N requests in flight) and a token signed with the server's
+key (N Argon2 logins would take minutes and are not what is measured), loop next -> submit until the time
+is up:
 - paced (`rate` > 0, the default 200 submissions/s): each annotator starts a cycle every N / rate seconds
   on a fixed schedule (staggered), so the server is offered the target load and the latencies are those at
   that load; an annotator behind schedule starts at once, and how far behind is reported (schedule lag);
@@ -12,6 +15,13 @@ requests in flight), loop next -> submit until the time is up:
   throughput is the server's capacity and latency is queueing (p50 ~ N / (2 x submits/s), Little's law).
 Afterwards the database is checked: every acknowledged submission must be there with all its clicks
 (lost_submissions) and no sample may have been handed to two annotators (duplicate_assignments).
+
+CPU per cycle (`cpu_ms_per_cycle`, the figure that does not depend on the machine's load): the CPU time
+(utime + stime from /proc) that the server's processes and the run's PostgreSQL backends (those connected to
+the run's database, found in pg_stat_activity) used during the measured window, divided by the cycles
+(acknowledged submissions) in it. PostgreSQL's shared background processes (WAL writer, checkpointer) are
+not counted: they serve other databases on a shared machine too. The probe (`probe=True`) is the run that
+measures it alone: one annotator, one server worker, saturated.
 """
 
 from __future__ import annotations
@@ -20,6 +30,7 @@ import asyncio
 import json
 import logging
 import os
+import shutil
 import socket
 import subprocess
 import sys
@@ -32,6 +43,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from backend.services.security import create_token
 
 logger = logging.getLogger(__name__)
 
@@ -59,8 +72,13 @@ def _percentile(values: list[float], q: float) -> float | None:
     return round(float(np.percentile(values, q)), 2) if values else None
 
 
-def _seed(url: str, annotators: int, samples: int, cameras: int, width: int) -> None:
-    from sqlalchemy import insert
+DATABASES = ("postgres", "sqlite")
+CROWD_CYCLE_S = 20.0  # a human pace: one next -> submit per annotator every 20 s
+
+
+def _seed(url: str, annotators: int, samples: int, cameras: int, width: int) -> list[int]:
+    """Migrate and seed; returns the annotators' user ids in order."""
+    from sqlalchemy import insert, select
 
     from backend.db.migrate import upgrade
     from backend.db.session import create_engine_from_url, make_session_factory
@@ -72,14 +90,20 @@ def _seed(url: str, annotators: int, samples: int, cameras: int, width: int) -> 
     upgrade(url)
     engine = create_engine_from_url(url)
     hashed = hash_password(PASSWORD)
+    emails = [f"annotator{i}@bench.local" for i in range(annotators)]
     with make_session_factory(engine).begin() as session:
-        session.execute(insert(User), [{"email": f"annotator{i}@bench.local", "full_name": "", "role": Role.annotator,
-                                        "hashed_password": hashed} for i in range(annotators)])
+        session.execute(insert(User), [{"email": email, "full_name": "", "role": Role.annotator,
+                                        "hashed_password": hashed} for email in emails])
         per_seq = 500
         for s in range((samples + per_seq - 1) // per_seq):
             seed_samples(session, project=f"bench{s}", frames=min(per_seq, samples - s * per_seq), cameras=cameras,
                          width=width, height=width)
+        ids = dict(session.execute(select(User.email, User.id).where(User.email.in_(emails))).all())
+    if engine.dialect.name == "postgresql":  # statistics, as autovacuum keeps them in a server that has been running
+        with engine.connect().execution_options(isolation_level="AUTOCOMMIT") as conn:
+            conn.exec_driver_sql("ANALYZE")
     engine.dispose()
+    return [ids[email] for email in emails]
 
 
 def _verify(url: str, logs: list[AnnotatorLog]) -> tuple[int, int]:
@@ -101,44 +125,127 @@ def _verify(url: str, logs: list[AnnotatorLog]) -> tuple[int, int]:
     return duplicates, lost
 
 
+def _cpu_ticks(pid: int) -> int | None:
+    """utime + stime of a process (all its threads), in clock ticks; None if it is gone."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            fields = f.read().rsplit(b")", 1)[1].split()
+    except OSError:
+        return None
+    return int(fields[11]) + int(fields[12])  # fields 14 and 15 of proc(5), counted after the ')'
+
+
+def _descendants(root: int) -> list[int]:
+    """`root` and every process below it (uvicorn's supervisor and its workers)."""
+    children: dict[int, list[int]] = defaultdict(list)
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat", "rb") as f:
+                    ppid = int(f.read().rsplit(b")", 1)[1].split()[1])
+            except (OSError, ValueError, IndexError):
+                continue
+            children[ppid].append(int(entry))
+    found, todo = [], [root]
+    while todo:
+        pid = todo.pop()
+        found.append(pid)
+        todo.extend(children.get(pid, ()))
+    return found
+
+
+class CpuMeter:
+    """CPU seconds used between `start` and `stop` by the server's process tree and by the PostgreSQL
+    backends connected to the run's database (`backend_pids`: None on SQLite, where the database is in the
+    server's processes). A process first seen at `stop` counts from zero (it was forked meanwhile)."""
+
+    def __init__(self, server_pid: int, backend_pids: Any = None) -> None:
+        self.server_pid, self.backend_pids = server_pid, backend_pids
+        self.ticks_per_s = os.sysconf("SC_CLK_TCK")
+        self._start: tuple[dict[int, int], dict[int, int]] | None = None
+        self.server_s = self.db_s = 0.0
+
+    def _sample(self) -> tuple[dict[int, int], dict[int, int]]:
+        def ticks(pids: list[int]) -> dict[int, int]:
+            return {pid: t for pid in pids if (t := _cpu_ticks(pid)) is not None}
+        return ticks(_descendants(self.server_pid)), ticks(self.backend_pids() if self.backend_pids else [])
+
+    def start(self) -> None:
+        self._start = self._sample()
+
+    def stop(self) -> None:
+        assert self._start is not None
+        end = self._sample()
+        used = [sum(t - before.get(pid, 0) for pid, t in after.items()) / self.ticks_per_s
+                for before, after in zip(self._start, end, strict=True)]
+        self.server_s, self.db_s = used
+
+
+def _per_cycle_ms(seconds: float, cycles: int) -> float | None:
+    return round(1000 * seconds / cycles, 2) if cycles else None
+
+
 def run(annotators: int = 50, seconds: float = 30.0, *, rate: float = 200.0, samples: int | None = None,
-        cameras: int = 8, server_workers: int = 2,
+        cameras: int = 8, server_workers: int = 2, database: str = "postgres",
         pg_admin_url: str = "postgresql+psycopg://postgres@127.0.0.1:5432/postgres",
         broker_url: str = "redis://127.0.0.1:6379/15", width: int = 320, warmup_s: float = 3.0) -> dict[str, Any]:
-    """One measured run; `rate` offered submissions/s in total (0: saturate)."""
+    """One measured run; `rate` offered submissions/s in total (0: saturate); `database` "postgres" (with
+    the Redis broker at `broker_url`) or "sqlite" (with the embedded broker)."""
     from sqlalchemy import create_engine, text
 
-    samples = samples or max(2000, int(400 * (seconds + warmup_s)))
+    if database not in DATABASES:
+        raise ValueError(f"database must be one of {', '.join(DATABASES)}, not {database!r}")
+    samples = samples or max(2000, int(400 * (seconds + warmup_s)) if rate <= 0 else
+                             int(1.5 * rate * (seconds + warmup_s)) + 2 * annotators)
     prefix = f"handloop-bench-{uuid.uuid4().hex[:8]}:"
     db_name = f"handloop_bench_{uuid.uuid4().hex[:8]}"
-    admin = create_engine(pg_admin_url, isolation_level="AUTOCOMMIT")
-    with admin.connect() as conn:
-        conn.execute(text(f'CREATE DATABASE "{db_name}"'))
-    url = pg_admin_url.rsplit("/", 1)[0] + f"/{db_name}"
+    data_dir = Path(tempfile.mkdtemp(prefix="handloop-bench-"))
+    admin = None
+    if database == "postgres":
+        admin = create_engine(pg_admin_url, isolation_level="AUTOCOMMIT")
+        with admin.connect() as conn:
+            conn.execute(text(f'CREATE DATABASE "{db_name}"'))
+        url = pg_admin_url.rsplit("/", 1)[0] + f"/{db_name}"
+    else:
+        url = f"sqlite:///{data_dir / 'handloop.sqlite3'}"
     server = None
     try:
         t0 = time.perf_counter()
-        _seed(url, annotators, samples, cameras, width)
+        user_ids = _seed(url, annotators, samples, cameras, width)
         logger.info("seeded %d samples x %d views and %d annotators in %.1f s", samples, cameras, annotators,
                     time.perf_counter() - t0)
         port = _free_port()
-        pool = max(5, annotators // server_workers + 5)
+        # Enough connections for the requests in flight, bounded: PostgreSQL's max_connections is shared.
+        pool = min(20, max(5, annotators // server_workers + 5))
         env = {**os.environ, "HANDLOOP_DATABASE_URL": url, "HANDLOOP_SECRET_KEY": SECRET,
                "HANDLOOP_ENVIRONMENT": "production", "HANDLOOP_DB_POOL_SIZE": str(pool),
-               "HANDLOOP_DB_MAX_OVERFLOW": "5", "HANDLOOP_DATA_DIR": tempfile.mkdtemp(prefix="handloop-bench-"),
-               "HANDLOOP_BROKER_URL": broker_url, "HANDLOOP_BROKER_PREFIX": prefix}
+               "HANDLOOP_DB_MAX_OVERFLOW": "5", "HANDLOOP_DATA_DIR": str(data_dir)}
+        env.pop("HANDLOOP_BROKER_URL", None)
+        env.pop("HANDLOOP_BROKER_PREFIX", None)
+        if database == "postgres":
+            env.update({"HANDLOOP_BROKER_URL": broker_url, "HANDLOOP_BROKER_PREFIX": prefix})
         server = subprocess.Popen(
             [sys.executable, "-m", "uvicorn", "backend.app:create_app", "--factory", "--host", "127.0.0.1",
              "--port", str(port), "--workers", str(server_workers), "--loop", "uvloop", "--http", "httptools",
-             # the logins (Argon2) take longer than uvicorn's default 5 s keep-alive: keep the connections open
+             # idle annotators (the crowd) must keep their connections, as browsers' tabs do
              "--timeout-keep-alive", "120", "--no-access-log", "--log-level", "warning"],
             env=env, cwd=Path(__file__).resolve().parents[2])
         base = f"http://127.0.0.1:{port}"
         _wait_ready(base, server)
+
+        def backend_pids() -> list[int]:
+            assert admin is not None
+            with admin.connect() as conn:
+                return list(conn.execute(text("SELECT pid FROM pg_stat_activity WHERE datname = :db"),
+                                         {"db": db_name}).scalars())
+
+        meter = CpuMeter(server.pid, backend_pids if database == "postgres" else None)
         logs = [AnnotatorLog() for _ in range(annotators)]
         warmup_logs = [AnnotatorLog() for _ in range(annotators)]
+        tokens = [create_token(SECRET, uid, 0, 24 * 3600) for uid in user_ids]
         load_before = os.getloadavg()[0]
-        elapsed = _drive(port, logs, seconds, rate, warmup_logs, warmup_s)
+        client_cpu: list[float] = []
+        elapsed = _drive(port, tokens, logs, seconds, rate, warmup_logs, warmup_s, meter, client_cpu)
         load_after = os.getloadavg()[0]
         duplicates, lost = _verify(url, warmup_logs + logs)
     finally:
@@ -148,10 +255,13 @@ def run(annotators: int = 50, seconds: float = 30.0, *, rate: float = 200.0, sam
                 server.wait(15)
             except subprocess.TimeoutExpired:
                 server.kill()
-        with admin.connect() as conn:
-            conn.execute(text(f'DROP DATABASE IF EXISTS "{db_name}" WITH (FORCE)'))
-        admin.dispose()
-        fit_messages = _drop_broker_keys(broker_url, prefix)
+        if admin is not None:
+            with admin.connect() as conn:
+                conn.execute(text(f'DROP DATABASE IF EXISTS "{db_name}" WITH (FORCE)'))
+            admin.dispose()
+        fit_messages = (_drop_broker_keys(broker_url, prefix) if database == "postgres"
+                        else _embedded_messages(data_dir))
+        shutil.rmtree(data_dir, ignore_errors=True)
 
     lat = {route: [x for log in logs for x in log.latencies_ms[route]] for route in ("next", "submit")}
     submits = sum(len(log.acknowledged) for log in logs)
@@ -162,6 +272,12 @@ def run(annotators: int = 50, seconds: float = 30.0, *, rate: float = 200.0, sam
     lag = [x for log in logs for x in log.lag_ms]
     return {
         "mode": f"paced, {rate:g} submissions/s offered" if rate > 0 else "saturated",
+        "database": "postgresql" if database == "postgres" else "sqlite",
+        "cpu_ms_per_cycle": _per_cycle_ms(meter.server_s + meter.db_s, submits),
+        "server_cpu_ms_per_cycle": _per_cycle_ms(meter.server_s, submits),
+        "db_cpu_ms_per_cycle": _per_cycle_ms(meter.db_s, submits) if database == "postgres" else None,
+        "client_cpu_ms_per_cycle": _per_cycle_ms(client_cpu[0], submits) if client_cpu else None,
+        "wall_ms_per_cycle": _per_cycle_ms(elapsed * annotators, submits) if rate <= 0 else None,
         "p50_ms_next": _percentile(lat["next"], 50), "p99_ms_next": _percentile(lat["next"], 99),
         "p50_ms_submit": _percentile(lat["submit"], 50), "p99_ms_submit": _percentile(lat["submit"], 99),
         "submits_per_s": round(submits / elapsed, 1), "requests_per_s": round(sum(map(len, lat.values())) / elapsed, 1),
@@ -175,6 +291,12 @@ def run(annotators: int = 50, seconds: float = 30.0, *, rate: float = 200.0, sam
         "server": f"uvicorn --workers {server_workers} --loop uvloop --http httptools --timeout-keep-alive 120, "
                   f"db pool {pool}+5 per worker",
     }
+
+
+def _embedded_messages(data_dir: Path) -> int | None:
+    """Fit messages waiting in the embedded broker's folder (no worker consumes them here)."""
+    folder = data_dir / "broker" / "messages"
+    return sum(1 for _ in folder.iterdir()) if folder.is_dir() else None
 
 
 class _Http:
@@ -225,33 +347,25 @@ def _drop_broker_keys(broker_url: str, prefix: str) -> int | None:
         return None
 
 
-def _drive(port: int, logs: list[AnnotatorLog], seconds: float, rate: float, warmup_logs: list[AnnotatorLog],
-           warmup_s: float) -> float:
+def _drive(port: int, tokens: list[str], logs: list[AnnotatorLog], seconds: float, rate: float,
+           warmup_logs: list[AnnotatorLog], warmup_s: float, meter: CpuMeter, client_cpu: list[float]) -> float:
     """Run the simulated annotators as coroutines in this process (uvloop when installed); returns the
-    measured seconds. Logins (Argon2) happen first, 4 at a time; the clock starts when all are in."""
+    measured seconds. `meter` measures the server's CPU over the measured window; this process's own CPU
+    over it is appended to `client_cpu`."""
     try:
         import uvloop
         runner: Any = uvloop.run
     except ImportError:
         runner = asyncio.run
-    return runner(_drive_async(port, logs, seconds, rate, warmup_logs, warmup_s))
+    return runner(_drive_async(port, tokens, logs, seconds, rate, warmup_logs, warmup_s, meter, client_cpu))
 
 
-async def _drive_async(port: int, logs: list[AnnotatorLog], seconds: float, rate: float,
-                       warmup_logs: list[AnnotatorLog], warmup_s: float) -> float:
+async def _drive_async(port: int, tokens: list[str], logs: list[AnnotatorLog], seconds: float, rate: float,
+                       warmup_logs: list[AnnotatorLog], warmup_s: float, meter: CpuMeter,
+                       client_cpu: list[float]) -> float:
     clients = [_Http(port) for _ in logs]
-    gate = asyncio.Semaphore(4)
-
-    async def login(i: int) -> None:
-        async with gate:
-            status, body = await clients[i].request(
-                "POST", "/api/auth/token", f"username=annotator{i}%40bench.local&password={PASSWORD}".encode(),
-                b"application/x-www-form-urlencoded")
-            if status != 200:
-                raise RuntimeError(f"login of annotator{i} failed: {status} {body[:200]!r}")
-            clients[i].auth = b"Authorization: Bearer %s\r\n" % json.loads(body)["access_token"].encode()
-
-    await asyncio.gather(*(login(i) for i in range(len(logs))))
+    for client, token in zip(clients, tokens, strict=True):
+        client.auth = b"Authorization: Bearer %s\r\n" % token.encode()
     cycle_s = len(logs) / rate if rate > 0 else 0.0
 
     async def phase(phase_logs: list[AnnotatorLog], duration_s: float) -> float:
@@ -263,7 +377,11 @@ async def _drive_async(port: int, logs: list[AnnotatorLog], seconds: float, rate
     # Warm-up, not measured (its assignments and submissions are verified with the rest): the server's
     # connection pools fill and PostgreSQL prepares the statements, as in a server that has been running.
     await phase(warmup_logs, warmup_s)
+    meter.start()
+    own = time.process_time()
     elapsed = await phase(logs, seconds)
+    client_cpu.append(time.process_time() - own)
+    meter.stop()
     for client in clients:
         await client.close()
     return elapsed

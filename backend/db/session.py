@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 from sqlalchemy import Engine, create_engine, event
+from sqlalchemy.exc import DisconnectionError
 from sqlalchemy.orm import Session, sessionmaker
 
 
@@ -35,7 +37,35 @@ def create_engine_from_url(url: str, *, pool_size: int = 10, max_overflow: int =
             connection.exec_driver_sql("BEGIN" if read_only else "BEGIN IMMEDIATE")
 
         return engine
-    return create_engine(url, echo=echo, pool_size=pool_size, max_overflow=max_overflow, pool_pre_ping=True)
+    engine = create_engine(url, echo=echo, pool_size=pool_size, max_overflow=max_overflow)
+    _ping_idle_connections(engine)
+    return engine
+
+
+# A pooled PostgreSQL connection idle longer than this is pinged before use (PostgreSQL restarted, a proxy
+# or firewall dropped it). Pinging every checkout (pool_pre_ping) was a round trip per request; a connection
+# in steady use is not pinged, and if it died anyway the request fails once and SQLAlchemy, seeing the
+# disconnect, replaces every connection of the pool.
+PING_AFTER_IDLE_S = 1.0
+
+
+def _ping_idle_connections(engine: Engine) -> None:
+    @event.listens_for(engine, "connect")
+    def _fresh(_dbapi_connection: Any, record: Any) -> None:
+        record.info["checked_in_s"] = time.monotonic()
+
+    @event.listens_for(engine, "checkin")
+    def _checked_in(_dbapi_connection: Any, record: Any) -> None:
+        record.info["checked_in_s"] = time.monotonic()
+
+    @event.listens_for(engine, "checkout")
+    def _checkout(dbapi_connection: Any, record: Any, _proxy: Any) -> None:
+        if time.monotonic() - record.info.get("checked_in_s", 0.0) < PING_AFTER_IDLE_S:
+            return
+        try:
+            engine.dialect.do_ping(dbapi_connection)
+        except Exception as exc:  # the pool discards this connection and checks out another
+            raise DisconnectionError(f"pooled connection is gone: {exc}") from exc
 
 
 READ_ONLY_OPTION = "handloop_read_only"

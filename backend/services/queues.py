@@ -22,6 +22,8 @@ from backend.models.drafts import Draft
 from backend.models.enums import LeaseKind, SampleState
 from backend.services import audit
 from backend.services.errors import ConflictError, LeaseExpiredError, NotFoundError, PermissionDeniedError
+from backend.services.lease_statement import acquire_statement
+from backend.services.samples import ViewInfo
 from backend.services.users import Actor
 
 QUEUE_STATE = {LeaseKind.annotate: SampleState.needs_annotation, LeaseKind.review: SampleState.in_review}
@@ -46,6 +48,10 @@ class Lease:
     expires_at: datetime
     kind: LeaseKind
     head: SampleHead | None = None
+    # Returned with the lease by PostgreSQL's one-statement acquire (lease_statement): what a task shows.
+    views: tuple[ViewInfo, ...] | None = None
+    sequence: str | None = None
+    side: str | None = None  # the sequence's hand, with `sequence`
 
 
 def _lease_of(sample: Sample) -> Lease:
@@ -69,15 +75,23 @@ HEAD_COLUMNS = (_SAMPLES.c.id, _SAMPLES.c.sequence_id, _SAMPLES.c.frame_index, _
 
 
 def acquire(session: Session, user: Actor, kind: LeaseKind, lease_seconds: int,
-            now: datetime | None = None) -> Lease | None:
+            now: datetime | None = None, *, sole_statement: bool = False) -> Lease | None:
     """The caller's live lease of this kind if it has one (renewed), else a new one; None if the queue is
     empty. Never hands a sample held by someone else.
+
+    PostgreSQL: one statement (lease_statement). `sole_statement`: the caller's request runs nothing else
+    in its transaction, so when the session has not begun one yet the statement runs in autocommit mode
+    (atomic on its own), sparing the BEGIN and COMMIT round trips.
 
     Core statements on the session's connection (no ORM objects): renewing the own lease is one
     UPDATE ... RETURNING (usually matching nothing), taking a free sample another; the audit row a third."""
     now = now or utcnow()
     expires = now + timedelta(seconds=lease_seconds)
     state = QUEUE_STATE[kind]
+    if session.get_bind().dialect.name == "postgresql":
+        if sole_statement and not session.in_transaction():
+            session.connection(execution_options={"isolation_level": "AUTOCOMMIT"})
+        return _acquire_in_one_statement(session, user, kind, expires, now)
     conn = session.connection()
     c = _SAMPLES.c
     mine = (c.leased_by_id == user.id, c.lease_kind == kind.value, c.state == state.value, c.lease_expires_at > now)
@@ -97,6 +111,19 @@ def acquire(session: Session, user: Actor, kind: LeaseKind, lease_seconds: int,
     # A free sample the caller left work on (its lease lapsed, or they signed out) before any other.
     return (take_free(session, user, kind, expires, now, drafted_by=user.id)
             or take_free(session, user, kind, expires, now))
+
+
+def _acquire_in_one_statement(session: Session, user: Actor, kind: LeaseKind, expires: datetime,
+                              now: datetime) -> Lease | None:
+    """PostgreSQL: `acquire` (lease, audit row, views, sequence name) in one round trip (lease_statement)."""
+    rows = session.connection().execute(acquire_statement(kind), {
+        "user_id": user.id, "now": now, "expires": expires, "token": secrets.token_urlsafe(16)}).all()
+    if not rows:
+        return None
+    first = rows[0]
+    views = tuple(ViewInfo(r.view_id, r.camera, r.width, r.height, r.mask_id) for r in rows if r.view_id is not None)
+    return Lease(first.id, first.lease_token, expires, kind, SampleHead(*first[:6]), views, first.sequence,
+                 first.side)
 
 
 def take_free(session: Session, user: Actor, kind: LeaseKind, expires: datetime, now: datetime, *,

@@ -1,10 +1,11 @@
 """Annotator submissions: clicks and mask corrections, idempotent on the client's submission id; each
 new submission queues a fit.
 
-The annotators' hot path, so written with Core statements on the session's connection (no ORM objects):
-six round trips for a submission of clicks. Lock the sample (with its views and any submission already
-stored under this client id, in the same statement); insert the job, the submission, all clicks (one
-statement); update the sample; insert the audit rows (one multi-row INSERT).
+The annotators' hot path, so written with Core statements on the session's connection (no ORM objects).
+Lock the sample (with its views and any submission already stored under this client id, in the same
+statement); then, on PostgreSQL, one statement writes the job, the submission, all clicks, the sample's new
+state, the audit rows and the drafts' deletion (services.submit_statement: two round trips in all); SQLite
+runs those writes as separate statements (in-process: no round trips to save).
 """
 
 from __future__ import annotations
@@ -13,21 +14,22 @@ from dataclasses import dataclass
 from datetime import datetime
 from typing import Any
 
-from sqlalchemy import bindparam, func, insert, select, text, update
+from sqlalchemy import func, insert, select, update
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import Session
 
-from backend.db.base import UTCDateTime, utcnow
+from backend.db.base import utcnow
 from backend.models.capture import Sample, View
 from backend.models.enums import JobKind, LeaseKind, MaskKind, SampleState, Visibility
 from backend.models.labels import Click, Mask, Submission
 from backend.schemas.tasks import SubmissionCreate
-from backend.services import audit, drafts, jobs, queues
+from backend.services import audit, drafts, jobs, queues, submit_statement
 from backend.services.annotation_input import check_clicks, check_masks
 from backend.services.errors import ConflictError, DomainError, InvalidInputError, NotFoundError
 from backend.services.masks import encode_png
 from backend.services.state_machine import check_path
 from backend.services.storage import Storage
+from backend.services.transactions import after_commit
 from backend.services.users import Actor
 
 _SAMPLES = Sample.__table__
@@ -98,33 +100,10 @@ def _insert_submission(session: Session, values: dict[str, Any]) -> int | None:
     ).scalar_one_or_none()
 
 
-# PostgreSQL: every click in one statement whose text does not depend on the number of clicks, so psycopg
-# caches its parsing and PostgreSQL its plan (a multi-row VALUES of 48 rows is over psycopg's 4 KiB cache limit
-# and was re-parsed on every request).
-_CLICKS_UNNEST = text(
-    "INSERT INTO clicks (submission_id, sample_id, view_id, keypoint, x_px, y_px, visibility, from_proposal, user_id,"
-    " time_spent_s, created_at) SELECT :submission_id, :sample_id, t.view_id, t.keypoint, t.x, t.y, t.visibility,"
-    " t.from_proposal, :user_id, :time_spent_s, :created_at FROM unnest(CAST(:view_ids AS integer[]),"
-    " CAST(:keypoints AS integer[]), CAST(:xs AS double precision[]), CAST(:ys AS double precision[]),"
-    " CAST(:visibilities AS varchar[]), CAST(:from_proposals AS boolean[]))"
-    " AS t(view_id, keypoint, x, y, visibility, from_proposal)"
-).bindparams(bindparam("created_at", type_=UTCDateTime()))
-
-
 def _insert_clicks(session: Session, body: SubmissionCreate, submission_id: int, sample_id: int, user_id: int,
                    now: datetime) -> None:
-    conn = session.connection()
-    if conn.dialect.name == "postgresql":
-        conn.execute(_CLICKS_UNNEST, {
-            "submission_id": submission_id, "sample_id": sample_id, "user_id": user_id,
-            "time_spent_s": body.time_spent_s, "created_at": now,
-            "view_ids": [c.view_id for c in body.clicks], "keypoints": [c.keypoint for c in body.clicks],
-            "xs": [c.x for c in body.clicks], "ys": [c.y for c in body.clicks],
-            "visibilities": [Visibility(c.visibility).value for c in body.clicks],
-            "from_proposals": [c.from_proposal for c in body.clicks]})
-        return
     # SQLite: the driver's executemany (a C loop over one prepared statement).
-    conn.execute(insert(_CLICKS), [
+    session.connection().execute(insert(_CLICKS), [
         {"submission_id": submission_id, "sample_id": sample_id, "view_id": c.view_id, "keypoint": c.keypoint,
          "x_px": c.x, "y_px": c.y, "visibility": Visibility(c.visibility).value, "from_proposal": c.from_proposal,
          "user_id": user_id,
@@ -164,30 +143,42 @@ def submit(session: Session, queue: jobs.JobQueue, storage: Storage, user: Actor
     decoded = check_masks(views, body.masks, sample_id)
 
     now = utcnow()
+    payload = {"client_submission_id": body.submission_id, "source": "annotation"}
+    if session.connection().dialect.name == "postgresql":
+        queue.ensure_available()  # before anything is written: an unreachable broker is a 503 that writes nothing
+        job_id, submission_id = submit_statement.write(
+            session.connection(), sample_id=sample_id, user_id=user.id, client_id=body.submission_id,
+            from_state=SampleState(sample.state).value, time_spent_s=body.time_spent_s, clicks=body.clicks,
+            n_masks=len(decoded), payload=payload, now=now)
+        if submission_id is None:  # raising rolls back the job too: a failed request writes nothing
+            raise ConflictError(f"submission id {body.submission_id!r} was already used for another sample or user")
+        after_commit(session, lambda: queue.enqueue(job_id, JobKind.fit.value))
+    else:
+        job_id, submission_id = _write_separately(session, queue, user, sample_id, sample.state, body, len(decoded),
+                                                  payload, now)
+    if decoded:
+        _write_masks(session, user, body.submission_id, submission_id, decoded, storage, now)
+    info = SubmissionInfo(submission_id, body.submission_id, sample_id, user.id, len(body.clicks), len(decoded),
+                          job_id, now)
+    return SubmitResult(info, duplicate=False)
+
+
+def _write_separately(session: Session, queue: jobs.JobQueue, user: Actor, sample_id: int, from_state: str,
+                      body: SubmissionCreate, n_masks: int, payload: dict[str, Any], now: datetime) -> tuple[int, int]:
+    """SQLite: the writes of submit_statement as separate statements (in-process, so no round trips to save);
+    returns (fit job id, submission id)."""
     audit_rows: list[dict[str, Any]] = []
     # The fit job first, so the submission row is written once, already pointing at it.
     # (the worker finds the submission through submissions.fit_job_id)
     job_id = jobs.insert_row(session, queue, JobKind.fit, audit_rows, actor_id=user.id, sample_id=sample_id,
-                             payload={"client_submission_id": body.submission_id, "source": "annotation"}, now=now)
+                             payload=payload, now=now)
     submission_id = _insert_submission(session, {
         "fit_job_id": job_id, "client_id": body.submission_id, "sample_id": sample_id, "user_id": user.id,
-        "time_spent_s": body.time_spent_s, "n_clicks": len(body.clicks), "n_masks": len(decoded), "created_at": now})
+        "time_spent_s": body.time_spent_s, "n_clicks": len(body.clicks), "n_masks": n_masks, "created_at": now})
     if submission_id is None:  # raising rolls back the job too: a failed request writes nothing
         raise ConflictError(f"submission id {body.submission_id!r} was already used for another sample or user")
     if body.clicks:
         _insert_clicks(session, body, submission_id, sample_id, user.id, now)
-    if decoded:
-        versions = dict(session.execute(
-            select(Mask.view_id, func.max(Mask.version)).where(Mask.view_id.in_([v for v, _ in decoded]))
-            .group_by(Mask.view_id)).all())
-        for view_id, mask in decoded:
-            # Written before commit under a key unique to this submission: a rollback leaves at most an
-            # unreferenced file, never a row pointing at nothing.
-            key = f"masks/corrected/{view_id}/{body.submission_id}.png"
-            storage.put_bytes(key, encode_png(mask))
-            session.add(Mask(view_id=view_id, kind=MaskKind.corrected, version=(versions.get(view_id) or 0) + 1,
-                             storage_key=key, submission_id=submission_id, created_by_id=user.id, created_at=now))
-
     # needs_annotation -> annotated -> fitting (checked above) and the lease cleared, in one UPDATE.
     session.connection().execute(
         update(_SAMPLES).where(_SAMPLES.c.id == sample_id)
@@ -195,16 +186,28 @@ def submit(session: Session, queue: jobs.JobQueue, storage: Storage, user: Actor
                 lease_expires_at=None))
     audit_rows += [
         audit.row(user.id, "sample.state", "sample", sample_id, at=now, **{
-            "from": SampleState(sample.state).value, "to": SampleState.annotated.value,
+            "from": SampleState(from_state).value, "to": SampleState.annotated.value,
             "reason": f"submission {submission_id}"}),
         audit.row(user.id, "sample.state", "sample", sample_id, at=now, **{
             "from": SampleState.annotated.value, "to": SampleState.fitting.value, "reason": "fit queued"}),
         audit.row(user.id, "submission.create", "sample", sample_id, at=now, submission_id=submission_id,
-                  client_id=body.submission_id, clicks=len(body.clicks), masks=len(decoded)),
+                  client_id=body.submission_id, clicks=len(body.clicks), masks=n_masks),
     ]
     audit.write_rows(session, audit_rows)
     drafts.delete_for_sample(session, sample_id, LeaseKind.annotate)  # submitted: the work in progress is done
-    info = SubmissionInfo(submission_id, body.submission_id, sample_id, user.id, len(body.clicks), len(decoded),
-                          job_id, now)
-    return SubmitResult(info, duplicate=False)
+    return job_id, submission_id
 
+
+def _write_masks(session: Session, user: Actor, client_id: str, submission_id: int, decoded: list[Any],
+                 storage: Storage, now: datetime) -> None:
+    """The corrected masks as new versions of their views' masks."""
+    versions = dict(session.execute(
+        select(Mask.view_id, func.max(Mask.version)).where(Mask.view_id.in_([v for v, _ in decoded]))
+        .group_by(Mask.view_id)).all())
+    for view_id, mask in decoded:
+        # Written before commit under a key unique to this submission: a rollback leaves at most an
+        # unreferenced file, never a row pointing at nothing.
+        key = f"masks/corrected/{view_id}/{client_id}.png"
+        storage.put_bytes(key, encode_png(mask))
+        session.add(Mask(view_id=view_id, kind=MaskKind.corrected, version=(versions.get(view_id) or 0) + 1,
+                         storage_key=key, submission_id=submission_id, created_by_id=user.id, created_at=now))

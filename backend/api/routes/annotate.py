@@ -2,7 +2,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Response
 
-from backend.api.deps import AnnotatorUser, JobQueueDep, SessionDep, SettingsDep, StorageDep
+from backend.api.deps import AnnotatorUser, JobQueueDep, SessionDep, SettingsDep, StorageDep, commit_in_route
 from backend.api.routes.tasks_common import json_response, task_of
 from backend.models.enums import LeaseKind
 from backend.schemas.base import Id
@@ -16,10 +16,12 @@ router = APIRouter(prefix="/annotate", tags=["annotator queue"])
 @router.post("/next", response_model=TaskPublic, responses={204: {"description": "The queue is empty."}})
 def next_task(session: SessionDep, settings: SettingsDep, user: AnnotatorUser) -> Response:
     """Lease the next sample needing annotation (or return the one you already hold, renewed)."""
-    lease = queues.acquire(session, user, LeaseKind.annotate, settings.lease_seconds)
+    lease = queues.acquire(session, user, LeaseKind.annotate, settings.lease_seconds, sole_statement=True)
     if lease is None:
         return Response(status_code=204)
-    return json_response(task_of(session, lease))
+    task = task_of(session, lease)  # PostgreSQL: built from the lease statement's rows alone
+    commit_in_route(session)
+    return json_response(task)
 
 
 @router.post("/samples/{sample_id}/lease/renew", response_model=LeasePublic)
@@ -40,6 +42,7 @@ def submit(sample_id: Id, body: SubmissionCreate, session: SessionDep, settings:
            queue: JobQueueDep, storage: StorageDep, user: AnnotatorUser) -> Response:
     """Clicks and mask corrections for a leased sample; queues a fit. Idempotent on `submission_id`."""
     result = submissions.submit(session, queue, storage, user, sample_id, body, settings.max_clicks_per_submission)
+    commit_in_route(session)
     s = result.submission
     public = SubmissionPublic.model_construct(
         id=s.id, submission_id=s.client_id, sample_id=s.sample_id, n_clicks=s.n_clicks, n_masks=s.n_masks,

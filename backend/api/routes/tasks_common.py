@@ -27,11 +27,12 @@ def task_of(session: Session, lease: Lease, with_fit: bool = False) -> TaskPubli
     """Built with `model_construct` from rows the database already typed: validating our own output again
     cost more than the queries on the annotators' hot path."""
     sample = lease.head or get_sample(session, lease.sample_id)  # head: returned by the lease statement
+    shown = lease.views if lease.views is not None else views_of(session, sample.id)  # PostgreSQL's acquire: with it
     views = [
         ViewPublic.model_construct(id=v.id, camera=v.camera, width=v.width, height=v.height,
                                    image_url=f"/api/files/views/{v.id}/image",
                                    mask_url=f"/api/files/masks/{v.mask_id}" if v.mask_id is not None else None)
-        for v in views_of(session, sample.id)
+        for v in shown
     ]
     fit = None
     if with_fit and sample.current_fit_id is not None:
@@ -39,7 +40,10 @@ def task_of(session: Session, lease: Lease, with_fit: bool = False) -> TaskPubli
         if row is not None:
             fit = {"id": row.id, "keypoints_m": row.keypoints_m, "params": row.params, "view_ious": row.view_ious,
                    "heuristic": row.heuristic, "pose_distance": row.pose_distance, "model_file": row.model_file}
-    sequence, side = sequence_name_and_side(session, sample.sequence_id)
+    if lease.views is not None:  # PostgreSQL's one-statement acquire returned them with the lease
+        sequence, side = lease.sequence, lease.side or "right"
+    else:
+        sequence, side = sequence_name_and_side(session, sample.sequence_id)
     return TaskPublic.model_construct(
         sample_id=sample.id, state=SampleState(sample.state), lease_token=lease.token,
         lease_expires_at=lease.expires_at, sequence_id=sample.sequence_id,

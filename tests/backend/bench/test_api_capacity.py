@@ -1,0 +1,58 @@
+"""`handloop bench api`: its modes' options, the CPU meter's /proc reading, and a short probe end to end on
+SQLite (a real uvicorn server; correctness keys checked, no figure asserted)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+
+import pytest
+from typer.testing import CliRunner
+
+from backend.bench.api_capacity import CpuMeter, _cpu_ticks, _descendants
+from backend.cli.main import app
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--database", "mysql"], "postgres, sqlite"),
+    (["--probe", "--crowd", "5"], "choose one"),
+])
+def test_bad_options_are_refused_naming_the_problem(args, message) -> None:
+    result = CliRunner().invoke(app, ["bench", "api", "--json", *args])
+    assert result.exit_code != 0
+    assert message in " ".join(result.output.replace("│", " ").split())  # the error box wraps long lines
+
+
+def test_the_meter_counts_a_child_process_s_cpu() -> None:
+    assert _cpu_ticks(os.getpid()) is not None and _cpu_ticks(2**22 + 12345) is None
+    busy = ("import sys, time\nend = time.process_time() + 0.3\nwhile time.process_time() < end: pass\n"
+            "sys.stdin.read()")
+    child = subprocess.Popen([sys.executable, "-c", busy], stdin=subprocess.PIPE)
+    try:
+        assert child.pid in _descendants(os.getpid())
+        meter = CpuMeter(child.pid)  # the child's tree only
+        meter.start()
+        while (_cpu_ticks(child.pid) or 0) / os.sysconf("SC_CLK_TCK") < 0.3:
+            time.sleep(0.01)  # until the child has burnt its 0.3 s
+        meter.stop()
+        assert meter.server_s > 0.1  # counted from start(): most of the child's 0.3 s (it starts up first)
+        assert meter.db_s == 0.0  # no database backends given
+    finally:
+        child.communicate(b"")
+
+
+def test_probe_on_sqlite_runs_end_to_end_and_checks_what_it_served(tmp_path) -> None:
+    result = CliRunner().invoke(app, ["bench", "api", "--json", "--probe", "--database", "sqlite", "--seconds", "2"])
+    assert result.exit_code == 0, result.output
+    record = json.loads(result.stdout.strip().splitlines()[-1])
+    assert record["benchmark"] == "api" and record["run"] == "probe" and record["database"] == "sqlite"
+    assert record["settings"]["annotators"] == 1 and record["settings"]["server_workers"] == 1
+    assert record["duplicate_assignments"] == 0 and record["lost_submissions"] == 0 and record["errors"] == {}
+    assert record["db_cpu_ms_per_cycle"] is None  # SQLite runs inside the server's processes
+    if record["submits"]:
+        assert record["cpu_ms_per_cycle"] == record["server_cpu_ms_per_cycle"] > 0
+    for key in ("p99_ms_next", "p99_ms_submit", "submits_per_s", "load_average_1min"):
+        assert key in record

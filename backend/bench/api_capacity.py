@@ -31,7 +31,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import httpx
 import numpy as np
+import redis
+from sqlalchemy import create_engine, insert, text
+
+from backend.db.migrate import upgrade
+from backend.db.session import create_engine_from_url, make_session_factory
+from backend.models.enums import Role
+from backend.models.users import User
+from backend.services.security import hash_password
+from backend.services.seed import seed_samples
 
 logger = logging.getLogger(__name__)
 
@@ -60,15 +70,6 @@ def _percentile(values: list[float], q: float) -> float | None:
 
 
 def _seed(url: str, annotators: int, samples: int, cameras: int, width: int) -> None:
-    from sqlalchemy import insert
-
-    from backend.db.migrate import upgrade
-    from backend.db.session import create_engine_from_url, make_session_factory
-    from backend.models.enums import Role
-    from backend.models.users import User
-    from backend.services.security import hash_password
-    from backend.services.seed import seed_samples
-
     upgrade(url)
     engine = create_engine_from_url(url)
     hashed = hash_password(PASSWORD)
@@ -84,7 +85,6 @@ def _seed(url: str, annotators: int, samples: int, cameras: int, width: int) -> 
 
 def _verify(url: str, logs: list[AnnotatorLog]) -> tuple[int, int]:
     """(duplicate assignments, lost submissions) from what the clients saw and what the database holds."""
-    from sqlalchemy import create_engine, text
 
     holders: dict[int, set[int]] = defaultdict(set)
     for i, log in enumerate(logs):
@@ -106,7 +106,6 @@ def run(annotators: int = 50, seconds: float = 30.0, *, rate: float = 200.0, sam
         pg_admin_url: str = "postgresql+psycopg://postgres@127.0.0.1:5432/postgres",
         broker_url: str = "redis://127.0.0.1:6379/15", width: int = 320, warmup_s: float = 3.0) -> dict[str, Any]:
     """One measured run; `rate` offered submissions/s in total (0: saturate)."""
-    from sqlalchemy import create_engine, text
 
     samples = samples or max(2000, int(400 * (seconds + warmup_s)))
     prefix = f"handloop-bench-{uuid.uuid4().hex[:8]}:"
@@ -211,8 +210,6 @@ class _Http:
 def _drop_broker_keys(broker_url: str, prefix: str) -> int | None:
     """Remove the run's Redis keys (no worker consumes the fit jobs here); returns the fit messages queued."""
     try:
-        import redis
-
         client = redis.Redis.from_url(broker_url)
         queued = int(client.llen(f"{prefix}cpu"))
         keys = list(client.scan_iter(match=f"{prefix}*"))
@@ -309,8 +306,6 @@ async def _annotator(client: _Http, index: int, deadline: float, log: AnnotatorL
 
 
 def _wait_ready(base: str, server: subprocess.Popen, timeout_s: float = 60.0) -> None:
-    import httpx
-
     end = time.perf_counter() + timeout_s
     while time.perf_counter() < end:
         if server.poll() is not None:

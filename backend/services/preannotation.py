@@ -23,6 +23,7 @@ from backend.models.enums import JobKind, JobState, SampleState
 from backend.models.jobs import Job
 from backend.schemas.admin import ImportPublic
 from backend.services import audit, jobs
+from backend.services.annotation_set import queue_for_annotation as queue_samples
 from backend.services.errors import ConflictError, InvalidInputError, NotFoundError, ServiceUnavailableError
 from backend.services.storage import Storage
 
@@ -146,7 +147,6 @@ def import_capture(session: Session, storage: Storage, queue: jobs.JobQueue, pat
     or the capture cannot carry it, the import is exactly as without the setting, and the answer says why.
     """
     from backend.services import importer
-    from backend.services.annotation_set import queue_for_annotation as queue_samples
 
     problem = detector_problem() if enabled else None
     run = enabled and problem is None

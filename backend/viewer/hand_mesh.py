@@ -18,6 +18,7 @@ import numpy as np
 
 from workers.handmodel.arrays import HandModelArrays
 from workers.handmodel.keypoints import FREIHAND_FROM_MANO
+from workers.handmodel.loading import load_hand_model
 
 logger = logging.getLogger(__name__)
 
@@ -51,7 +52,6 @@ def hand_model_label(model_file: str) -> str:
 def load_arrays(model_file: str, mano_path: Path | None) -> HandModelArrays | None:
     """The arrays of the model that made a fit, or None when this process cannot load them (a MANO
     fit but no HANDLOOP_MANO_PATH here)."""
-    from workers.handmodel.loading import load_hand_model  # numpy and scipy only
 
     if is_stand_in(model_file):
         return load_hand_model(None, "right")

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from backend.viewer import recorder
 from workers.handmodel.keypoints import SKELETON_EDGES
 
 # Per finger, wrist, thumb .. pinky; the 2D overlays get them through frontend/js/keypoint_table.js (generated).
@@ -99,6 +100,5 @@ def build(scene, content: SampleScene) -> None:
 
 def record_scene(content: SampleScene) -> bytes:
     """The scene as a `.viser` recording."""
-    from backend.viewer import recorder
 
     return recorder.record(lambda scene: build(scene, content))

@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import logging
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -111,7 +112,6 @@ def scene_photo_paths() -> tuple[Path, ...]:
     """Photographs of real scenes that installed packages ship (no download): viser's environment maps
     (a forest slope, a park, a warehouse, interiors, streets at 1024 x 512) and matplotlib's sample photo.
     None of them is a synthetic evaluation background; missing files are skipped."""
-    import importlib.util
 
     paths: list[Path] = []
     spec = importlib.util.find_spec("viser")

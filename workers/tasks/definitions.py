@@ -28,6 +28,7 @@ from backend.broker.celery_queue import (
     TASK_TRAIN_HANDSEGNET,
     TASK_TRAIN_MVNET,
 )
+from backend.models.jobs import Job
 from backend.settings import get_settings
 from workers.tasks.app import celery_app
 from workers.tasks.context import get_context
@@ -146,8 +147,6 @@ def bootstrap_round(round_job_id: int) -> None:
         round_inference.si(round_job_id).apply_async()
         return
     with get_context().session_factory() as session:
-        from backend.models.jobs import Job
-
         nets = {job_id: (session.get(Job, job_id).payload or {}).get("net") for job_id in train_job_ids}
     header = [(train_mvnet if nets[job_id] == "mvnet" else train_handsegnet).si(job_id) for job_id in train_job_ids]
     chord(header, round_inference.si(round_job_id)).apply_async()

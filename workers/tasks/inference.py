@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 from celery.exceptions import SoftTimeLimitExceeded
-from sqlalchemy import select
+from sqlalchemy import func, select
 
 from backend.models.capture import Sample
 from backend.models.enums import JobState, SampleState
@@ -150,7 +150,6 @@ def _fit_jobs_of(ctx: WorkerContext, predict_job_id: int) -> list[int]:
 
 def touch_round(ctx: WorkerContext, round_job_id: int) -> None:
     """The round's progress during inference: its share of predict and fit jobs that are final."""
-    from sqlalchemy import func
 
     with ctx.session_factory.begin() as session:
         round_job = session.get(Job, round_job_id)

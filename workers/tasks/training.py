@@ -27,6 +27,7 @@ from backend.models.jobs import Job
 from backend.models.review import Round, RoundMember
 from backend.services import jobs
 from backend.services.errors import DomainError
+from workers.nets.configs import get_config
 from workers.tasks.context import WorkerContext
 from workers.tasks.inputs import InputError, Rig, SampleFrame, capture_for, load_frames, read_mask, rig_of
 from workers.tasks.json_values import json_safe
@@ -143,7 +144,6 @@ def _round_of(session: Session, job: Job) -> tuple[Round, Job]:
 def run_training_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
     """Claim a train job, train its network on the round's D_i, record the version. Never raises for a
     training that cannot run: the job (and its round job) is marked failed with the reason."""
-    from workers.nets.configs import get_config
 
     with ctx.session_factory.begin() as session:
         job = ctx.claim(session, job_id)

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import skimage.data
 
 from workers.capture.reader import load_frame_images, load_frame_masks, load_ground_truth
 from workers.capture.schema import Capture, FrameRef
@@ -127,7 +128,6 @@ def scene_photo_paths() -> tuple[Path, ...]:
 def augmentation_backgrounds() -> tuple[np.ndarray, ...]:
     """The background pool: (H, W, 3) uint8 RGB images: bundled scikit-image photos not used for evaluation
     and the installed packages' scene photographs (`scene_photo_paths`)."""
-    import skimage.data
 
     root = Path(skimage.data.__file__).parent
     out = []

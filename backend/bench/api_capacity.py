@@ -227,7 +227,7 @@ def _drive(port: int, logs: list[AnnotatorLog], seconds: float, rate: float, war
     """Run the simulated annotators as coroutines in this process (uvloop when installed); returns the
     measured seconds. Logins (Argon2) happen first, 4 at a time; the clock starts when all are in."""
     try:
-        import uvloop
+        import uvloop  # deferred: optional (uvicorn[standard] brings it), asyncio's loop without it
         runner: Any = uvloop.run
     except ImportError:
         runner = asyncio.run

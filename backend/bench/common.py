@@ -27,7 +27,7 @@ def git_commit() -> str:
 
 
 def machine_info() -> dict[str, Any]:
-    import torch  # local: the API process must not pay for torch at start-up
+    import torch  # deferred: bench api's and bench jobs' driver processes load torch for this line only
 
     info: dict[str, Any] = {
         "platform": platform.platform(),

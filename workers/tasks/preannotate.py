@@ -57,7 +57,7 @@ def detect(images: Sequence[np.ndarray], cameras: Sequence[Camera], masks: Seque
            *, handedness: Handedness = "right") -> LiftedKeypoints:
     """`workers.detector.detect_frame`: images (H, W, 3) uint8 RGB and masks (H, W) bool or None per view, in
     calibration order."""
-    from workers.detector import detect_frame
+    from workers.detector import detect_frame  # deferred: resolving it loads the detector's pipeline (torch)
 
     return detect_frame(images, cameras, masks, handedness=handedness)
 

@@ -119,6 +119,8 @@ def model_masks(ctx: WorkerContext, session: Session, tset: TrainingSet) -> list
 
 def render_masks(ctx: WorkerContext, rig: Rig, theta: np.ndarray) -> dict[str, np.ndarray]:
     """Silhouettes of the hand model with parameters theta (61,) in every camera of the rig."""
+    # deferred: torch only where a job computes: the round's bookkeeping (round_steps) and fits (via inference)
+    # import this module for checkpoint_of and run without torch
     import torch
 
     from workers.handmodel.layer import HandLayer
@@ -201,7 +203,7 @@ def run_training_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
 def warm_start_of(ctx: WorkerContext, net: str, config: Any, round_index: int) -> Path | None:
     """The final checkpoint of `net` from the latest earlier round with the same architecture (training then
     continues from it, so the networks accumulate over rounds), or None (round 1, another configuration)."""
-    from workers.nets.checkpoints import previous_checkpoint
+    from workers.nets.checkpoints import previous_checkpoint  # deferred: torch, as in render_masks
 
     sub = config.mvnet if net == "mvnet" else config.handsegnet
     return previous_checkpoint(ctx.settings.checkpoints_dir.resolve(), net, sub, round_index)  # type: ignore[arg-type]
@@ -209,6 +211,7 @@ def warm_start_of(ctx: WorkerContext, net: str, config: Any, round_index: int) -
 
 def _train(ctx: WorkerContext, net: str, tset: TrainingSet, masks: list[dict[str, np.ndarray]] | None, config: Any,
            budget: float, folder: Path, reporter: ProgressReporter, seed: int, extra: dict[str, Any]) -> Any:
+    # deferred: torch, as in render_masks
     from workers.nets.data import build_handseg_dataset, build_mvnet_dataset
     from workers.nets.train import train_handsegnet, train_mvnet
 

@@ -92,7 +92,7 @@ def mesh_implicit(sdf: SdfFn, lo: np.ndarray, hi: np.ndarray,
 
     Returns (vertices (V, 3) float64 metres, faces (F, 3) int64).
     """
-    # Deferred: meshing runs when the hand is generated, never when it is loaded from the cache (the API).
+    # deferred: meshing runs when the hand is generated, never when it is loaded from the cache (the API)
     import fast_simplification
     import trimesh
     from skimage.measure import marching_cubes

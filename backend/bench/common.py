@@ -27,7 +27,7 @@ def git_commit() -> str:
 
 
 def machine_info() -> dict[str, Any]:
-    import torch  # deferred: bench api's and bench jobs' driver processes load torch for this line only
+    import torch  # deferred: bench api and bench import load torch only here, once they have measured
 
     info: dict[str, Any] = {
         "platform": platform.platform(),

@@ -42,7 +42,7 @@ def create_app(settings: Settings | None = None, *, job_queue: JobQueue | None =
     watch_user_changes(app.state.session_factory, app.state.auth_cache)
     app.state.login_limiter = LoginLimiter(LoginPolicy.from_settings(settings))
     if job_queue is None:
-        from backend.broker.celery_queue import CeleryJobQueue  # celery + kombu, no torch
+        from backend.broker.celery_queue import CeleryJobQueue  # deferred: celery, kombu: only for a broker's queue
 
         job_queue = CeleryJobQueue(settings)
     app.state.job_queue = job_queue

@@ -30,6 +30,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from backend.broker.celery_queue import QUEUES, ensure_embedded_folders
 from backend.settings import Settings
 
 logger = logging.getLogger(__name__)
@@ -211,7 +212,6 @@ def start_stack(settings: Settings, *, host: str = "127.0.0.1", port: int = 0,
     Returns:
         The running stack (`.base_url`, `.settings`, `.stop()`); use it as a context manager.
     """
-    from backend.broker.celery_queue import QUEUES, ensure_embedded_folders
 
     if unknown := set(worker_queues) - set(QUEUES):
         raise ValueError(f"unknown worker queues {sorted(unknown)}; use {list(QUEUES)}")

@@ -8,6 +8,7 @@ from pathlib import Path
 from fastapi import FastAPI
 from fastapi.responses import HTMLResponse, Response
 from fastapi.staticfiles import StaticFiles
+from swagger_ui_bundle import swagger_ui_path
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
 ASSETS = "/docs/assets"
@@ -30,8 +31,6 @@ PAGE = f"""<!doctype html>
 
 
 def swagger_ui_dir() -> Path:
-    from swagger_ui_bundle import swagger_ui_path
-
     return Path(swagger_ui_path)
 
 

@@ -20,6 +20,8 @@ import logging
 from functools import cache
 from typing import Any
 
+from backend.viewer.client import client_script_hashes
+
 logger = logging.getLogger(__name__)
 
 COMMON = ("object-src 'none'", "base-uri 'none'", "form-action 'self'")
@@ -32,8 +34,6 @@ DOCS_POLICY = "; ".join(("default-src 'self'", "script-src 'self'", "style-src '
 
 @cache  # hashing viser's client takes ~70 ms; it changes only with the installed viser
 def viewer_policy() -> str:
-    from backend.viewer.client import client_script_hashes
-
     try:
         scripts = " ".join(client_script_hashes())
     except (OSError, ValueError) as exc:  # a viser release that packs its client differently: say so, keep working

@@ -42,9 +42,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import httpx
 import numpy as np
+import redis
+from sqlalchemy import create_engine, insert, select, text
 
-from backend.services.security import create_token
+from backend.db.migrate import upgrade
+from backend.db.session import create_engine_from_url, make_session_factory
+from backend.models.enums import Role
+from backend.models.users import User
+from backend.services.security import create_token, hash_password
+from backend.services.seed import seed_samples
 
 logger = logging.getLogger(__name__)
 
@@ -78,14 +86,7 @@ CROWD_CYCLE_S = 20.0  # a human pace: one next -> submit per annotator every 20 
 
 def _seed(url: str, annotators: int, samples: int, cameras: int, width: int) -> list[int]:
     """Migrate and seed; returns the annotators' user ids in order."""
-    from sqlalchemy import insert, select
 
-    from backend.db.migrate import upgrade
-    from backend.db.session import create_engine_from_url, make_session_factory
-    from backend.models.enums import Role
-    from backend.models.users import User
-    from backend.services.security import hash_password
-    from backend.services.seed import seed_samples
 
     upgrade(url)
     engine = create_engine_from_url(url)
@@ -108,7 +109,6 @@ def _seed(url: str, annotators: int, samples: int, cameras: int, width: int) -> 
 
 def _verify(url: str, logs: list[AnnotatorLog]) -> tuple[int, int]:
     """(duplicate assignments, lost submissions) from what the clients saw and what the database holds."""
-    from sqlalchemy import create_engine, text
 
     holders: dict[int, set[int]] = defaultdict(set)
     for i, log in enumerate(logs):
@@ -191,7 +191,6 @@ def run(annotators: int = 50, seconds: float = 30.0, *, rate: float = 200.0, sam
         broker_url: str = "redis://127.0.0.1:6379/15", width: int = 320, warmup_s: float = 3.0) -> dict[str, Any]:
     """One measured run; `rate` offered submissions/s in total (0: saturate); `database` "postgres" (with
     the Redis broker at `broker_url`) or "sqlite" (with the embedded broker)."""
-    from sqlalchemy import create_engine, text
 
     if database not in DATABASES:
         raise ValueError(f"database must be one of {', '.join(DATABASES)}, not {database!r}")
@@ -333,8 +332,6 @@ class _Http:
 def _drop_broker_keys(broker_url: str, prefix: str) -> int | None:
     """Remove the run's Redis keys (no worker consumes the fit jobs here); returns the fit messages queued."""
     try:
-        import redis
-
         client = redis.Redis.from_url(broker_url)
         queued = int(client.llen(f"{prefix}cpu"))
         keys = list(client.scan_iter(match=f"{prefix}*"))
@@ -353,7 +350,7 @@ def _drive(port: int, tokens: list[str], logs: list[AnnotatorLog], seconds: floa
     measured seconds. `meter` measures the server's CPU over the measured window; this process's own CPU
     over it is appended to `client_cpu`."""
     try:
-        import uvloop
+        import uvloop  # deferred: optional (uvicorn[standard] brings it), asyncio's loop without it
         runner: Any = uvloop.run
     except ImportError:
         runner = asyncio.run
@@ -427,8 +424,6 @@ async def _annotator(client: _Http, index: int, deadline: float, log: AnnotatorL
 
 
 def _wait_ready(base: str, server: subprocess.Popen, timeout_s: float = 60.0) -> None:
-    import httpx
-
     end = time.perf_counter() + timeout_s
     while time.perf_counter() < end:
         if server.poll() is not None:

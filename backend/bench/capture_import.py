@@ -18,12 +18,23 @@ import tempfile
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
+from tqdm import tqdm
 
 from backend.bench.common import emit
+from backend.bench.import_ui import measure
+from backend.db.migrate import upgrade
+from backend.db.session import create_engine_from_url, make_session_factory
+from backend.services.importer import import_capture
+from backend.services.storage import LocalDiskStorage
+from workers.capture import read_capture
+from workers.capture.assemble import assemble_capture
+from workers.geometry.rig import default_rig
 
 log = logging.getLogger(__name__)
 
@@ -95,9 +106,7 @@ class TreeMemory:
 
 def bench_rig(cameras: int) -> list[Any]:
     """`cameras` cameras of the default rig's geometry, all 2048x1536 (the issue's image size)."""
-    from dataclasses import replace
 
-    from workers.geometry.rig import default_rig
 
     rig = []
     for cam in default_rig(WIDTH)[:cameras]:
@@ -109,7 +118,6 @@ def bench_rig(cameras: int) -> list[Any]:
 
 def write_sources(folder: Path, cameras: list[Any], frames: int, progress: Any = None) -> int:
     """Per camera a folder of `frames` textured JPEGs; returns the bytes written."""
-    import cv2
 
     rng = np.random.default_rng(0)
     small = rng.integers(0, 256, (HEIGHT // 16, WIDTH // 16, 3), dtype=np.uint8)
@@ -137,7 +145,6 @@ def write_sources(folder: Path, cameras: list[Any], frames: int, progress: Any =
 def write_videos(folder: Path, cameras: list[Any], frames: int, progress: Any = None) -> int:
     """Per camera an MJPG .avi of `frames` textured frames (OpenCV's own codec, no FFmpeg needed to read it
     back); returns the bytes written."""
-    import cv2
 
     folder.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(0)
@@ -167,13 +174,7 @@ def run(*, quick: bool = False, workers: int = 0, videos: bool = False, emit_jso
     `ui`: then measure the annotate page's time to interactive on the imported project in headless Chromium
     (backend.bench.import_ui; `ui_repeats` loads). `working_width`: the capture's working width (default
     assemble's own)."""
-    from tqdm import tqdm
 
-    from backend.db.migrate import upgrade
-    from backend.db.session import create_engine_from_url, make_session_factory
-    from backend.services.importer import import_capture
-    from backend.services.storage import LocalDiskStorage
-    from workers.capture.assemble import assemble_capture
 
     started = time.perf_counter()
     num_cameras, frames = SIZES[quick]
@@ -223,9 +224,6 @@ def run(*, quick: bool = False, workers: int = 0, videos: bool = False, emit_jso
         load_after = os.getloadavg()
         annotate_page: dict[str, Any] | None = None
         if ui:
-            from backend.bench.import_ui import measure
-            from workers.capture import read_capture
-
             width = read_capture(tmp / "capture", check_images=False).working_width_px
             annotate_page = measure(url, tmp / "storage", "bench", working_width=width, repeats=ui_repeats)
     record = {

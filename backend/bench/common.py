@@ -27,7 +27,7 @@ def git_commit() -> str:
 
 
 def machine_info() -> dict[str, Any]:
-    import torch  # local: the API process must not pay for torch at start-up
+    import torch  # deferred: bench api and bench import load torch only here, once they have measured
 
     info: dict[str, Any] = {
         "platform": platform.platform(),

@@ -15,12 +15,25 @@ import os
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
+from scipy.stats import spearmanr
+from tqdm import tqdm
 
 from backend.bench.common import emit
+from backend.settings import get_settings
+from workers.capture import CaptureError, load_frame_images, load_frame_masks, load_ground_truth, read_capture
+from workers.detector import detect_frame, detector_status
+from workers.fitting.config import FitConfig, LossWeights
+from workers.fitting.engine import FittingEngine
+from workers.fitting.inputs import FrameObservations
+from workers.handmodel.loading import load_hand_model
+from workers.synth.generator import generate_capture
+from workers.synth.plan import SynthConfig
 
 log = logging.getLogger(__name__)
 
@@ -33,9 +46,6 @@ FIT_WITH_3D = True
 
 def _capture(frames: int, width: int) -> Path:
     """A cached capture (re-rendered only when missing or unreadable)."""
-    from workers.capture import CaptureError, read_capture
-    from workers.synth.generator import generate_capture
-    from workers.synth.plan import SynthConfig
 
     out = Path(tempfile.gettempdir()) / "handloop-bench-cache" / f"detect-s{SEQUENCES}-f{frames}-w{width}-{BENCH_SEED}"
     if out.exists():
@@ -55,7 +65,6 @@ def detector_fit_config(with_3d: bool) -> Any:
 
     4 start candidates instead of 8: the lifted keypoints place the start well (measured at 640 px: the same vertex
     error within 0.2 mm, 10-15 % less CPU per fit)."""
-    from workers.fitting.config import FitConfig, LossWeights
 
     return FitConfig(weights=LossWeights.later_rounds() if with_3d else LossWeights(), start_candidates=4)
 
@@ -64,7 +73,6 @@ def detector_observations(lifted: Any, num_views: int, masks: tuple[np.ndarray, 
     """FrameObservations from a LiftedKeypoints: each keypoint's inlier views' 2D detections as clicks, weighted by the
     keypoint's lifted confidence, and the chroma-key masks (which continue into the forearm); with `with_3d` the
     lifted 3D keypoints too, weighted by the same confidence (as MVNet's predictions are in later rounds)."""
-    from workers.fitting.inputs import FrameObservations
 
     clicks = np.full((num_views, 21, 2), np.nan)
     weights = np.zeros((num_views, 21))
@@ -84,7 +92,6 @@ def detector_observations(lifted: Any, num_views: int, masks: tuple[np.ndarray, 
 
 def _clip_to_images(obs: Any, cameras: list) -> Any:
     """Detections may sit a little outside the image (a hand at the edge): clicks must lie inside it."""
-    from dataclasses import replace
 
     clicks = obs.clicks_px.copy()
     for c, cam in enumerate(cameras):
@@ -95,14 +102,7 @@ def _clip_to_images(obs: Any, cameras: list) -> Any:
 def run(*, quick: bool = False, emit_json: bool = True, width: int | None = None,
         frames_per_sequence: int | None = None) -> dict[str, Any]:
     """Run the benchmark; return its record (printed as the last stdout line when `emit_json`)."""
-    import torch
-    from tqdm import tqdm
 
-    from backend.settings import get_settings
-    from workers.capture import load_frame_images, load_frame_masks, load_ground_truth, read_capture
-    from workers.detector import detect_frame, detector_status
-    from workers.fitting.engine import FittingEngine
-    from workers.handmodel.loading import load_hand_model
 
     status = detector_status()
     if status is not None:
@@ -195,7 +195,6 @@ def run(*, quick: bool = False, emit_json: bool = True, width: int | None = None
                for lo, hi in itertools.pairwise(edges)]
     # Does the frame's confidence (the stand-in for MVNet's) rank the fits? Spearman's rho against the vertex error:
     # negative = more confident frames fit better.
-    from scipy.stats import spearmanr
 
     fitted = np.isfinite(vertex)
     rho = spearmanr(np.asarray(frame_confidence)[fitted], vertex[fitted]).statistic if fitted.sum() >= 3 else None

@@ -18,8 +18,19 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
+from tqdm import tqdm
 
 from backend.bench.common import emit
+from backend.settings import get_settings
+from workers.capture import load_frame_masks, load_ground_truth, read_capture
+from workers.fitting.config import FitConfig
+from workers.fitting.engine import FittingEngine
+from workers.fitting.inputs import FrameObservations
+from workers.handmodel.keypoints import SPARSE_KEYPOINTS
+from workers.handmodel.loading import load_hand_model
+from workers.synth.generator import generate_capture
+from workers.synth.plan import SynthConfig
 
 log = logging.getLogger(__name__)
 
@@ -34,7 +45,6 @@ def simulated_clicks(keypoints_2d: np.ndarray, visibility: np.ndarray, sizes: li
     keypoints_2d (C, 21, 2), visibility (C, 21); sizes per view (width, height). Clicks land inside
     the image; hidden keypoints get no click.
     """
-    from workers.handmodel.keypoints import SPARSE_KEYPOINTS
 
     clicks = np.full(keypoints_2d.shape, np.nan)
     weights = np.zeros(visibility.shape)
@@ -49,8 +59,6 @@ def simulated_clicks(keypoints_2d: np.ndarray, visibility: np.ndarray, sizes: li
 
 
 def _load_frames(capture_dir: Path) -> tuple[list[dict[str, Any]], list]:
-    from workers.capture import load_frame_masks, load_ground_truth, read_capture
-
     capture = read_capture(capture_dir)
     frames = []
     for sequence in capture.sequences:
@@ -72,16 +80,7 @@ def run(*, quick: bool = False, emit_json: bool = True, frames_per_sequence: int
     """
     if frames_per_sequence is not None and frames_per_sequence < 1:
         raise ValueError(f"frames_per_sequence must be >= 1, got {frames_per_sequence}")
-    import torch
-    from tqdm import tqdm
 
-    from backend.settings import get_settings
-    from workers.fitting.config import FitConfig
-    from workers.fitting.engine import FittingEngine
-    from workers.fitting.inputs import FrameObservations
-    from workers.handmodel.loading import load_hand_model
-    from workers.synth.generator import generate_capture
-    from workers.synth.plan import SynthConfig
 
     started = time.perf_counter()
     load_before = os.getloadavg()

@@ -23,6 +23,17 @@ import uuid
 from pathlib import Path
 from typing import Any
 
+import httpx
+from sqlalchemy import update
+
+from backend.db.session import create_engine_from_url, make_session_factory
+from backend.models.capture import Project
+from backend.models.enums import Role
+from backend.runtime import start_stack
+from backend.services.users import create_user
+from backend.services.working_images import DERIVED_PREFIX
+from backend.settings import Settings
+
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                  "--disable-background-networking", "--disable-component-update", "--disable-sync"]
@@ -36,10 +47,7 @@ def _progress(message: str) -> None:
 
 
 def _set_working_width(url: str, project: str, width: int | None) -> None:
-    from sqlalchemy import update
 
-    from backend.db.session import create_engine_from_url, make_session_factory
-    from backend.models.capture import Project
 
     engine = create_engine_from_url(url)
     try:
@@ -50,9 +58,6 @@ def _set_working_width(url: str, project: str, width: int | None) -> None:
 
 
 def _add_annotator(url: str) -> None:
-    from backend.db.session import create_engine_from_url, make_session_factory
-    from backend.models.enums import Role
-    from backend.services.users import create_user
 
     engine = create_engine_from_url(url)
     try:
@@ -100,12 +105,8 @@ def measure(database_url: str, storage_dir: Path, project: str, *, working_width
             chromium: str = CHROMIUM) -> dict[str, Any]:
     """The annotate page's time to interactive on the imported `project`, at its working width and at full
     resolution. The database and storage are those the import wrote (its data folder's layout)."""
-    import httpx
-    from playwright.sync_api import sync_playwright
+    from playwright.sync_api import sync_playwright  # deferred: a dev dependency, needed only with --ui
 
-    from backend.runtime import start_stack
-    from backend.services.working_images import DERIVED_PREFIX
-    from backend.settings import Settings
 
     data_dir = storage_dir.parent
     settings = Settings(data_dir=data_dir, database_url=database_url, environment="test",

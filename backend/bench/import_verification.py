@@ -20,7 +20,18 @@ import time
 from pathlib import Path
 from typing import Any
 
+from tqdm import tqdm
+
 from backend.bench.common import emit
+from backend.db.migrate import upgrade
+from backend.db.session import create_engine_from_url, make_session_factory
+from backend.services.importer import write_project
+from backend.services.storage import LocalDiskStorage
+from backend.settings import get_settings
+from workers.capture import read_capture
+from workers.capture.verify import count_files, verify_capture_files
+from workers.synth.generator import generate_capture
+from workers.synth.plan import SynthConfig
 
 log = logging.getLogger(__name__)
 
@@ -29,13 +40,6 @@ SIZES: dict[bool, tuple[int, int]] = {True: (2, 6), False: (4, 12)}
 
 
 def _import_once(capture_dir: Path, work: Path) -> dict[str, float]:
-    from backend.db.migrate import upgrade
-    from backend.db.session import create_engine_from_url, make_session_factory
-    from backend.services.importer import write_project
-    from backend.services.storage import LocalDiskStorage
-    from workers.capture import read_capture
-    from workers.capture.verify import verify_capture_files
-
     work.mkdir(parents=True)
     url = f"sqlite:///{work / 'handloop.sqlite3'}"
     upgrade(url)
@@ -63,11 +67,7 @@ def _import_once(capture_dir: Path, work: Path) -> dict[str, float]:
 def run(*, quick: bool = False, capture: Path | None = None, repeats: int = 3, width_px: int | None = None,
         emit_json: bool = True) -> dict[str, Any]:
     """Run the benchmark and return its record (printed as the last stdout line when `emit_json`)."""
-    from tqdm import tqdm
 
-    from backend.settings import get_settings
-    from workers.capture import read_capture
-    from workers.capture.verify import count_files
 
     started = time.perf_counter()
     settings = get_settings()
@@ -76,9 +76,6 @@ def run(*, quick: bool = False, capture: Path | None = None, repeats: int = 3, w
     given = capture
     with tempfile.TemporaryDirectory(prefix="handloop-bench-import-") as tmp:
         if capture is None:
-            from workers.synth.generator import generate_capture
-            from workers.synth.plan import SynthConfig
-
             capture = Path(tmp) / "capture"
             config = SynthConfig(num_sequences=sequences, frames_per_sequence=frames, seed=0, width_px=width_px)
             with tqdm(total=sequences * frames, unit="frame", desc="synthesising", file=sys.stderr) as bar:

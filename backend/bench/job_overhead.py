@@ -29,8 +29,29 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from fastapi.testclient import TestClient
+from sqlalchemy import func, select
 
+from backend.app import create_app
 from backend.bench.common import emit
+from backend.broker.celery_queue import TASK_FIT_BATCH, make_client_app
+from backend.db.migrate import upgrade
+from backend.db.session import create_engine_from_url, make_session_factory
+from backend.models.capture import Sequence
+from backend.models.enums import Role
+from backend.models.jobs import Job
+from backend.runtime import start_stack
+from backend.services.importer import import_capture
+from backend.services.jobs import InMemoryJobQueue
+from backend.services.storage import LocalDiskStorage
+from backend.services.users import create_user
+from backend.settings import Settings
+from workers.capture import CaptureError, load_ground_truth, read_capture
+from workers.synth.generator import generate_capture
+from workers.synth.plan import SynthConfig
+from workers.tasks.context import build_context
+from workers.tasks.fit_sources import fit_input
+from workers.tasks.fits import engine_for, fit_config
 
 log = logging.getLogger(__name__)
 
@@ -40,10 +61,6 @@ PASSWORD = "bench-jobs-password"
 
 
 def _capture(sequences: int, frames: int, width: int) -> Path:
-    from workers.capture import CaptureError, read_capture
-    from workers.synth.generator import generate_capture
-    from workers.synth.plan import SynthConfig
-
     out = Path(tempfile.gettempdir()) / "handloop-bench-cache" / f"jobs-s{sequences}-f{frames}-w{width}-{BENCH_SEED}"
     if out.exists():
         try:
@@ -59,11 +76,7 @@ def _capture(sequences: int, frames: int, width: int) -> Path:
 
 def _submissions(settings: Any, capture_dir: Path, count: int) -> list[int]:
     """One GT-click submission per sample through the API (in-process, no broker): the fit job ids."""
-    from fastapi.testclient import TestClient
 
-    from backend.app import create_app
-    from backend.services.jobs import InMemoryJobQueue
-    from workers.capture import load_ground_truth, read_capture
 
     capture = read_capture(capture_dir, check_images=False)
     frames = {(s.id, f.index): f for s in capture.sequences for f in s.frames}
@@ -74,9 +87,7 @@ def _submissions(settings: Any, capture_dir: Path, count: int) -> list[int]:
         token = client.post("/api/auth/token", data={"username": "annotator@bench.local", "password": PASSWORD})
         client.headers["Authorization"] = f"Bearer {token.json()['access_token']}"
         sequences = {}
-        from sqlalchemy import select
 
-        from backend.models.capture import Sequence
 
         with app.state.session_factory() as session:
             sequences = dict(session.execute(select(Sequence.id, Sequence.external_id)).all())
@@ -106,9 +117,7 @@ def _wait_final(factory: Any, job_ids: list[int], timeout_s: float) -> tuple[dic
 
     Polled once a second: the end is read from the rows' finished_at, so the polling neither adds to the
     measured time nor takes CPU from the worker on a loaded machine."""
-    from sqlalchemy import func, select
 
-    from backend.models.jobs import Job
 
     deadline = time.monotonic() + timeout_s
     while True:
@@ -136,7 +145,6 @@ def _through_celery(client: Any, factory: Any, job_ids: list[int], batch: int
     """Seconds from sending `job_ids` as fit_batch tasks until every job row is final, their states, the
     seconds the worker's fit service reported (claim, load, fit, record; without delivery) and the part of
     those inside FittingEngine.fit."""
-    from backend.broker.celery_queue import TASK_FIT_BATCH
 
     t0 = time.time()  # wall clock, as the rows' finished_at
     sent = [client.send_task(TASK_FIT_BATCH, args=[job_ids[start:start + batch]], queue="cpu")
@@ -149,20 +157,6 @@ def _through_celery(client: Any, factory: Any, job_ids: list[int], batch: int
 
 def run(*, quick: bool = False, emit_json: bool = False, broker: str = "embedded", batch_size: int | None = None,
         repeats: int | None = None) -> dict[str, Any]:
-    from backend.broker.celery_queue import TASK_FIT_BATCH, make_client_app
-    from backend.db.migrate import upgrade
-    from backend.db.session import create_engine_from_url, make_session_factory
-    from backend.models.enums import Role
-    from backend.runtime import start_stack
-    from backend.services.importer import import_capture
-    from backend.services.jobs import InMemoryJobQueue
-    from backend.services.storage import LocalDiskStorage
-    from backend.services.users import create_user
-    from backend.settings import Settings
-    from workers.tasks.context import build_context
-    from workers.tasks.fit_sources import fit_input
-    from workers.tasks.fits import engine_for, fit_config
-
     started = time.perf_counter()
     batch = batch_size or 6
     repeats = repeats or (2 if quick else 4)
@@ -205,8 +199,6 @@ def run(*, quick: bool = False, emit_json: bool = False, broker: str = "embedded
         for r in range(repeats):
             subset = job_ids[r * per_repeat:(r + 1) * per_repeat]
             with ctx.session_factory() as session:
-                from backend.models.jobs import Job
-
                 inputs = [fit_input(ctx, session, session.get(Job, j)) for j in subset]
             engine = engine_for(ctx, inputs[0], config)
             if r == 0:

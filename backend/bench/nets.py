@@ -26,8 +26,20 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
+from tqdm import tqdm
 
 from backend.bench.common import emit
+from backend.settings import get_settings
+from workers.capture.reader import load_frame_images, load_ground_truth, read_capture
+from workers.nets.configs import get_config
+from workers.nets.data import build_handseg_dataset, build_mvnet_dataset, hand_center_from_labels
+from workers.nets.handsegnet import mask_iou
+from workers.nets.predict import predict_keypoints, predict_masks
+from workers.nets.sparsification import plot_sparsification, sparsification
+from workers.nets.train import TrainProgress, train_handsegnet, train_mvnet
+from workers.synth.generator import generate_capture
+from workers.synth.plan import SynthConfig
 
 log = logging.getLogger(__name__)
 
@@ -60,11 +72,7 @@ def pck_auc(errors_mm: np.ndarray, max_mm: float = PCK_MAX_MM, steps: int = 101)
 
 def ensure_capture(data_dir: Path, size: NetsBenchSize, seed: int) -> Path:
     """The benchmark's synthetic capture: reused from `data_dir` when written with the same settings."""
-    from tqdm import tqdm
 
-    from backend.settings import get_settings
-    from workers.synth.generator import generate_capture
-    from workers.synth.plan import SynthConfig
 
     root = data_dir / f"synth-s{size.sequences}-f{size.frames}-w{size.width_px}-seed{seed}"
     header = root / "capture.json"
@@ -101,16 +109,7 @@ def run(*, quick: bool = False, data_dir: Path | None = None, out_dir: Path | No
     `threads` sets torch's CPU threads (default 1: on a shared machine more threads than free cores
     slow convolutions several-fold).
     """
-    import torch
-    from tqdm import tqdm
 
-    from workers.capture.reader import load_frame_images, load_ground_truth, read_capture
-    from workers.nets.configs import get_config
-    from workers.nets.data import build_handseg_dataset, build_mvnet_dataset, hand_center_from_labels
-    from workers.nets.handsegnet import mask_iou
-    from workers.nets.predict import predict_keypoints, predict_masks
-    from workers.nets.sparsification import plot_sparsification, sparsification
-    from workers.nets.train import TrainProgress, train_handsegnet, train_mvnet
 
     started = time.perf_counter()
     torch.set_num_threads(threads)

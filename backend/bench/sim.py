@@ -17,6 +17,18 @@ import time
 from pathlib import Path
 from typing import Any
 
+from tqdm import tqdm
+
+from backend.bench.common import emit
+from backend.services.preannotation import detector_problem
+from backend.settings import get_settings
+from backend.simulation.annotator import AnnotatorConfig
+from backend.simulation.bootstrap import BootstrapConfig
+from backend.simulation.runner import ServerOptions, run_simulation
+from workers.capture import CaptureError, read_capture
+from workers.synth.generator import generate_capture
+from workers.synth.plan import SynthConfig
+
 log = logging.getLogger(__name__)
 
 FULL = {"sequences": 10, "frames": 20, "width": 320, "rounds": 4, "initial_every": 8,
@@ -39,7 +51,6 @@ ROUND_KEYS = ("auto_accepted", "auto_accept_precision", "labels_per_human_hour",
 
 def detector_default() -> tuple[str, str | None]:
     """("both", None) where the detector can run here (the started stack shares this install), else ("off", why)."""
-    from backend.services.preannotation import detector_problem
 
     problem = detector_problem()
     return ("both", None) if problem is None else ("off", problem)
@@ -60,11 +71,7 @@ def side_by_side_rows(summary: dict[str, Any]) -> list[dict[str, Any]]:
 
 def _capture(root: Path, sequences: int, frames: int, width: int) -> Path:
     """The benchmark's capture, synthesised once and reused (synthesis is not part of the measurement)."""
-    from tqdm import tqdm
 
-    from workers.capture import CaptureError, read_capture
-    from workers.synth.generator import generate_capture
-    from workers.synth.plan import SynthConfig
 
     out = root / f"sim-capture-s{sequences}-f{frames}-w{width}-seed{SEED}"
     if out.exists():
@@ -81,12 +88,6 @@ def _capture(root: Path, sequences: int, frames: int, width: int) -> Path:
 
 def _simulate(capture: Path, work: Path, plan: dict[str, Any], detector: bool,
               accept_proposals_px: float | None) -> dict[str, Any]:
-    from tqdm import tqdm
-
-    from backend.simulation.annotator import AnnotatorConfig
-    from backend.simulation.bootstrap import BootstrapConfig
-    from backend.simulation.runner import ServerOptions, run_simulation
-
     config = BootstrapConfig(rounds=plan["rounds"], detector=detector,
                              annotator=AnnotatorConfig(accept_proposals_within_px=accept_proposals_px))
     label = f"bootstrap, detector {'on' if detector else 'off'}"
@@ -120,8 +121,6 @@ def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = 
     """One run (`detector` "on" or "off") or both on the same capture and seed ("both"); None: both where the
     detector can run, else off. The record's top level is the run with the detector when it ran, else without.
     `width` (view width, pixels) and `rounds` replace the plan's (the detector's targets are set at 640 px)."""
-    from backend.bench.common import emit
-    from backend.settings import get_settings
 
     started = time.perf_counter()
     plan = dict(QUICK if quick else FULL)

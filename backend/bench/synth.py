@@ -8,13 +8,19 @@ into a temporary folder that is removed afterwards. `frames_per_s` is end to end
 from __future__ import annotations
 
 import logging
+import os
 import sys
 import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
+from tqdm import tqdm
+
 from backend.bench.common import emit
+from backend.settings import get_settings
+from workers.synth.generator import generate_capture
+from workers.synth.plan import SynthConfig
 
 log = logging.getLogger(__name__)
 
@@ -25,13 +31,8 @@ SIZES: dict[bool, tuple[int, int]] = {True: (2, 30), False: (8, 40)}
 def run(*, quick: bool = False, width_px: int | None = None, workers: int = 0, seed: int = 0,
         emit_json: bool = True) -> dict[str, Any]:
     """Run the benchmark and return its record (printed as the last stdout line when `emit_json`)."""
-    import os
 
-    from tqdm import tqdm
 
-    from backend.settings import get_settings
-    from workers.synth.generator import generate_capture
-    from workers.synth.plan import SynthConfig
 
     started = time.perf_counter()
     settings = get_settings()

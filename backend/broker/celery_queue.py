@@ -24,6 +24,7 @@ from kombu import Exchange, Queue
 from sqlalchemy import update
 
 from backend.broker import embedded
+from backend.broker.outbox import redispatch
 from backend.models.jobs import Job
 from backend.services.errors import ServiceUnavailableError
 from backend.settings import Settings
@@ -281,8 +282,6 @@ class CeleryJobQueue:
             self._outbox = None
 
     def _run_outbox(self) -> None:
-        from backend.broker.outbox import redispatch
-
         while not self._stop.wait(self.settings.outbox_poll_s):
             try:
                 sent = redispatch(self._session_factory, self.send, self.settings)

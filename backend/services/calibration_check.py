@@ -13,14 +13,14 @@ from backend.models.capture import CameraCalibration, Project, Sample, Sequence,
 from backend.models.enums import Visibility
 from backend.models.labels import Click, Submission
 from backend.services.errors import ConflictError, NotFoundError
+from workers.geometry.camera import Camera
+from workers.rigs.check import CheckError, check_keypoints
 
 MAX_SUBMISSIONS = 200  # the latest ones: enough for a stable median, bounded work per request
 
 
 def calibration_check(session: Session, project_id: int, max_submissions: int = MAX_SUBMISSIONS) -> dict[str, Any]:
     """The check's report (CheckReport.to_dict) from the visible clicks of the latest submissions."""
-    from workers.geometry.camera import Camera
-    from workers.rigs.check import CheckError, check_keypoints
 
     if session.get(Project, project_id) is None:
         raise NotFoundError(f"no project {project_id}")

@@ -15,6 +15,8 @@ from backend.models.capture import Sample
 from backend.models.enums import LeaseKind, SampleState
 from backend.models.fits import Fit, Prediction
 from backend.services import activity, queues, rounds
+from backend.viewer.hand_mesh import hand_model_label
+from workers.nets.sparsification import sparsification
 
 # The paper's prices of human time ("FreiHAND Dataset", "Evaluation of Iterative Labeling").
 PAPER_SECONDS = {"keypoint": 2.0, "mask": 12.0, "verification": 5.0}
@@ -38,7 +40,6 @@ def confidence_histogram(session: Session) -> dict[str, Any]:
 def sparsification_curve(session: Session) -> dict[str, Any] | None:
     """MVNet's error against the accepted fits (mean keypoint distance, mm), removing the least confident
     predictions first, with the oracle (largest errors first). None with fewer than 2 samples."""
-    from workers.nets.sparsification import sparsification  # numpy only
 
     rows = session.execute(
         select(Prediction.keypoints_m, Prediction.mean_confidence, Fit.keypoints_m)
@@ -80,7 +81,6 @@ def human_time(session: Session, limit: int = 5000) -> dict[str, Any]:
 
 def fits_by_hand_model(session: Session) -> dict[str, int]:
     """How many fits each hand model made, by label ("built-in stand-in hand, not MANO" for the stand-in)."""
-    from backend.viewer.hand_mesh import hand_model_label
 
     out: dict[str, int] = {}
     for model_file, n in session.execute(select(Fit.model_file, func.count()).group_by(Fit.model_file)).all():

@@ -16,6 +16,7 @@ from backend.models.fits import Fit, Prediction
 from backend.models.labels import Mask
 from backend.models.review import Round, RoundMember
 from backend.services.errors import InvalidInputError, NotFoundError
+from workers.export.records import SampleRecord, ViewRecord
 
 FOREGROUND_KINDS = (MaskKind.chroma_key.value, MaskKind.corrected.value)
 
@@ -109,7 +110,6 @@ def predictions(session: Session, round_index: int | None = None) -> dict[str, A
 def export_records(session: Session, up_to_round: int | None = None, project: str | None = None) -> list:
     """The accepted samples as `workers.export.records.SampleRecord`s (views in camera order, each with its
     newest foreground mask), for the FreiHAND writer. Samples accepted without a fit are refused."""
-    from workers.export.records import SampleRecord, ViewRecord  # plain dataclasses, no torch
 
     _check_project(session, project)
     _check_round(session, up_to_round)

@@ -29,7 +29,8 @@ def import_capture(session: Session, storage: Storage, path: Path, *, project_na
                    progress: Callable[[int, int], None] | None = None) -> ImportPublic:
     """Import the capture at `path` as a new project; samples start 'needs_annotation' (round 0's queue)
     or 'unlabeled'. `progress(files verified, files in all)` is called during the verification."""
-    from workers.capture import CaptureError, read_capture  # local: the reader pulls in cv2 and PIL
+    # deferred: the capture reader pulls in cv2 and PIL; the API's start-up imports this module
+    from workers.capture import CaptureError, read_capture
     from workers.capture.verify import verify_capture_files
 
     try:

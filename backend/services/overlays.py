@@ -26,6 +26,7 @@ from backend.services.errors import ConflictError, NotFoundError
 from backend.services.samples import get_sample
 from backend.services.users import Actor
 from backend.services.view_geometry import ViewCamera, pixels_or_none, project, view_cameras
+from backend.viewer.hand_mesh import fit_side, hand_model_label, is_stand_in, load_arrays, posed_mesh
 from workers.handmodel.keypoints import SKELETON_EDGES, SPARSE_KEYPOINTS
 
 logger = logging.getLogger(__name__)
@@ -92,7 +93,6 @@ def annotate_proposals(session: Session, user: Actor, sample_id: int) -> dict[st
     """Calibrations (the browser triangulates from the annotator's own clicks), the detector's keypoints
     behind a pre-annotation fit, MVNet's prediction and the current fit projected into every view, the
     previous clicks and the reviewer's note when the sample came back from review."""
-    from backend.viewer.hand_mesh import hand_model_label
 
     sample = _held(session, user, sample_id, LeaseKind.annotate)
     cameras = view_cameras(session, sample_id)
@@ -187,7 +187,6 @@ def _b64(array: np.ndarray, dtype: str) -> str:
 def _mesh_payload(fit: Fit, mano_path: Path | None) -> tuple[dict[str, Any] | None, str | None, float | None]:
     """(mesh, note, keypoint offset mm): the fit's mesh as little-endian float32 vertices (V, 3) and int32
     faces (F, 3), base64; or None and why not."""
-    from backend.viewer.hand_mesh import fit_side, load_arrays, posed_mesh
 
     arrays = load_arrays(fit.model_file, mano_path, fit_side(fit.diagnostics))
     if arrays is None:
@@ -205,7 +204,6 @@ def _mesh_payload(fit: Fit, mano_path: Path | None) -> tuple[dict[str, Any] | No
 def review_overlay(session: Session, user: Actor, sample_id: int, *, secret_key: str, mano_path: Path | None = None,
                    with_mesh: bool = True) -> dict[str, Any]:
     """Everything the review page draws for a sample under the caller's review lease."""
-    from backend.viewer.hand_mesh import fit_side, hand_model_label, is_stand_in
 
     sample = _held(session, user, sample_id, LeaseKind.review)
     if sample.current_fit_id is None:

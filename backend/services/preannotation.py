@@ -23,6 +23,7 @@ from backend.models.enums import JobKind, JobState, SampleState
 from backend.models.jobs import Job
 from backend.schemas.admin import ImportPublic
 from backend.services import audit, jobs
+from backend.services.annotation_set import queue_for_annotation as queue_samples
 from backend.services.errors import ConflictError, InvalidInputError, NotFoundError, ServiceUnavailableError
 from backend.services.storage import Storage
 
@@ -34,7 +35,8 @@ MIN_VIEWS = 2  # one view cannot place a hand in 3D
 
 def detector_problem() -> str | None:
     """None when the pretrained detector can run on this install (the workers share it), else why not."""
-    # Deferred: the detector's model runtime stays out of the API's start-up until someone asks.
+    # deferred: resolving detector_status loads the detector's pipeline (torch, the TFLite runtime); the API's
+    # start-up imports this module
     from workers.detector import detector_status
 
     return detector_status()
@@ -146,8 +148,7 @@ def import_capture(session: Session, storage: Storage, queue: jobs.JobQueue, pat
     the rest go to the annotators when the import asked for that (`queue_for_annotation`). Where the detector
     or the capture cannot carry it, the import is exactly as without the setting, and the answer says why.
     """
-    from backend.services import importer
-    from backend.services.annotation_set import queue_for_annotation as queue_samples
+    from backend.services import importer  # deferred: its capture reader pulls in cv2 and PIL
 
     problem = detector_problem() if enabled else None
     run = enabled and problem is None

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Protocol
 
-from sqlalchemy import and_, exists, or_, select, update
+from sqlalchemy import and_, exists, func, or_, select, update
 from sqlalchemy.orm import Session
 
 from backend.db.base import utcnow
@@ -247,8 +247,6 @@ def clear(sample: Sample) -> None:
 
 
 def queue_length(session: Session, kind: LeaseKind, now: datetime | None = None) -> int:
-    from sqlalchemy import func
-
     now = now or utcnow()
     return session.execute(
         select(func.count()).select_from(Sample).where(

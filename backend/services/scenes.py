@@ -20,6 +20,8 @@ from backend.services.overlays import end_reads
 from backend.services.storage import Storage
 from backend.services.users import load_principal
 from backend.services.view_geometry import view_cameras
+from backend.viewer.hand_mesh import fit_side, hand_model_label, load_arrays, posed_mesh
+from backend.viewer.scene import SampleScene, record_scene, scene_camera, thumbnail
 
 CACHE_ENTRIES = 32
 SCENE_VERSION = 1  # bump when the scene's content changes, so browsers drop cached recordings
@@ -76,8 +78,6 @@ def scene_bytes(session: Session, storage: Storage, fit: Fit, mano_path: Path | 
     cached = _cached(key)
     if cached is not None:
         return cached
-    from backend.viewer.hand_mesh import fit_side, hand_model_label, load_arrays, posed_mesh
-    from backend.viewer.scene import SampleScene, record_scene, scene_camera, thumbnail
 
     prediction = session.get(Prediction, fit.prediction_id) if fit.prediction_id else None
     keys = dict(session.execute(select(View.id, View.image_key).where(View.sample_id == fit.sample_id)).all())

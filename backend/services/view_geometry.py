@@ -43,7 +43,7 @@ def view_cameras(session: Session, sample_id: int) -> list[ViewCamera]:
 
 def project(points_world: np.ndarray, camera: ViewCamera) -> np.ndarray:
     """(N, 3) metres -> (N, 2) pixels; NaN for points behind the camera (or not finite)."""
-    import cv2  # local: only the routes that draw overlays need it
+    import cv2  # deferred: cv2 out of the API's start-up; only the overlay routes project
 
     points = np.asarray(points_world, dtype=np.float64).reshape(-1, 3)
     out = np.full((len(points), 2), np.nan)

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from backend.services.masks import encode_rle as encode
 from backend.simulation.client import ApiClient
 from backend.simulation.costs import HumanLedger
 from backend.simulation.truth import GroundTruthIndex
@@ -115,7 +116,6 @@ def noisy_mask(mask: np.ndarray, noise_px: float, rng: np.random.Generator, smoo
 
 def encode_rle(mask: np.ndarray) -> list[int]:
     """Row-major run lengths starting with background (the API's mask encoding, docs/api.md)."""
-    from backend.services.masks import encode_rle as encode
 
     return encode(mask)
 

@@ -33,6 +33,7 @@ from backend.simulation.reviewer import ReviewerConfig, SimulatedReviewer
 from backend.simulation.team import SimulationTimeoutError, Team, TeamWork, wait_for_job, wait_until_idle
 from backend.simulation.truth import GroundTruthIndex
 from workers.capture import read_capture
+from workers.evaluation import summarise_errors
 
 log = logging.getLogger(__name__)
 
@@ -271,8 +272,6 @@ class BootstrapSimulation:
             self._errors[member["fit"]["id"]] = (error.vertex_mm, error.keypoint_mm)
 
     def _report(self, index: int, job: dict[str, Any] | None, started: float, work: TeamWork | None) -> RoundReport:
-        from workers.evaluation import summarise_errors
-
         stats = {r["index"]: r for r in self.admin.statistics()["rounds"]}
         row = stats.get(index, {"added": dict.fromkeys(STREAMS, 0), "added_total": 0,
                                 "dataset_size_after": self._previous_size})

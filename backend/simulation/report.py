@@ -10,6 +10,7 @@ STREAM_COLOURS = {"annotated": "#4c72b0", "manual": "#55a868", "heuristic": "#dd
 
 def write_plots(summary: dict[str, Any], out_dir: Path) -> dict[str, str]:
     """Write growth.png and accuracy.png into `out_dir`; returns name -> path."""
+    # deferred: matplotlib (its Agg backend chosen before pyplot loads) only when plots are written
     import matplotlib
 
     matplotlib.use("Agg")

@@ -86,6 +86,8 @@ class GroundTruthIndex:
     # --- fits ------------------------------------------------------------------------------------------
     def _hand_layer(self):
         if self._layer is None:
+            # deferred: torch only for fits' true errors; the simulated annotators (bench api's load driver too)
+            # import this module and never pose a hand
             import torch
 
             from workers.handmodel.layer import HandLayer
@@ -96,7 +98,7 @@ class GroundTruthIndex:
 
     def pose(self, params: Sequence[Sequence[float]]) -> tuple[np.ndarray, np.ndarray]:
         """theta (B, 61) -> keypoints (B, 21, 3), vertices (B, V, 3), metres, world frame."""
-        import torch
+        import torch  # deferred: as in _hand_layer
 
         theta = torch.as_tensor(np.asarray(params, np.float64).reshape(-1, 61))
         with torch.no_grad():

@@ -2,12 +2,18 @@
 
 from __future__ import annotations
 
+import base64
+import hashlib
+import html
+import importlib.util
+import re
 from pathlib import Path
+
+import zstandard
 
 
 def client_dir() -> Path:
     """The directory holding viser's built client (`index.html`, one file with everything inlined)."""
-    import importlib.util
 
     spec = importlib.util.find_spec("viser")
     if spec is None or spec.origin is None:
@@ -43,12 +49,7 @@ def _decode_88(text: str) -> bytes:
 def client_script_hashes() -> list[str]:
     """CSP sources (`'sha256-...'`) of the scripts viser's client runs: the inline loader and the module it
     inserts. ValueError if the page does not have the expected shape (a viser release that changed it)."""
-    import base64
-    import hashlib
-    import html
-    import re
 
-    import zstandard
 
     page = (client_dir() / "index.html").read_text(encoding="utf-8")
     found = re.search(r'<script data-p="([^"]*)"([^>]*)>(.*?)</script>', page, re.S)

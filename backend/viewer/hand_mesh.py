@@ -18,6 +18,7 @@ import numpy as np
 
 from workers.handmodel.arrays import HandModelArrays
 from workers.handmodel.keypoints import FREIHAND_FROM_MANO
+from workers.handmodel.loading import load_hand_model
 
 logger = logging.getLogger(__name__)
 
@@ -58,7 +59,6 @@ def fit_side(diagnostics: dict | None) -> str:
 def load_arrays(model_file: str, mano_path: Path | None, side: str = "right") -> HandModelArrays | None:
     """The arrays of the model (of this side) that made a fit, or None when this process cannot load them
     (a MANO fit but no HANDLOOP_MANO_PATH here)."""
-    from workers.handmodel.loading import load_hand_model  # numpy and scipy only
 
     if is_stand_in(model_file):
         return load_hand_model(None, side)

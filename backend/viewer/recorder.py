@@ -24,7 +24,7 @@ _server: Any = None
 def _get_server() -> Any:
     global _server
     if _server is None:
-        import viser
+        import viser  # deferred: viser (~0.5 s) with the first recording; the API imports this module
 
         banner = io.StringIO()
         with contextlib.redirect_stdout(banner):  # viser prints its URLs; they are of no use to anyone here
@@ -47,6 +47,6 @@ def record(build: Callable[[Any], None]) -> bytes:
 
 
 def viser_version() -> str:
-    import viser
+    import viser  # deferred: as in _get_server
 
     return viser.__version__

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from backend.viewer import recorder
 from workers.handmodel.keypoints import SKELETON_EDGES
 
 # Per finger, wrist, thumb .. pinky; the 2D overlays get them through frontend/js/keypoint_table.js (generated).
@@ -49,7 +50,7 @@ class SampleScene:
 
 def thumbnail(image_bytes: bytes, width: int = THUMBNAIL_WIDTH_PX) -> np.ndarray:
     """Decode an image file and shrink it to `width` pixels (RGB uint8)."""
-    from PIL import Image
+    from PIL import Image  # deferred: PIL (~45 ms) with the first thumbnail; the API's start-up imports this module
 
     with Image.open(io.BytesIO(image_bytes)) as img:
         img.draft("RGB", (width, max(1, round(img.height * width / img.width))))  # JPEG: decode at 1/2..1/8 scale
@@ -73,7 +74,7 @@ def _skeleton_segments(keypoints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def build(scene, content: SampleScene) -> None:
     """Add `content` to a viser scene (a `viser.SceneApi`)."""
-    from viser import transforms
+    from viser import transforms  # deferred: viser (~0.5 s) only when a scene is recorded
 
     scene.set_up_direction("+z")
     scene.add_grid("/floor", width=1.0, height=1.0, cell_size=0.1, section_size=0.5, position=(0.0, 0.0, -0.5))
@@ -99,6 +100,5 @@ def build(scene, content: SampleScene) -> None:
 
 def record_scene(content: SampleScene) -> bytes:
     """The scene as a `.viser` recording."""
-    from backend.viewer import recorder
 
     return recorder.record(lambda scene: build(scene, content))

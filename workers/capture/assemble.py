@@ -32,6 +32,7 @@ import numpy as np
 from PIL import Image, UnidentifiedImageError
 
 from workers.capture.chroma import ChromaKey, key_mask, preview
+from workers.capture.reader import read_capture
 from workers.capture.schema import (
     IMAGES_DIR,
     MASKS_DIR,
@@ -420,7 +421,6 @@ def assemble_capture(calibration: list[Camera], out: Path, *, videos: Path | Non
         if preview_tmp is not None:
             _write_preview(tmp, sequence_id, [np.load(j.preview_path) for j in jobs])  # type: ignore[arg-type]
             shutil.rmtree(preview_tmp)
-        from workers.capture.reader import read_capture
 
         read_capture(tmp)  # the same checks as `handloop import`, before anything appears at `out`
         if out.exists():

@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 from PIL import Image, UnidentifiedImageError
 
+from workers.capture.chroma import ChromaKey
 from workers.capture.schema import (
     CALIBRATION_FILE,
     CAPTURE_FILE,
@@ -172,7 +173,6 @@ def _read_chroma_key(data: dict[str, Any], version: int, where: str) -> dict[str
     _check_version_2_keys(data, VERSION_2_SEQUENCE_KEYS, version, where)
     if "chroma_key" not in data:
         return None
-    from workers.capture.chroma import ChromaKey
 
     try:
         return ChromaKey.from_dict(data["chroma_key"]).to_dict()

@@ -29,7 +29,8 @@ __all__ = [
 
 
 def __getattr__(name: str) -> Any:
-    # Lazy: the model runtime (ai-edge-litert) loads only when a detection is asked for, not at the API's start-up.
+    # deferred: the pipeline (torch, the model runtime ai-edge-litert) loads only when a detection or the detector's
+    # status is asked for, not at the API's start-up
     if name in ("detect_frame", "detector_status"):
         from workers.detector import pipeline
 

@@ -52,7 +52,7 @@ class PalmDetection:
 class PalmDetector:
     def __init__(self, path: Path, num_threads: int = 1) -> None:
         try:
-            from ai_edge_litert.interpreter import Interpreter
+            from ai_edge_litert.interpreter import Interpreter  # deferred: optional runtime, a clear error without it
         except ImportError as exc:
             raise DetectorUnavailableError(f"the model runtime ai-edge-litert is not installed ({exc})") from None
         try:

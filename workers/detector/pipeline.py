@@ -35,7 +35,7 @@ def detector_status() -> str | None:
     if status is not None:
         return status
     try:
-        import ai_edge_litert.interpreter  # noqa: F401
+        import ai_edge_litert.interpreter  # noqa: F401  # deferred: is the optional runtime installed?
     except ImportError as exc:
         return f"the detector's runtime ai-edge-litert is not installed ({exc}); install handloop's dependencies"
     return None

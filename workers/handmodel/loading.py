@@ -30,7 +30,7 @@ def load_hand_model(mano_path: Path | None = None, side: str = "right") -> HandM
         from workers.handmodel.mano_loader import load_mano  # deferred: only the chosen model's loader
 
         return load_mano(Path(mano_path), side=side)
-    from workers.handmodel.builtin import build_builtin_hand  # deferred, as load_mano
+    from workers.handmodel.builtin import build_builtin_hand  # deferred: as load_mano (scipy)
 
     log.info(STAND_IN_NOTICE)
     return build_builtin_hand(side=side)

@@ -20,6 +20,8 @@ from typing import Any, Literal
 import torch
 
 from workers.nets.configs import HandSegNetConfig, MVNetConfig, config_digest
+from workers.nets.handsegnet import HandSegNet
+from workers.nets.mvnet import MVNet
 
 FORMAT_VERSION = 1
 NetKind = Literal["mvnet", "handsegnet"]
@@ -139,8 +141,6 @@ def load_model(path: Path | str, kind: NetKind, config: MVNetConfig | HandSegNet
     Returns:
         (model in eval mode, metadata).
     """
-    from workers.nets.handsegnet import HandSegNet
-    from workers.nets.mvnet import MVNet
 
     state = read_checkpoint(path)
     meta = state["metadata"]

@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import logging
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -19,6 +20,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import skimage.data
 
 from workers.capture.reader import load_frame_images, load_frame_masks, load_ground_truth
 from workers.capture.schema import Capture, FrameRef
@@ -111,7 +113,6 @@ def scene_photo_paths() -> tuple[Path, ...]:
     """Photographs of real scenes that installed packages ship (no download): viser's environment maps
     (a forest slope, a park, a warehouse, interiors, streets at 1024 x 512) and matplotlib's sample photo.
     None of them is a synthetic evaluation background; missing files are skipped."""
-    import importlib.util
 
     paths: list[Path] = []
     spec = importlib.util.find_spec("viser")
@@ -127,7 +128,6 @@ def scene_photo_paths() -> tuple[Path, ...]:
 def augmentation_backgrounds() -> tuple[np.ndarray, ...]:
     """The background pool: (H, W, 3) uint8 RGB images: bundled scikit-image photos not used for evaluation
     and the installed packages' scene photographs (`scene_photo_paths`)."""
-    import skimage.data
 
     root = Path(skimage.data.__file__).parent
     out = []

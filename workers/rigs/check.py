@@ -131,7 +131,7 @@ def check_keypoints(cameras: list[Camera], keypoints_px: list[np.ndarray], visib
     Returns:
         The report; cameras with fewer than MIN_POINTS usable keypoints are not judged (noted).
     """
-    from workers.geometry.projection import undistort_pixels
+    from workers.geometry.projection import undistort_pixels  # deferred: torch; the API imports this module
 
     C = len(cameras)
     if C < 3:
@@ -236,7 +236,7 @@ def _frames(capture: Any, sequence_id: str | None, max_frames: int) -> list[Any]
 def detector_unavailable() -> str | None:
     """None when workers.detector can detect; else why not (module absent, or its own status)."""
     try:
-        from workers.detector import detector_status
+        from workers.detector import detector_status  # deferred: loads the detector's pipeline (torch)
 
         return detector_status()
     except ImportError as exc:
@@ -256,6 +256,7 @@ def check_capture(path: Path, *, source: str = "auto", sequence_id: str | None =
     Raises:
         CheckError: no usable keypoint source; CaptureError: the capture is malformed.
     """
+    # deferred: the capture reader pulls in cv2 and PIL; the API imports this module for check_keypoints
     from workers.capture import load_frame_images, load_frame_masks, load_ground_truth, read_capture
 
     capture = read_capture(path, check_images=False)
@@ -282,7 +283,7 @@ def check_capture(path: Path, *, source: str = "auto", sequence_id: str | None =
             keypoints.append(gt.keypoints_2d)
             visible.append(gt.visibility)
         else:
-            from workers.detector import DetectorInputError, detect_frame
+            from workers.detector import DetectorInputError, detect_frame  # deferred: the pipeline (torch)
 
             images = load_frame_images(frame, cameras)
             masks = load_frame_masks(frame)

@@ -40,7 +40,7 @@ app = celery_app  # `celery -A workers.tasks.app` finds it under either name
 
 @worker_process_init.connect
 def _init_process(**_: Any) -> None:
-    import torch
+    import torch  # deferred: torch loads in each pool process, after the fork, not in the worker's main process
 
     torch.set_num_threads(get_settings().worker_torch_threads)
 

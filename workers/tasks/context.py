@@ -13,9 +13,12 @@ from typing import Any
 
 from sqlalchemy.orm import Session, sessionmaker
 
+from backend.broker.celery_queue import CeleryJobQueue
 from backend.db.session import create_engine_from_url, make_session_factory
+from backend.services import jobs, worker_processes
 from backend.services.storage import LocalDiskStorage, Storage
 from backend.settings import Settings, get_settings
+from workers.handmodel.loading import load_hand_model
 
 log = logging.getLogger(__name__)
 
@@ -43,7 +46,6 @@ class WorkerContext:
         """services.jobs.claim with this worker's name and process and the configured heartbeat and attempt
         limits. Raises services.jobs.JobStillRunningError for a job that may run elsewhere: the task is then
         retried (workers.tasks.recovery)."""
-        from backend.services import jobs, worker_processes
 
         return jobs.claim(session, job_id, self.worker_name, self.settings.job_heartbeat_timeout_s,
                           max_attempts=self.settings.job_max_attempts, process=worker_processes.current())
@@ -58,7 +60,6 @@ class WorkerContext:
     def hand_model(self, side: str = "right") -> Any:
         """The arrays of this side's hand model ("right" or "left"; HANDLOOP_MANO_PATH, else the built-in
         hand, whose left is the mirror of its right), loaded once per process and side."""
-        from workers.handmodel.loading import load_hand_model
 
         return load_hand_model(self.settings.mano_path, side)
 
@@ -70,8 +71,6 @@ _CONTEXT_LOCK = threading.Lock()
 def build_context(settings: Settings, job_queue: Any | None = None) -> WorkerContext:
     engine = create_engine_from_url(settings.resolved_database_url, pool_size=2, max_overflow=4)
     if job_queue is None:
-        from backend.broker.celery_queue import CeleryJobQueue
-
         job_queue = CeleryJobQueue(settings)
     return WorkerContext(settings, make_session_factory(engine), LocalDiskStorage(settings.storage_dir), job_queue)
 

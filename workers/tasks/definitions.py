@@ -6,6 +6,10 @@ job rows, so a redelivered task records nothing twice, and a delivery for a job 
 another attempt is retried later, never dropped (workers.tasks.recovery, the app's task class). Tasks do
 not raise for a sample or a job that fails: the failure is recorded in the database, and a round's canvas
 goes on.
+
+Each task imports its job service when it first runs (`# deferred: ...` below): the worker's start-up registers
+every task without loading each job's modules (cv2, PIL, the compute core), and tests replace a service's
+function on its own module.
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ from backend.broker.celery_queue import (
     TASK_TRAIN_HANDSEGNET,
     TASK_TRAIN_MVNET,
 )
+from backend.models.jobs import Job
 from backend.settings import get_settings
 from workers.tasks.app import celery_app
 from workers.tasks.context import get_context
@@ -42,7 +47,7 @@ FIT_LIMITS = {"time_limit": _SETTINGS.fit_task_time_limit_s,
 @celery_app.task(name=TASK_FIT, ignore_result=True, **FIT_LIMITS)
 def fit(job_ids: int | list[int]) -> dict[str, Any]:
     """Fit one sample or a few sent together (annotators' submissions, single predictions) as one batch."""
-    from workers.tasks.fits import run_fit_jobs
+    from workers.tasks.fits import run_fit_jobs  # deferred: see the docstring
 
     ids = [int(job_ids)] if isinstance(job_ids, int) else [int(i) for i in job_ids]
     summary = run_fit_jobs(get_context(), ids)
@@ -54,7 +59,7 @@ def fit(job_ids: int | list[int]) -> dict[str, Any]:
 def fit_batch(job_ids: list[int] | dict[str, Any], round_job_id: int | None = None) -> dict[str, Any]:
     """Fit several samples, `fit_batch_size` at a time in one optimisation. In a round it follows a
     prediction task, whose result (a dict with `fit_job_ids`) arrives as the first argument."""
-    from workers.tasks.fits import run_fit_jobs_batched
+    from workers.tasks.fits import run_fit_jobs_batched  # deferred: see the docstring
 
     ids = job_ids.get("fit_job_ids", []) if isinstance(job_ids, dict) else job_ids
     return run_fit_jobs_batched(get_context(), [int(i) for i in ids], round_job_id=round_job_id)
@@ -63,7 +68,7 @@ def fit_batch(job_ids: list[int] | dict[str, Any], round_job_id: int | None = No
 @celery_app.task(name=TASK_TRAIN_HANDSEGNET)
 def train_handsegnet(job_id: int) -> dict[str, Any]:
     """Train HandSegNet on the round's accepted samples (model masks of their fits)."""
-    from workers.tasks.training import run_training_job
+    from workers.tasks.training import run_training_job  # deferred: see the docstring
 
     return run_training_job(get_context(), int(job_id))
 
@@ -71,7 +76,7 @@ def train_handsegnet(job_id: int) -> dict[str, Any]:
 @celery_app.task(name=TASK_TRAIN_MVNET)
 def train_mvnet(job_id: int) -> dict[str, Any]:
     """Train MVNet on the round's accepted samples (3D keypoints of their fits)."""
-    from workers.tasks.training import run_training_job
+    from workers.tasks.training import run_training_job  # deferred: see the docstring
 
     return run_training_job(get_context(), int(job_id))
 
@@ -79,7 +84,7 @@ def train_mvnet(job_id: int) -> dict[str, Any]:
 @celery_app.task(name=TASK_PREDICT, **FIT_LIMITS)
 def predict_batch(job_id: int) -> dict[str, Any]:
     """Predict masks and 3D keypoints for a batch of samples; queue their fits (returned for fit_batch)."""
-    from workers.tasks.inference import run_prediction_job
+    from workers.tasks.inference import run_prediction_job  # deferred: see the docstring
 
     return run_prediction_job(get_context(), int(job_id))
 
@@ -87,7 +92,7 @@ def predict_batch(job_id: int) -> dict[str, Any]:
 @celery_app.task(name=TASK_PREANNOTATE)
 def preannotate(job_id: int) -> dict[str, Any]:
     """Round 0 without clicks: detector -> triangulation -> fit on a project's unlabeled samples -> reviewers."""
-    from workers.tasks.preannotate import run_preannotation_job
+    from workers.tasks.preannotate import run_preannotation_job  # deferred: see the docstring
 
     return run_preannotation_job(get_context(), int(job_id))
 
@@ -95,7 +100,7 @@ def preannotate(job_id: int) -> dict[str, Any]:
 @celery_app.task(name=TASK_HEURISTIC)
 def heuristic(round_job_id: int) -> dict[str, Any] | None:
     """Summarise (and apply where missing) the heuristic verification of the round's fits."""
-    from workers.tasks.round_steps import run_heuristic
+    from workers.tasks.round_steps import run_heuristic  # deferred: see the docstring
 
     return run_heuristic(get_context(), int(round_job_id))
 
@@ -103,7 +108,7 @@ def heuristic(round_job_id: int) -> dict[str, Any] | None:
 @celery_app.task(name=TASK_REVIEW_QUEUE)
 def build_review_queue(round_job_id: int) -> dict[str, Any] | None:
     """Queue fitted samples the heuristic did not accept for reviewers, by the paper's policy."""
-    from workers.tasks.round_steps import build_review_queue as build
+    from workers.tasks.round_steps import build_review_queue as build  # deferred: see the docstring
 
     return build(get_context(), int(round_job_id))
 
@@ -111,7 +116,7 @@ def build_review_queue(round_job_id: int) -> dict[str, Any] | None:
 @celery_app.task(name=TASK_ROUND_FINISH)
 def round_finish(round_job_id: int) -> dict[str, Any] | None:
     """Record the round's counts per stream and model versions; finish its job."""
-    from workers.tasks.round_steps import finish_round
+    from workers.tasks.round_steps import finish_round  # deferred: see the docstring
 
     return finish_round(get_context(), int(round_job_id))
 
@@ -119,7 +124,7 @@ def round_finish(round_job_id: int) -> dict[str, Any] | None:
 @celery_app.task(name=TASK_ROUND_INFERENCE, ignore_result=True)
 def round_inference(round_job_id: int) -> None:
     """After training: predict + fit every batch (a chord), then heuristic -> review queue -> finish."""
-    from workers.tasks.round_steps import plan_inference
+    from workers.tasks.round_steps import plan_inference  # deferred: see the docstring
 
     plan = plan_inference(get_context(), int(round_job_id))
     if plan is None:
@@ -137,7 +142,7 @@ def round_inference(round_job_id: int) -> None:
 @celery_app.task(name=TASK_ROUND, ignore_result=True)
 def bootstrap_round(round_job_id: int) -> None:
     """A bootstrap round: train both networks (a chord), then `round_inference`."""
-    from workers.tasks.round_steps import start_round
+    from workers.tasks.round_steps import start_round  # deferred: see the docstring
 
     train_job_ids = start_round(get_context(), int(round_job_id))
     if train_job_ids is None:
@@ -146,8 +151,6 @@ def bootstrap_round(round_job_id: int) -> None:
         round_inference.si(round_job_id).apply_async()
         return
     with get_context().session_factory() as session:
-        from backend.models.jobs import Job
-
         nets = {job_id: (session.get(Job, job_id).payload or {}).get("net") for job_id in train_job_ids}
     header = [(train_mvnet if nets[job_id] == "mvnet" else train_handsegnet).si(job_id) for job_id in train_job_ids]
     chord(header, round_inference.si(round_job_id)).apply_async()

@@ -78,7 +78,7 @@ def fit_config(ctx: WorkerContext, source: str) -> FitConfig:
 
 def engine_for(ctx: WorkerContext, fi: FitInput, config: FitConfig) -> Any:
     """A FittingEngine for this rig, configuration and hand side, built once per process."""
-    from workers.fitting.engine import FittingEngine
+    from workers.fitting.engine import FittingEngine  # deferred: torch with the first fit
 
     return ctx.cached(("engine", fi.rig.digest, config, fi.side),
                       lambda: FittingEngine(ctx.hand_model(fi.side), list(fi.rig.cameras), config))

@@ -34,6 +34,7 @@ PREDICTABLE = (*REFITTABLE, SampleState.needs_annotation.value)
 
 def load_net(ctx: WorkerContext, version: str, kind: str) -> Any:
     """A network by version name, loaded once per process (and again when its file changes)."""
+    # deferred: torch only where a job predicts: fits (touch_round) and the round's steps import this module
     from workers.nets.checkpoints import load_model
     from workers.nets.train import default_device
 
@@ -102,7 +103,7 @@ def run_prediction_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
 
 
 def _predict(mvnet: Any, handsegnet: Any, frames: list[Any], cameras: list[Any]) -> Any:
-    from workers.nets.predict import predict_frames
+    from workers.nets.predict import predict_frames  # deferred: as in load_net
 
     return predict_frames(mvnet, [f.frame for f in frames], cameras, handsegnet)
 

@@ -34,11 +34,13 @@ from backend.services import jobs, preannotation, records
 from backend.services.errors import DomainError
 from backend.services.state_machine import transition
 from backend.services.verification import Candidate, ReviewPolicy, select_for_review
+from workers.capture.reader import load_frame_images
 from workers.capture.schema import CaptureError
 from workers.detector.types import DetectorInputError, DetectorUnavailableError, Handedness, LiftedKeypoints
 from workers.geometry.camera import Camera
 from workers.tasks.context import WorkerContext
 from workers.tasks.detection_inputs import SOURCE, detection_record, lifted_count, masks_for
+from workers.tasks.fits import run_fit_jobs
 from workers.tasks.inputs import NUM_KEYPOINTS, InputError, Rig, SampleFrame, load_frames, rig_of
 from workers.tasks.progress import JobCancelledError, ProgressReporter
 
@@ -55,7 +57,7 @@ def detect(images: Sequence[np.ndarray], cameras: Sequence[Camera], masks: Seque
            *, handedness: Handedness = "right") -> LiftedKeypoints:
     """`workers.detector.detect_frame`: images (H, W, 3) uint8 RGB and masks (H, W) bool or None per view, in
     calibration order."""
-    from workers.detector import detect_frame
+    from workers.detector import detect_frame  # deferred: resolving it loads the detector's pipeline (torch)
 
     return detect_frame(images, cameras, masks, handedness=handedness)
 
@@ -94,7 +96,6 @@ def _detect_sample(ctx: WorkerContext, frame: SampleFrame, rig: Rig, handedness:
                    ) -> tuple[dict[str, Any] | None, str]:
     """(detection record, "") or (None, why there is nothing to fit: bad input, no hand, or the detector failing
     on this frame). DetectorUnavailableError propagates: it ends the job."""
-    from workers.capture.reader import load_frame_images
 
     try:
         with ctx.session_factory() as session:
@@ -194,7 +195,6 @@ def run_preannotation_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
     """Claim a preannotate job (payload: project_id, sample_ids, rest, handedness) and run it; returns its
     result (also stored on the job). Without a handedness in the payload the detector looks for each sample's
     sequence's hand (`SampleFrame.side`)."""
-    from workers.tasks.fits import run_fit_jobs
 
     started = time.perf_counter()
     with ctx.session_factory.begin() as session:

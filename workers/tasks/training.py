@@ -27,6 +27,7 @@ from backend.models.jobs import Job
 from backend.models.review import Round, RoundMember
 from backend.services import jobs
 from backend.services.errors import DomainError
+from workers.nets.configs import get_config
 from workers.tasks.context import WorkerContext
 from workers.tasks.inputs import InputError, Rig, SampleFrame, capture_for, load_frames, read_mask, rig_of
 from workers.tasks.json_values import json_safe
@@ -118,6 +119,7 @@ def model_masks(ctx: WorkerContext, session: Session, tset: TrainingSet) -> list
 
 def render_masks(ctx: WorkerContext, rig: Rig, theta: np.ndarray, side: str = "right") -> dict[str, np.ndarray]:
     """Silhouettes of `side`'s hand model with parameters theta (61,) in every camera of the rig."""
+    # deferred: torch only where a job computes: the round's bookkeeping (round_steps) and fits (via inference)
     import torch
 
     from workers.handmodel.layer import HandLayer
@@ -143,7 +145,6 @@ def _round_of(session: Session, job: Job) -> tuple[Round, Job]:
 def run_training_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
     """Claim a train job, train its network on the round's D_i, record the version. Never raises for a
     training that cannot run: the job (and its round job) is marked failed with the reason."""
-    from workers.nets.configs import get_config
 
     with ctx.session_factory.begin() as session:
         job = ctx.claim(session, job_id)
@@ -200,7 +201,7 @@ def run_training_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
 def warm_start_of(ctx: WorkerContext, net: str, config: Any, round_index: int) -> Path | None:
     """The final checkpoint of `net` from the latest earlier round with the same architecture (training then
     continues from it, so the networks accumulate over rounds), or None (round 1, another configuration)."""
-    from workers.nets.checkpoints import previous_checkpoint
+    from workers.nets.checkpoints import previous_checkpoint  # deferred: torch, as in render_masks
 
     sub = config.mvnet if net == "mvnet" else config.handsegnet
     return previous_checkpoint(ctx.settings.checkpoints_dir.resolve(), net, sub, round_index)  # type: ignore[arg-type]
@@ -208,6 +209,7 @@ def warm_start_of(ctx: WorkerContext, net: str, config: Any, round_index: int) -
 
 def _train(ctx: WorkerContext, net: str, tset: TrainingSet, masks: list[dict[str, np.ndarray]] | None, config: Any,
            budget: float, folder: Path, reporter: ProgressReporter, seed: int, extra: dict[str, Any]) -> Any:
+    # deferred: torch, as in render_masks
     from workers.nets.data import build_handseg_dataset, build_mvnet_dataset
     from workers.nets.train import train_handsegnet, train_mvnet
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import typer
 
 
@@ -20,8 +22,6 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
                                                  help="The capture's working width (default: assemble's)."),
     ) -> None:
         """Time `capture assemble` + `import` of real-sized JPEGs (frames/s, peak memory, memory vs frames)."""
-        from pathlib import Path
-
         from backend.bench.capture_import import run
         from backend.bench.import_ui import CHROMIUM
 

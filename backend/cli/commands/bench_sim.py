@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import logging
+
 import typer
 
 
@@ -22,7 +24,6 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         """200-frame synthetic capture, cpu-small networks, 4 rounds through the real server and workers:
         minutes, accepted labels' vertex error, auto-accept precision, labels per human hour; with the
         detector on and off side by side."""
-        import logging
 
         from backend.bench.sim import DETECTOR_MODES, run
 

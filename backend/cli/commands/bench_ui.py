@@ -26,13 +26,16 @@ the capture's ground truth, as a worker would record them, since UI speed does n
 
 from __future__ import annotations
 
+import json
 import logging
 import os
+import shutil
 import statistics
 import sys
 import tempfile
 import time
 import uuid
+from datetime import timedelta
 from pathlib import Path
 from typing import Any
 
@@ -195,7 +198,6 @@ def _prepare_database(settings, capture: Path) -> None:
 def _share_hand_model(data_dir: Path) -> None:
     """The generated built-in hand of this machine's cache, so the fresh data folder does not regenerate it
     (a deployment's workers have made it long before a reviewer opens a fit)."""
-    import shutil
 
     from workers.handmodel.builtin import build_builtin_hand, cache
 
@@ -429,7 +431,6 @@ def _scripted_annotator(browser, base: str, token: str, truth: dict[int, Any], s
     """Annotate `samples` samples from proposals ("T": two views by hand, Enter in the rest; "M": Enter in
     every view on a network's proposals), correcting every accepted point more than CORRECT_PX off.
     Counts pointer clicks (placements and thumbnail clicks) and key presses; wall seconds per sample."""
-    import json
 
     import numpy as np
 
@@ -515,7 +516,6 @@ def _frames_of(settings) -> dict[int, int]:
 def _work_loss(browser, base: str, token: str, settings, truth: dict[int, Any]) -> dict[str, Any]:
     """Clicks lost by a reload, by the Back button and by a lapsed lease on a free sample (each should be 0),
     and the reload's time to the draft restored."""
-    from datetime import timedelta
 
     from sqlalchemy import text
 

@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import logging
 import secrets
+import signal
 import sys
+import threading
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -59,8 +61,6 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
 
 def _serve(settings: Settings, host: str, port: int) -> None:
     """The API and an embedded worker until Ctrl-C (or SIGTERM)."""
-    import signal
-    import threading
 
     from backend.runtime import start_stack
 

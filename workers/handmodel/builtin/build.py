@@ -71,7 +71,7 @@ def fingertip_vertices(vertices: np.ndarray, weights: np.ndarray, skel: Skeleton
 
 def pose_pca(arrays: HandModelArrays) -> tuple[np.ndarray, np.ndarray]:
     """(components (45, 45) rows by decreasing variance, mean (45,)) of the pose sampler's distribution."""
-    # Deferred: limits imports torch, needed only to generate the hand, never to load the cached one (API start-up).
+    # deferred: limits imports torch, needed only to generate the hand, never to load the cached one (the API)
     from workers.handmodel.limits import joint_frames
     from workers.handmodel.pose_sampler import PoseSampler
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from workers.handmodel.builtin.skeleton import DEPTH_RATIO, Skeleton
+from workers.handmodel.builtin.skeleton import DEPTH_RATIO, FINGER_JOINTS, Skeleton
 
 
 def smin(a: np.ndarray, b: np.ndarray, k: float) -> np.ndarray:
@@ -125,7 +125,6 @@ def hand_sdf(p: np.ndarray, skel: Skeleton) -> np.ndarray:
 
 def _finger_sdf(p: np.ndarray, skel: Skeleton, f: int) -> np.ndarray:
     """Distance (N,) to finger f (FINGERS index): three round cones joined by a small smooth union."""
-    from workers.handmodel.builtin.skeleton import FINGER_JOINTS
 
     chain = skel.chain(f)
     r = skel.radii[f]

@@ -14,6 +14,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
 
 logger = logging.getLogger(__name__)
 
@@ -70,7 +71,6 @@ def project_to_surface(sdf: SdfFn, v: np.ndarray, steps: int = 4, eps: float = 1
 def taubin(v: np.ndarray, faces: np.ndarray, iterations: int, lam: float = 0.5,
            mu: float = -0.53) -> np.ndarray:
     """Taubin lambda/mu smoothing with uniform umbrella weights; returns new vertices (V, 3)."""
-    import scipy.sparse as sp  # deferred: meshing runs when the hand is generated, not loaded from the cache
 
     nv = v.shape[0]
     e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
@@ -92,7 +92,7 @@ def mesh_implicit(sdf: SdfFn, lo: np.ndarray, hi: np.ndarray,
 
     Returns (vertices (V, 3) float64 metres, faces (F, 3) int64).
     """
-    # Deferred: meshing runs when the hand is generated, never when it is loaded from the cache (the API).
+    # deferred: meshing runs when the hand is generated, never when it is loaded from the cache (the API)
     import fast_simplification
     import trimesh
     from skimage.measure import marching_cubes

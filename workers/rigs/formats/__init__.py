@@ -12,6 +12,7 @@ from pathlib import Path
 from types import ModuleType
 
 from workers.rigs.formats.common import UNITS_TO_M, Conversion, FormatError, build_rig
+from workers.rigs.sanity import check_aim
 
 FORMATS = ("anipose", "easymocap", "opencv", "panoptic", "multical", "jarvis", "colmap")
 
@@ -44,7 +45,6 @@ def convert(fmt: str, path: Path, *, unit: str | None = None, image_size: tuple[
     Raises:
         FormatError: naming the file, the camera and the field at fault.
     """
-    from workers.rigs.sanity import check_aim
 
     module = _module(fmt)
     raws, notes = module.read(Path(path), **options)

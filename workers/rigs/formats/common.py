@@ -12,6 +12,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from workers.capture.schema import ID_PATTERN
@@ -113,7 +114,6 @@ def as_vector(value: object, where: str, field_name: str) -> np.ndarray:
 
 def rodrigues(rvec: np.ndarray) -> np.ndarray:
     """(3, 3) rotation matrix of a (3,) Rodrigues (axis times angle, radians) vector."""
-    import cv2
 
     return cv2.Rodrigues(np.asarray(rvec, dtype=np.float64).reshape(3, 1))[0]
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from workers.rigs.formats.common import FormatError
@@ -13,8 +14,6 @@ class Storage:
     """An open FileStorage; `mat`, `number`, `strings` return None for absent keys."""
 
     def __init__(self, path: Path) -> None:
-        import cv2
-
         self.path = Path(path)
         if not self.path.is_file():
             raise FormatError(f"{path}: file not found")

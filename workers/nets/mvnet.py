@@ -120,6 +120,11 @@ class MVNet(nn.Module):
         # Detector-backed: the U-Net sees the unprojected detector maps beside the image features.
         unet_in = config.feature_channels + (num_keypoints if config.heatmap_source == "detector" else 0)
         self.unet = UNet3d(unet_in, config.unet_widths, num_keypoints, config.norm)
+        if config.heatmap_source == "detector":
+            # The untrained network's score volumes are the detector's unprojected maps (a triangulation); the
+            # U-Net's correction starts at zero and is learned from the labels.
+            nn.init.zeros_(self.unet.head.weight)
+            nn.init.zeros_(self.unet.head.bias)
         self.register_buffer("rgb_mean", torch.tensor(RGB_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("rgb_std", torch.tensor(RGB_STD).view(1, 3, 1, 1), persistent=False)
 

@@ -29,7 +29,7 @@ import logging
 import os
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -107,11 +107,12 @@ MVNET_CHOICES = ("paper", "detector", "both")
 
 def run(*, quick: bool = False, data_dir: Path | None = None, out_dir: Path | None = None, seed: int = 0,
         config_name: str = "cpu-small", threads: int = 1, emit_json: bool = True, mvnet: str = "both",
-        detector_config_name: str = "cpu-small-detector") -> dict[str, Any]:
+        detector_config_name: str = "cpu-small-detector", frames_per_sequence: int | None = None) -> dict[str, Any]:
     """Run the benchmark and return its record (printed as the last stdout line when `emit_json`).
 
     `threads` sets torch's CPU threads (default 1: on a shared machine more threads than free cores
     slow convolutions several-fold). `mvnet`: which MVNet(s) to train and measure (MVNET_CHOICES).
+    `frames_per_sequence` replaces the size's frame count (same budgets; a capture of its own).
     """
     import torch
     from tqdm import tqdm
@@ -131,6 +132,10 @@ def run(*, quick: bool = False, data_dir: Path | None = None, out_dir: Path | No
     torch.set_num_threads(threads)
     load_start = [round(x, 2) for x in os.getloadavg()]
     size = SIZES[quick]
+    if frames_per_sequence is not None:
+        if frames_per_sequence < 1:
+            raise ValueError(f"frames_per_sequence must be >= 1, got {frames_per_sequence}")
+        size = replace(size, frames=frames_per_sequence)
     config = get_config(config_name)
     detector_status = None
     det_config = None

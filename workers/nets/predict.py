@@ -312,8 +312,9 @@ def predict_frames(mvnet: MVNet, frames: Sequence[FrameRef], cameras: Sequence[C
     HandSegNet's masks of a green-screen frame are limited to its chroma-key foreground (the hand is part
     of it; nothing outside can be hand). Frames whose hand cannot be localised get NaN keypoints and zero
     confidence. A detector-backed MVNet (heatmap_source="detector") also gets the detector's keypoints,
-    found inside those masks, and its grid centre is their lifted keypoints' robust centroid where enough
-    were lifted (else the masks' location); detections from chroma-key masks go through `detection_cache`.
+    found inside the chroma-key masks where the frame has some (through `detection_cache`), else inside
+    HandSegNet's, and its grid centre is their lifted keypoints' robust centroid where enough were lifted
+    (else the masks' location).
 
     Raises:
         DetectorUnavailableError: a detector-backed MVNet and the model files are missing (choose the
@@ -341,11 +342,11 @@ def predict_frames(mvnet: MVNet, frames: Sequence[FrameRef], cameras: Sequence[C
             except LocalisationError:
                 location = None
         if use_detector:
-            if handsegnet is not None:
+            if handsegnet is not None and not frame.mask_paths:
                 binary = [p > handsegnet.config.threshold for p in masks]
                 found = detect_frames([frame], cameras, handedness=handedness, images=lambda _f, v=views: v,
                                       masks=lambda _f, b=binary: b)[0]
-            else:
+            else:  # a chroma key locates the hand for the detector better than HandSegNet (and is cacheable)
                 found = detect_frames([frame], cameras, handedness=handedness, images=lambda _f, v=views: v,
                                       cache=detection_cache)[0]
             detections.append(found)

@@ -20,6 +20,9 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         threads: int = typer.Option(1, min=1, max=256, help="torch CPU threads (1 suits a shared machine)."),
         mvnet: str = typer.Option("both", "--mvnet", help="Which MVNet: paper (paper-only), detector "
                                   "(detector-backed) or both, side by side."),
+        frames_per_sequence: int | None = typer.Option(
+            None, "--frames-per-sequence", min=1, max=1000,
+            help="Frames per synthetic sequence instead of the size's (60 full, 4 quick); budgets unchanged."),
         detector_config: str = typer.Option("cpu-small-detector", "--detector-config",
                                              help="Configuration of the detector-backed MVNet."),
     ) -> None:
@@ -36,7 +39,8 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         if CONFIGS[detector_config].mvnet.heatmap_source != "detector" and mvnet != "paper":
             raise typer.BadParameter(f"{detector_config!r} is not detector-backed", param_hint="--detector-config")
         record = run(quick=quick, data_dir=data, out_dir=out, seed=seed, config_name=config, threads=threads,
-                     emit_json=json_out, mvnet=mvnet, detector_config_name=detector_config)
+                     emit_json=json_out, mvnet=mvnet, detector_config_name=detector_config,
+                     frames_per_sequence=frames_per_sequence)
         if not json_out:
             side = record["side_by_side"]
             typer.echo(f"MVNet paper-only / detector-backed: {side['keypoint_mm']['paper']} / "

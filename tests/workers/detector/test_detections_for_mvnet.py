@@ -57,3 +57,30 @@ def test_a_corrupt_cache_entry_is_detected_again(tmp_path):
     cache.path(Frame, "chroma", "right").write_bytes(b"junk")  # type: ignore[arg-type]
     assert cache.get(Frame, "chroma", "right") is None  # type: ignore[arg-type]
     assert detections_module.CACHE_VERSION >= 1
+
+
+def test_worker_path_with_a_detector_backed_mvnet(require_detector, rendered_capture, tmp_path):
+    """predict_frames feeds a detector-backed MVNet the detections (chroma-key masks, cached) and centres its grid
+    on them; untrained, its head adds nothing, so the keypoints are the triangulation of the detector's maps."""
+    from dataclasses import replace
+
+    import torch
+
+    from workers.nets.configs import get_config
+    from workers.nets.mvnet import MVNet
+    from workers.nets.predict import predict_frames
+
+    capture = read_capture(rendered_capture)
+    frames = [f for s in capture.sequences for f in s.frames]
+    config = replace(get_config("tiny").mvnet, heatmap_residual=True, heatmap_source="detector")
+    torch.manual_seed(0)
+    cache = DetectionCache(tmp_path)
+    out = predict_frames(MVNet(config).eval(), frames, list(capture.cameras), detection_cache=cache)
+    assert len(list(tmp_path.glob("*.npz"))) == len(frames)
+    for i, frame in enumerate(frames):
+        gt = load_ground_truth(frame)
+        found = cache.get(frame, "chroma", "right")
+        np.testing.assert_allclose(out.keypoints.centers_world[i], found.center_world())
+        error_mm = 1000 * np.linalg.norm(out.keypoints.keypoints_3d[i] - gt.keypoints_3d, axis=-1)
+        assert np.median(error_mm) < 30, error_mm  # tiny's grid: 25 mm voxels
+        assert 0 < out.keypoints.sample_confidence[i] <= 1.5

@@ -134,6 +134,10 @@ class Settings(BaseSettings):
     # --- bootstrap rounds (sized for a 2-core CPU; the paper's sizes are the 'paper' nets on a GPU) ------
     nets_config: Literal["tiny", "cpu-small", "paper"] = Field(
         default="cpu-small", description="Network configuration trained in each round (workers/nets/configs.py).")
+    mvnet_detector: bool = Field(
+        default=True, description="Rounds train and run the detector-backed MVNet (the pretrained detector's "
+        "keypoints in place of the learned 2D head: '<nets_config>-detector') where the detector's model files are "
+        "installed and such a configuration exists; off, or without the files, the paper-only MVNet.")
     round_handsegnet_budget_s: float = Field(default=90.0, gt=0, le=7 * 24 * 3600,
                                              description="HandSegNet training seconds per round.")
     round_mvnet_budget_s: float = Field(default=240.0, gt=0, le=7 * 24 * 3600,

@@ -7,6 +7,14 @@ each MVNet 400 s of training (the soft-argmax network only for the confidence co
 --quick: 8 sequences x 4 frames at 160 px, 10 s / 15 s budgets. The synthetic capture is cached in the
 data folder and reused when its settings match (synthesis is not training time).
 
+`mvnet`: "paper" (the paper-only networks), "detector" (the detector-backed MVNet, `cpu-small-detector`, with
+HandSegNet for the whole path) or "both" (side by side). The detector-backed MVNet trains on the training frames'
+detections (found with their chroma-key masks, detected once and cached in the data folder) and is evaluated
+through HandSegNet masks -> detector (inside the masks) -> grid centre from the lifted keypoints -> MVNet, and
+with ground-truth-centred crops whose detections were found with the ground-truth hand masks (`*_gt_center`);
+its keys carry the prefix `detector_mvnet_`, and `side_by_side` pairs them with the paper-only ones. Where the
+detector's model files are missing, the paper-only networks alone are measured and `detector_status` says why.
+
 Reported: MVNet mean keypoint error (mm) and 3D PCK AUC over 0-50 mm through the whole prediction path
 (HandSegNet masks -> triangulated hand centre -> MVNet); the same with crops centred by the ground-truth
 masks; HandSegNet IoU on the evaluation views; sparsification curves of the score-volume and
@@ -21,7 +29,7 @@ import logging
 import os
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +42,7 @@ from backend.settings import get_settings
 from workers.capture.reader import load_frame_images, load_ground_truth, read_capture
 from workers.nets.configs import get_config
 from workers.nets.data import build_handseg_dataset, build_mvnet_dataset, hand_center_from_labels
+from workers.nets.detections import DetectionCache, detect_frames, detector_backed
 from workers.nets.handsegnet import mask_iou
 from workers.nets.predict import predict_keypoints, predict_masks
 from workers.nets.sparsification import plot_sparsification, sparsification
@@ -102,30 +111,62 @@ def split_frames(capture: Any) -> tuple[list[Any], list[Any]]:
     return [f for s in train_seqs for f in s.frames], [f for s in eval_seqs for f in s.frames]
 
 
+MVNET_CHOICES = ("paper", "detector", "both")
+
+
 def run(*, quick: bool = False, data_dir: Path | None = None, out_dir: Path | None = None, seed: int = 0,
-        config_name: str = "cpu-small", threads: int = 1, emit_json: bool = True) -> dict[str, Any]:
+        config_name: str = "cpu-small", threads: int = 1, emit_json: bool = True, mvnet: str = "both",
+        detector_config_name: str = "cpu-small-detector", frames_per_sequence: int | None = None) -> dict[str, Any]:
     """Run the benchmark and return its record (printed as the last stdout line when `emit_json`).
 
     `threads` sets torch's CPU threads (default 1: on a shared machine more threads than free cores
-    slow convolutions several-fold).
+    slow convolutions several-fold). `mvnet`: which MVNet(s) to train and measure (MVNET_CHOICES).
+    `frames_per_sequence` replaces the size's frame count (same budgets; a capture of its own).
     """
 
 
+    if mvnet not in MVNET_CHOICES:
+        raise ValueError(f"mvnet must be one of {MVNET_CHOICES}, got {mvnet!r}")
     started = time.perf_counter()
     torch.set_num_threads(threads)
     load_start = [round(x, 2) for x in os.getloadavg()]
     size = SIZES[quick]
+    if frames_per_sequence is not None:
+        if frames_per_sequence < 1:
+            raise ValueError(f"frames_per_sequence must be >= 1, got {frames_per_sequence}")
+        size = replace(size, frames=frames_per_sequence)
     config = get_config(config_name)
+    detector_status = None
+    det_config = None
+    if mvnet in ("detector", "both"):
+        det_config, detector_status = detector_backed(get_config(detector_config_name))
+        if detector_status is not None:
+            sys.stderr.write(f"bench nets: {detector_status}; measuring the paper-only MVNet alone\n")
+            det_config = None
+    paper_nets = ("scorevolume", "softargmax") if mvnet in ("paper", "both") or det_config is None else ()
     data_dir = Path(data_dir or Path(os.environ.get("TMPDIR", "/tmp")) / "handloop-bench-nets")
     out_dir = Path(out_dir or data_dir / f"run-{'quick' if quick else 'full'}-{time.strftime('%Y%m%d-%H%M%S')}")
     out_dir.mkdir(parents=True, exist_ok=True)
     capture = read_capture(ensure_capture(data_dir, size, seed))
     cameras = list(capture.cameras)
+    hand = capture.hand_model.side
     train_frames, eval_frames = split_frames(capture)
     log.info("%d training frames, %d evaluation frames (held-out subjects)", len(train_frames), len(eval_frames))
+    cache = DetectionCache(data_dir / "detections")
 
-    with tqdm(total=len(train_frames), desc="crops", file=sys.stderr) as bar:
-        mv_data = build_mvnet_dataset(capture, train_frames, config.mvnet, progress=bar.update)
+    datasets: dict[str, Any] = {}
+    if paper_nets:
+        with tqdm(total=len(train_frames), desc="crops", file=sys.stderr) as bar:
+            datasets["paper"] = build_mvnet_dataset(capture, train_frames, config.mvnet, progress=bar.update)
+    detection_s = 0.0
+    if det_config is not None:
+        t0 = time.perf_counter()
+        with tqdm(total=len(train_frames), desc="detect (training frames, cached)", file=sys.stderr) as bar:
+            train_detections = detect_frames(train_frames, cameras, handedness=hand, cache=cache, progress=bar.update)
+        detection_s = time.perf_counter() - t0
+        with tqdm(total=len(train_frames), desc="crops (detector)", file=sys.stderr) as bar:
+            datasets["detector"] = build_mvnet_dataset(capture, train_frames, det_config.mvnet,
+                                                       detections=train_detections, progress=bar.update)
     step = max(1, len(train_frames) // size.handseg_max_frames)
     with tqdm(total=len(train_frames[::step]), desc="masks", file=sys.stderr) as bar:
         seg_data = build_handseg_dataset(capture, train_frames[::step], progress=bar.update)
@@ -142,17 +183,21 @@ def run(*, quick: bool = False, data_dir: Path | None = None, out_dir: Path | No
     train_s: dict[str, float] = {}
     train_steps: dict[str, int] = {}
     train_load: dict[str, list[float]] = {}
-    jobs = [("handsegnet", size.handseg_budget_s), ("scorevolume", size.mvnet_budget_s),
-            ("softargmax", size.mvnet_budget_s)]
+    jobs = [("handsegnet", size.handseg_budget_s)] + [(name, size.mvnet_budget_s) for name in paper_nets]
+    if det_config is not None:
+        jobs.append(("detector", size.mvnet_budget_s))
     for name, budget in jobs:
         load_before = os.getloadavg()[0]
         with tqdm(total=round(budget), desc=f"train {name}", unit="s", file=sys.stderr) as bar:
             if name == "handsegnet":
                 result = train_handsegnet(seg_data, config, budget, ckpt, resume=False, seed=seed,
                                           progress=bar_progress(bar))
+            elif name == "detector":
+                result = train_mvnet(datasets["detector"], det_config, budget, ckpt / name, resume=False, seed=seed,
+                                     progress=bar_progress(bar))
             else:
                 mv_config = get_config(config_name, loss=name)
-                result = train_mvnet(mv_data, mv_config, budget, ckpt / name, resume=False, seed=seed,
+                result = train_mvnet(datasets["paper"], mv_config, budget, ckpt / name, resume=False, seed=seed,
                                      progress=bar_progress(bar))
         trained[name], train_s[name] = result.model, result.metadata["train_seconds"]
         train_steps[name] = int(result.metadata["steps"])
@@ -160,28 +205,39 @@ def run(*, quick: bool = False, data_dir: Path | None = None, out_dir: Path | No
         train_load[name] = [round(load_before, 2), round(os.getloadavg()[0], 2)]
     torch.set_grad_enabled(False)
 
-    ious, errors, errors_gt_center, confidences, failures, times_ms = [], {}, {}, {}, 0, []
+    nets = [*paper_nets, *(["detector"] if det_config is not None else [])]
+    ious, failures, times_ms = [], 0, []
+    errors: dict[str, list[np.ndarray]] = {n: [] for n in nets}
+    errors_gt_center: dict[str, list[np.ndarray]] = {n: [] for n in nets}
+    confidences: dict[str, list[float]] = {n: [] for n in nets}
+    confidences_gt_center: dict[str, list[float]] = {n: [] for n in nets}
     center_errors_mm: list[float] = []
-    confidences_gt_center: dict[str, list[float]] = {}
-    for name in ("scorevolume", "softargmax"):
-        errors[name], errors_gt_center[name], confidences[name], confidences_gt_center[name] = [], [], [], []
+    det_times_ms: list[float] = []
+    det_failures = 0
+    det_center_errors_mm: list[float] = []
+    lift_errors: list[np.ndarray] = []
+    lift_errors_gt_masks: list[np.ndarray] = []
+    threshold = trained["handsegnet"].config.threshold
     for frame in tqdm(eval_frames, desc="evaluate", file=sys.stderr):
         views = load_frame_images(frame, cameras)
         ordered = [views[c.name] for c in cameras]
         gt = load_ground_truth(frame)
         t0 = time.perf_counter()
         masks = predict_masks(trained["handsegnet"], ordered, cameras)
-        if masks.location is not None:
+        t_masks = time.perf_counter() - t0
+        pred = None
+        if masks.location is not None and "scorevolume" in trained:
             pred = predict_keypoints(trained["scorevolume"], [ordered], cameras, masks.location.center_world[None],
                                      batch_frames=1)
         times_ms.append(1000 * (time.perf_counter() - t0))
         for cam, prob in zip(cameras, masks.probabilities, strict=True):
             if gt.hand_masks[cam.name].any():
-                ious.append(mask_iou(prob > trained["handsegnet"].config.threshold, gt.hand_masks[cam.name]))
-        gt_center = hand_center_from_labels([gt.hand_masks[c.name] for c in cameras], gt.keypoints_3d, cameras)
+                ious.append(mask_iou(prob > threshold, gt.hand_masks[cam.name]))
+        gt_masks = [gt.hand_masks[c.name] for c in cameras]
+        gt_center = hand_center_from_labels(gt_masks, gt.keypoints_3d, cameras)
         if masks.location is not None:
             center_errors_mm.append(1000 * float(np.linalg.norm(masks.location.center_world - gt_center)))
-        for name in ("scorevolume", "softargmax"):
+        for name in paper_nets:
             model = trained[name]
             if masks.location is not None:
                 if name != "scorevolume":
@@ -193,63 +249,147 @@ def run(*, quick: bool = False, data_dir: Path | None = None, out_dir: Path | No
             confidences_gt_center[name].append(pred_gt.sample_confidence[0])
             errors_gt_center[name].append(1000 * np.linalg.norm(pred_gt.keypoints_3d[0] - gt.keypoints_3d, axis=-1))
         failures += masks.location is None
+        if det_config is not None:
+            # The whole path: HandSegNet's masks (timed above) -> detector inside them -> centre -> MVNet.
+            t1 = time.perf_counter()
+            binary = [p > threshold for p in masks.probabilities]
+            found = detect_frames([frame], cameras, handedness=hand, images=lambda _f, v=ordered: v,
+                                  masks=lambda _f, b=binary: b)[0]
+            center = found.center_world()
+            if center is None and masks.location is not None:
+                center = masks.location.center_world
+            if center is not None:
+                pred_d = predict_keypoints(trained["detector"], [ordered], cameras, center[None], batch_frames=1,
+                                           detections=[found])
+            det_times_ms.append(1000 * (time.perf_counter() - t1 + t_masks))
+            if center is not None:
+                det_center_errors_mm.append(1000 * float(np.linalg.norm(center - gt_center)))
+                errors["detector"].append(1000 * np.linalg.norm(pred_d.keypoints_3d[0] - gt.keypoints_3d, axis=-1))
+                confidences["detector"].append(pred_d.sample_confidence[0])
+            else:
+                det_failures += 1
+            lift_errors.append(1000 * np.linalg.norm(found.points_world - gt.keypoints_3d, axis=-1))
+            # MVNet given the right place: detections inside the ground-truth hand masks, crops at the gt centre.
+            found_gt = detect_frames([frame], cameras, handedness=hand, images=lambda _f, v=ordered: v,
+                                     masks=lambda _f, g=gt_masks: g, masks_label="ground_truth", cache=cache)[0]
+            lift_errors_gt_masks.append(1000 * np.linalg.norm(found_gt.points_world - gt.keypoints_3d, axis=-1))
+            pred_dg = predict_keypoints(trained["detector"], [ordered], cameras, gt_center[None], batch_frames=1,
+                                        detections=[found_gt])
+            confidences_gt_center["detector"].append(pred_dg.sample_confidence[0])
+            errors_gt_center["detector"].append(1000 * np.linalg.norm(pred_dg.keypoints_3d[0] - gt.keypoints_3d,
+                                                                      axis=-1))
 
     # Sparsification on the whole path; on ground-truth-centred crops when too few frames were localised.
-    sparse_path = "handsegnet" if len(errors["scorevolume"]) >= 10 else "gt_center"
     curves = {}
+    sparse_paths = {}
     record: dict[str, Any] = {}
-    for name in ("scorevolume", "softargmax"):
+    prefixes = {"scorevolume": "mvnet", "softargmax": "mvnet_softargmax", "detector": "detector_mvnet"}
+    for name in nets:
         err = np.asarray(errors[name]) if errors[name] else np.full((1, 21), np.nan)
         err_gt = np.asarray(errors_gt_center[name])
-        if sparse_path == "handsegnet":
+        sparse_paths[name] = "whole_path" if len(errors[name]) >= 10 else "gt_center"
+        if sparse_paths[name] == "whole_path":
             curves[name] = sparsification(err.mean(axis=1), np.asarray(confidences[name]))
         else:
             curves[name] = sparsification(err_gt.mean(axis=1), np.asarray(confidences_gt_center[name]))
-        prefix = "mvnet" if name == "scorevolume" else "mvnet_softargmax"
+        prefix = prefixes[name]
         record[f"{prefix}_keypoint_mm"] = round(float(np.mean(err)), 2) if errors[name] else None
+        record[f"{prefix}_keypoint_mm_median"] = round(float(np.median(err)), 2) if errors[name] else None
         record[f"{prefix}_auc"] = round(pck_auc(err.ravel()), 4) if errors[name] else None
         record[f"{prefix}_keypoint_mm_gt_center"] = round(float(np.mean(err_gt)), 2)
         record[f"{prefix}_auc_gt_center"] = round(pck_auc(err_gt.ravel()), 4)
+    for name in ("scorevolume", "softargmax", "detector"):
+        prefix = prefixes[name]
+        for key in ("keypoint_mm", "keypoint_mm_median", "auc", "keypoint_mm_gt_center", "auc_gt_center"):
+            record.setdefault(f"{prefix}_{key}", None)
     plot = plot_sparsification(curves, out_dir / "sparsification.png") if curves else None
+
+    def ause(name: str, relative: bool = False) -> float | None:
+        if name not in curves:
+            return None
+        c = curves[name]
+        return round(c.ause / c.curve[0], 4) if relative else round(c.ause, 3)
+
+    def mean_or_none(values: list[float], digits: int = 1, median: bool = False) -> float | None:
+        return round(float(np.median(values) if median else np.mean(values)), digits) if values else None
+
+    def finite_stat(errs: list[np.ndarray], fn: Any) -> float | None:
+        flat = np.concatenate([e[np.isfinite(e)] for e in errs]) if errs else np.array([])
+        return round(float(fn(flat)), 2) if flat.size else None
+
     record.update({
         "handsegnet_iou": round(float(np.mean(ious)), 4) if ious else None,
         "handsegnet_iou_views": len(ious),
-        "ause_scorevolume": round(curves["scorevolume"].ause, 3) if "scorevolume" in curves else None,
-        "ause_softargmax": round(curves["softargmax"].ause, 3) if "softargmax" in curves else None,
-        "ause_relative_scorevolume": round(curves["scorevolume"].ause / curves["scorevolume"].curve[0], 4)
-        if "scorevolume" in curves else None,
-        "ause_relative_softargmax": round(curves["softargmax"].ause / curves["softargmax"].curve[0], 4)
-        if "softargmax" in curves else None,
+        "ause_scorevolume": ause("scorevolume"),
+        "ause_softargmax": ause("softargmax"),
+        "ause_detector": ause("detector"),
+        "ause_relative_scorevolume": ause("scorevolume", True),
+        "ause_relative_softargmax": ause("softargmax", True),
+        "ause_relative_detector": ause("detector", True),
         "sparsification": {name: {"fractions": c.fractions[::5].round(3).tolist(),
                                   "curve_mm": c.curve[::5].round(2).tolist(),
                                   "oracle_mm": c.oracle[::5].round(2).tolist()} for name, c in curves.items()},
         "sparsification_png": str(plot) if plot else None,
-        "sparsification_path": sparse_path,
-        "train_minutes": round((train_s["handsegnet"] + train_s["scorevolume"]) / 60, 2),
-        "train_minutes_mvnet": round(train_s["scorevolume"] / 60, 2),
+        "sparsification_path": sparse_paths.get("scorevolume", sparse_paths.get("detector")),
+        "sparsification_paths": sparse_paths,
+        "train_minutes": round((train_s["handsegnet"] + train_s.get("scorevolume", 0.0)) / 60, 2),
+        "train_minutes_mvnet": round(train_s["scorevolume"] / 60, 2) if "scorevolume" in train_s else None,
         "train_minutes_handsegnet": round(train_s["handsegnet"] / 60, 2),
-        "train_minutes_softargmax": round(train_s["softargmax"] / 60, 2),
-        "inference_ms": round(float(np.mean(times_ms)), 1),
-        "inference_ms_median": round(float(np.median(times_ms)), 1),
+        "train_minutes_softargmax": round(train_s["softargmax"] / 60, 2) if "softargmax" in train_s else None,
+        "train_minutes_detector_mvnet": round(train_s["detector"] / 60, 2) if "detector" in train_s else None,
+        "inference_ms": mean_or_none(times_ms) if paper_nets else None,
+        "inference_ms_median": mean_or_none(times_ms, median=True) if paper_nets else None,
         "localisation_failures": failures,
-        "hand_center_error_mm": round(float(np.mean(center_errors_mm)), 1) if center_errors_mm else None,
-        "hand_center_error_mm_median": round(float(np.median(center_errors_mm)), 1) if center_errors_mm else None,
+        "hand_center_error_mm": mean_or_none(center_errors_mm),
+        "hand_center_error_mm_median": mean_or_none(center_errors_mm, median=True),
         "train_steps_handsegnet": train_steps["handsegnet"],
-        "train_steps_mvnet": train_steps["scorevolume"],
-        "train_steps_softargmax": train_steps["softargmax"],
+        "train_steps_mvnet": train_steps.get("scorevolume"),
+        "train_steps_softargmax": train_steps.get("softargmax"),
+        "train_steps_detector_mvnet": train_steps.get("detector"),
         "train_load_average": train_load,
         "train_frames": len(train_frames),
         "handsegnet_train_frames": len(train_frames[::step]),
         "eval_frames": len(eval_frames),
         "checkpoints": str(ckpt),
+        "detector_status": detector_status,
+        # The detector-backed path: HandSegNet + detection + lift + MVNet per frame; its own centre and failures.
+        "detector_mvnet_inference_ms": mean_or_none(det_times_ms),
+        "detector_mvnet_inference_ms_median": mean_or_none(det_times_ms, median=True),
+        "detector_mvnet_localisation_failures": det_failures if det_config is not None else None,
+        "detector_mvnet_hand_center_error_mm": mean_or_none(det_center_errors_mm),
+        "detector_mvnet_hand_center_error_mm_median": mean_or_none(det_center_errors_mm, median=True),
+        # The lift alone (no MVNet), over the keypoints it lifted: what MVNet's 3D stage starts from.
+        "detector_lift_keypoint_mm": finite_stat(lift_errors, np.mean),
+        "detector_lift_keypoint_mm_median": finite_stat(lift_errors, np.median),
+        "detector_lift_fraction": round(float(np.mean([np.isfinite(e).mean() for e in lift_errors])), 4)
+        if lift_errors else None,
+        "detector_lift_keypoint_mm_gt_masks": finite_stat(lift_errors_gt_masks, np.mean),
+        "detector_lift_keypoint_mm_median_gt_masks": finite_stat(lift_errors_gt_masks, np.median),
+        "detection_train_s": round(detection_s, 1) if det_config is not None else None,
     })
+    record["side_by_side"] = {
+        metric: {"paper": record[paper_key], "detector": record[det_key]}
+        for metric, paper_key, det_key in (
+            ("keypoint_mm", "mvnet_keypoint_mm", "detector_mvnet_keypoint_mm"),
+            ("keypoint_mm_median", "mvnet_keypoint_mm_median", "detector_mvnet_keypoint_mm_median"),
+            ("auc", "mvnet_auc", "detector_mvnet_auc"),
+            ("keypoint_mm_gt_center", "mvnet_keypoint_mm_gt_center", "detector_mvnet_keypoint_mm_gt_center"),
+            ("auc_gt_center", "mvnet_auc_gt_center", "detector_mvnet_auc_gt_center"),
+            ("inference_ms", "inference_ms", "detector_mvnet_inference_ms"),
+            ("ause", "ause_scorevolume", "ause_detector"),
+            ("ause_relative", "ause_relative_scorevolume", "ause_relative_detector"),
+            ("localisation_failures", "localisation_failures", "detector_mvnet_localisation_failures"),
+            ("hand_center_error_mm", "hand_center_error_mm", "detector_mvnet_hand_center_error_mm"),
+            ("train_steps", "train_steps_mvnet", "train_steps_detector_mvnet"),
+        )}
     bench_settings = {
         "quick": quick, "config": config_name, "seed": seed, "sequences": size.sequences,
         "frames_per_sequence": size.frames, "width_px": size.width_px,
         "handseg_budget_s": size.handseg_budget_s, "mvnet_budget_s": size.mvnet_budget_s,
         "device": "cuda" if torch.cuda.is_available() else "cpu", "torch_threads": threads,
         "load_average_at_end": [round(x, 2) for x in os.getloadavg()], "load_average_at_start": load_start,
-        "capture": str(capture.root),
+        "capture": str(capture.root), "mvnet": mvnet,
+        "detector_config": det_config.name if det_config is not None else None,
     }
     if emit_json:
         return emit("nets", record, bench_settings, started)

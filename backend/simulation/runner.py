@@ -53,6 +53,12 @@ class ServerOptions:
     request_timeout_s: float = 300.0
 
 
+def stack_overrides(config: BootstrapConfig, server: ServerOptions) -> dict[str, Any]:
+    """The started stack's settings: the detector off means the paper's procedure throughout, no detector in
+    round 0 nor under MVNet (`mvnet_detector`), unless the caller's settings say otherwise."""
+    return {"mvnet_detector": config.detector, **server.settings}
+
+
 def _stack_settings(data_dir: Path, overrides: dict[str, Any]):
     unknown = set(overrides) - set(Settings.model_fields)
     if unknown:
@@ -97,7 +103,7 @@ def run_simulation(capture_dir: Path, work_dir: Path, config: BootstrapConfig, *
     stack = None
     try:
         if server.url is None:
-            settings = _stack_settings(work_dir / "server", server.settings)
+            settings = _stack_settings(work_dir / "server", stack_overrides(config, server))
             password = secrets.token_urlsafe(16)
             _prepare_database(settings, password)
             _share_hand_model_cache(settings.data_dir)

@@ -13,6 +13,7 @@ from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Literal
 
 LossKind = Literal["scorevolume", "softargmax"]
+HeatmapSource = Literal["learned", "detector"]
 
 
 @dataclass(frozen=True)
@@ -88,6 +89,8 @@ class MVNetConfig:
     warmup_2d_fraction: float = 0.0
     grid_rotation: bool = False
     heatmap_residual: bool = False
+    heatmap_source: HeatmapSource = "learned"
+    detector_sigma_px: float = 1.0
 
     def __post_init__(self) -> None:
         if self.loss not in ("scorevolume", "softargmax"):
@@ -99,8 +102,17 @@ class MVNetConfig:
             raise ValueError(f"crop_px={self.crop_px} must be divisible by the backbone stride {stride}")
         if self.grid_size % 2 ** (len(self.unet_widths) - 1):
             raise ValueError(f"grid_size={self.grid_size} must be divisible by 2^(levels-1) of the U-Net")
-        if (self.heatmap_residual or self.warmup_2d_fraction > 0) and self.aux_2d_weight <= 0:
-            raise ValueError("heatmap_residual and warmup_2d_fraction need the 2D keypoint head (aux_2d_weight > 0)")
+        if self.heatmap_source not in ("learned", "detector"):
+            raise ValueError(f"heatmap_source must be 'learned' or 'detector', got {self.heatmap_source!r}")
+        if self.heatmap_source == "detector" and not self.heatmap_residual:
+            raise ValueError("heatmap_source='detector' needs heatmap_residual=True (the detector's maps enter "
+                             "through the unprojection and the heat-map residual)")
+        if self.heatmap_source == "detector" and not self.detector_sigma_px > 0:
+            raise ValueError(f"detector_sigma_px must be positive, got {self.detector_sigma_px}")
+        learned_maps = self.heatmap_residual and self.heatmap_source == "learned"
+        if (learned_maps or self.warmup_2d_fraction > 0) and self.aux_2d_weight <= 0:
+            raise ValueError("heatmap_residual (learned maps) and warmup_2d_fraction need the 2D keypoint head "
+                             "(aux_2d_weight > 0)")
         if not (self.grid_side_m > 0 and self.crop_radius_m > 0 and self.sigma_voxels > 0):
             raise ValueError("grid_side_m, crop_radius_m and sigma_voxels must be positive")
 
@@ -199,6 +211,9 @@ def config_digest(config: MVNetConfig | HandSegNetConfig) -> str:
         arch["head_2d"] = True
     if data.get("heatmap_residual"):
         arch["heatmap_residual"] = True
+    if data.get("heatmap_source", "learned") != "learned":  # absent from paper-only digests: those stay as they were
+        arch["heatmap_source"] = data["heatmap_source"]
+        arch["detector_sigma_px"] = data["detector_sigma_px"]
     return hashlib.sha1(json.dumps(arch, sort_keys=True).encode()).hexdigest()[:12]
 
 
@@ -210,6 +225,19 @@ CONFIGS: dict[str, NetsConfig] = {
                           aux_2d_weight=1.0, heatmap_residual=True, warmup_2d_fraction=0.5, lr=3e-3,
                           center_jitter_m=0.02, cut_paste_prob=0.9, recolor=1.0, crop_rotation_deg=30.0,
                           crop_scale=0.1, train_views=6),
+        handsegnet=HandSegNetConfig(widths=(16, 32, 64), stem_stride=2, norm="batch", bf16=True, crop_px=104,
+                                    crop_radius_m=0.14, batch_size=8, lr=2e-3, fine_prob=0.6, center_jitter=0.25,
+                                    cut_paste_prob=0.9, recolor=1.0),
+    ),
+    # cpu-small with the detector's keypoint maps in place of the learned 2D head (no 2D-only warm-up: the maps
+    # are there from the first step, so the whole budget goes to the 3D network).
+    "cpu-small-detector": NetsConfig(
+        name="cpu-small-detector",
+        mvnet=MVNetConfig(crop_px=64, crop_radius_m=0.14, backbone_widths=(32, 64, 128), stem_stride=2,
+                          decoder_levels=1, norm="batch", bf16=True, feature_channels=32, unet_widths=(16, 32, 48),
+                          aux_2d_weight=1.0, heatmap_residual=True, warmup_2d_fraction=0.0, lr=3e-3,
+                          center_jitter_m=0.02, cut_paste_prob=0.9, recolor=1.0, crop_rotation_deg=30.0,
+                          crop_scale=0.1, train_views=6, heatmap_source="detector", detector_sigma_px=1.0),
         handsegnet=HandSegNetConfig(widths=(16, 32, 64), stem_stride=2, norm="batch", bf16=True, crop_px=104,
                                     crop_radius_m=0.14, batch_size=8, lr=2e-3, fine_prob=0.6, center_jitter=0.25,
                                     cut_paste_prob=0.9, recolor=1.0),
@@ -231,8 +259,25 @@ CONFIGS: dict[str, NetsConfig] = {
 }
 
 
+# The paper-only configuration each detector-backed one falls back to when the detector is not installed.
+PAPER_ONLY: dict[str, str] = {"cpu-small-detector": "cpu-small"}
+
+
+def paper_only(config: NetsConfig) -> NetsConfig:
+    """The paper-only counterpart of `config` (itself when it does not use the detector): the named one of
+    PAPER_ONLY, else the same sizes with the learned 2D head's maps."""
+    if config.mvnet.heatmap_source == "learned":
+        return config
+    if config.name in PAPER_ONLY:
+        return CONFIGS[PAPER_ONLY[config.name]]
+    mv = config.mvnet
+    return replace(config, name=f"{config.name}-paper-only",
+                   mvnet=replace(mv, heatmap_source="learned", aux_2d_weight=mv.aux_2d_weight or 1.0))
+
+
 def get_config(name: str, **mvnet_overrides: Any) -> NetsConfig:
-    """The named configuration ("cpu-small", "paper", "tiny"), optionally with MVNet fields replaced."""
+    """The named configuration ("cpu-small", "cpu-small-detector", "paper", "tiny"), optionally with MVNet
+    fields replaced."""
     if name not in CONFIGS:
         raise ValueError(f"unknown network configuration {name!r}; choose from {sorted(CONFIGS)}")
     config = CONFIGS[name]

@@ -27,6 +27,8 @@ from workers.capture.schema import Capture, FrameRef
 from workers.geometry.camera import Camera
 from workers.geometry.projection import project_points
 from workers.nets.configs import HandSegNetConfig, MVNetConfig
+from workers.nets.detections import DetectionCache, FrameDetections, detect_frames, stack_detections
+from workers.nets.keypoint_maps import image_to_crop_px
 from workers.nets.localisation import LocalisationError, localise_hand
 
 log = logging.getLogger(__name__)
@@ -291,6 +293,9 @@ class MVNetDataset:
         cameras: the rig (C cameras).
         sample_ids: M ids ("<sequence>/<frame>").
         crop_px, crop_radius_m: how the crops were made.
+        detector_px: (M, C, K, 2) float32 the detector's keypoints in pixels of the full images (NaN where a
+            view found none), or None for a paper-only configuration.
+        detector_scores: (M, C, K) float32 their map weights (detections.FrameDetections.scores), or None.
     """
 
     crops: np.ndarray
@@ -304,6 +309,8 @@ class MVNetDataset:
     sample_ids: tuple[str, ...]
     crop_px: int
     crop_radius_m: float
+    detector_px: np.ndarray | None = None
+    detector_scores: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.sample_ids)
@@ -312,7 +319,9 @@ class MVNetDataset:
         idx = np.asarray(indices, dtype=int)
         return MVNetDataset(self.crops[idx], self.alphas[idx], self.has_alpha[idx], self.K_crop[idx],
                             self.view_valid[idx], self.centers_world[idx], self.keypoints_3d[idx], self.cameras,
-                            tuple(self.sample_ids[i] for i in idx), self.crop_px, self.crop_radius_m)
+                            tuple(self.sample_ids[i] for i in idx), self.crop_px, self.crop_radius_m,
+                            None if self.detector_px is None else self.detector_px[idx],
+                            None if self.detector_scores is None else self.detector_scores[idx])
 
 
 def hand_center_from_labels(masks: Sequence[np.ndarray] | None, keypoints_3d: np.ndarray,
@@ -330,6 +339,8 @@ def hand_center_from_labels(masks: Sequence[np.ndarray] | None, keypoints_3d: np
 def build_mvnet_dataset(capture: Capture, frames: Sequence[FrameRef], config: MVNetConfig, *,
                         keypoints_3d: np.ndarray | None = None,
                         hand_masks: Sequence[Mapping[str, np.ndarray] | None] | None = None,
+                        detections: Sequence[FrameDetections] | None = None,
+                        detection_cache: DetectionCache | None = None,
                         progress: Callable[[int], None] | None = None) -> MVNetDataset:
     """Crops and labels of `frames`.
 
@@ -341,16 +352,28 @@ def build_mvnet_dataset(capture: Capture, frames: Sequence[FrameRef], config: MV
         hand_masks: per frame, camera name -> (H, W) bool hand mask (e.g. the accepted fits' model masks), or
             None; the crops are centred on their triangulated blob centroids, as prediction crops are on
             HandSegNet's masks. Default: the ground-truth hand masks where the frames have some.
+        detections: for a detector-backed configuration (heatmap_source="detector"), the frames' detections;
+            default: detected here (detections.detect_frames with the chroma-key masks, through
+            `detection_cache` when given: a frame is detected once, not per training step or round).
         progress: called with 1 per frame done.
     Returns:
         MVNetDataset (crop centres from the hand masks; the mean keypoint where a frame has none or they
-        cannot be triangulated).
+        cannot be triangulated; detector-backed: the detector's lifted keypoints' robust centroid where it
+        lifted enough of them, as at prediction time).
+    Raises:
+        DetectorUnavailableError: detector-backed, no detections given and the model files are missing.
     """
     if hand_masks is not None and len(hand_masks) != len(frames):
         raise ValueError(f"hand_masks has {len(hand_masks)} entries for {len(frames)} frames")
     if keypoints_3d is not None and len(keypoints_3d) != len(frames):
         raise ValueError(f"keypoints_3d has {len(keypoints_3d)} entries for {len(frames)} frames")
+    if detections is not None and len(detections) != len(frames):
+        raise ValueError(f"detections has {len(detections)} entries for {len(frames)} frames")
     cameras = capture.cameras
+    if config.heatmap_source == "detector" and detections is None:
+        detections = detect_frames(frames, cameras, handedness=capture.hand_model.side, cache=detection_cache)
+    if detections is not None and any(d.keypoints_px.shape[0] != len(cameras) for d in detections):
+        raise ValueError(f"detections must have one entry per camera ({len(cameras)})")
     M, C, S = len(frames), len(cameras), config.crop_px
     crops = np.zeros((M, C, S, S, 3), np.uint8)
     alphas = np.zeros((M, C, S, S), np.uint8)
@@ -376,7 +399,9 @@ def build_mvnet_dataset(capture: Capture, frames: Sequence[FrameRef], config: MV
             masks_m = [np.asarray(given[c.name], bool) for c in cameras] if given is not None else None
         else:
             masks_m = [gt.hand_masks[c.name] for c in cameras] if gt is not None and gt.hand_masks else None
-        centers[m] = hand_center_from_labels(masks_m, labels[m], cameras)
+        detected_center = detections[m].center_world() if detections is not None else None
+        centers[m] = detected_center if detected_center is not None else \
+            hand_center_from_labels(masks_m, labels[m], cameras)
         chroma = load_frame_masks(frame)
         masks = [chroma.get(c.name) for c in cameras] if chroma else None
         has_alpha[m] = bool(chroma)
@@ -386,8 +411,12 @@ def build_mvnet_dataset(capture: Capture, frames: Sequence[FrameRef], config: MV
             alphas[m] = mask_crops
         if progress:
             progress(1)
+    det_px, det_scores = None, None
+    if detections is not None:
+        det_px, det_scores = stack_detections(detections) if M else \
+            (np.zeros((0, C, 21, 2), np.float32), np.zeros((0, C, 21), np.float32))
     return MVNetDataset(crops, alphas, has_alpha, K_crop, valid, centers, labels, tuple(cameras),
-                        tuple(frame_id(f) for f in frames), S, config.crop_radius_m)
+                        tuple(frame_id(f) for f in frames), S, config.crop_radius_m, det_px, det_scores)
 
 
 def random_rotation(rng: np.random.Generator) -> np.ndarray:
@@ -421,7 +450,8 @@ def augment_mvnet_batch(dataset: MVNetDataset, indices: np.ndarray, config: MVNe
     Returns:
         crops (B, C', S, S, 3) uint8, K_crop (B, C', 3, 3), view_valid (B, C'), view_index (B, C') int (which
         camera each view is), centers_world (B, 3), grid_rotation (B, 3, 3) (voxel axes in the world),
-        keypoints_3d (B, K, 3).
+        keypoints_3d (B, K, 3); with the dataset's detections also detector_px (B, C', K, 2) float32 in the
+        (augmented) crops' pixels and detector_scores (B, C', K).
     """
     indices = np.asarray(indices)
     B, C = len(indices), dataset.crops.shape[1]
@@ -450,10 +480,16 @@ def augment_mvnet_batch(dataset: MVNetDataset, indices: np.ndarray, config: MVNe
             if config.grid_rotation:
                 rotation[b] = random_rotation(rng)
         centers += rng.normal(0, config.center_jitter_m, centers.shape) if config.center_jitter_m > 0 else 0
-    return {"crops": crops, "K_crop": K_crop.astype(np.float32),
-            "view_valid": dataset.view_valid[indices[:, None], view_index], "view_index": view_index,
-            "centers_world": centers.astype(np.float32), "grid_rotation": rotation.astype(np.float32),
-            "keypoints_3d": dataset.keypoints_3d[indices]}
+    batch = {"crops": crops, "K_crop": K_crop.astype(np.float32),
+             "view_valid": dataset.view_valid[indices[:, None], view_index], "view_index": view_index,
+             "centers_world": centers.astype(np.float32), "grid_rotation": rotation.astype(np.float32),
+             "keypoints_3d": dataset.keypoints_3d[indices]}
+    if dataset.detector_px is not None and dataset.detector_scores is not None:
+        K_cams = np.stack([np.asarray(c.K, np.float64) for c in dataset.cameras])[view_index]  # (B, C', 3, 3)
+        batch["detector_px"] = image_to_crop_px(dataset.detector_px[indices[:, None], view_index], K_crop,
+                                                K_cams).astype(np.float32)
+        batch["detector_scores"] = dataset.detector_scores[indices[:, None], view_index]
+    return batch
 
 
 # --- HandSegNet dataset ------------------------------------------------------------------------------------

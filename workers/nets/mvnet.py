@@ -15,6 +15,7 @@ from torch import nn
 from workers.handmodel.keypoints import NUM_KEYPOINTS
 from workers.nets.blocks import conv_block, max_pool_2x2, unet_pass
 from workers.nets.configs import MVNetConfig
+from workers.nets.keypoint_maps import render_keypoint_maps
 from workers.nets.losses import peak_normalised
 from workers.nets.unproject import unproject_features
 
@@ -116,7 +117,14 @@ class MVNet(nn.Module):
                                         config.decoder_levels, config.stem_stride, config.norm)
         # Optional 2D keypoint heads on the shared features (deep supervision, see losses.heatmap_2d_loss).
         self.head_2d = nn.Conv2d(config.feature_channels, num_keypoints, 1) if config.aux_2d_weight > 0 else None
-        self.unet = UNet3d(config.feature_channels, config.unet_widths, num_keypoints, config.norm)
+        # Detector-backed: the U-Net sees the unprojected detector maps beside the image features.
+        unet_in = config.feature_channels + (num_keypoints if config.heatmap_source == "detector" else 0)
+        self.unet = UNet3d(unet_in, config.unet_widths, num_keypoints, config.norm)
+        if config.heatmap_source == "detector":
+            # The untrained network's score volumes are the detector's unprojected maps (a triangulation); the
+            # U-Net's correction starts at zero and is learned from the labels.
+            nn.init.zeros_(self.unet.head.weight)
+            nn.init.zeros_(self.unet.head.bias)
         self.register_buffer("rgb_mean", torch.tensor(RGB_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("rgb_std", torch.tensor(RGB_STD).view(1, 3, 1, 1), persistent=False)
 
@@ -142,9 +150,16 @@ class MVNet(nn.Module):
         maps = self.head_2d(features.flatten(0, 1))
         return maps.reshape(B, C, *maps.shape[1:])
 
+    def detector_maps(self, detector_px: torch.Tensor, detector_scores: torch.Tensor, map_size: int) -> torch.Tensor:
+        """The detector's keypoints (B, C, K, 2) crop pixels with scores (B, C, K) -> maps (B, C, K, h, h) in the
+        layout of `heatmaps_2d` (keypoint_maps.render_keypoint_maps)."""
+        return render_keypoint_maps(detector_px, detector_scores, self.config.crop_px, map_size,
+                                    self.config.detector_sigma_px)
+
     def forward(self, crops: torch.Tensor, K_crop: torch.Tensor, dist: torch.Tensor, R: torch.Tensor,
                 t: torch.Tensor, center_world: torch.Tensor, view_valid: torch.Tensor | None = None,
-                return_features: bool = False, grid_rotation: torch.Tensor | None = None
+                return_features: bool = False, grid_rotation: torch.Tensor | None = None,
+                detector_px: torch.Tensor | None = None, detector_scores: torch.Tensor | None = None
                 ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
         """Score volumes of one batch of frames.
 
@@ -157,13 +172,21 @@ class MVNet(nn.Module):
             view_valid: (B, C) bool, views to use (default all).
             return_features: also return the 2D features (B, C, F, h, h) (for the auxiliary 2D loss).
             grid_rotation: (B, 3, 3) orientation of the grid (training augmentation); default world axes.
+            detector_px: (B, C, K, 2) the detector's keypoints in crop pixels (NaN where none) and
+            detector_scores: (B, C, K) their scores (0 where none); required by heatmap_source="detector".
         Returns:
             (B, K, N, N, N) score volumes, index (i, j, l) along the grid axes (world x, y, z) [, features].
         """
         cfg = self.config
         features = self.encode_views(crops)
-        if cfg.heatmap_residual:
+        if cfg.heatmap_source == "detector":
+            if detector_px is None or detector_scores is None:
+                raise ValueError("this MVNet is detector-backed (heatmap_source='detector'): pass detector_px and "
+                                 "detector_scores (the detector's keypoints in crop pixels and their scores)")
+            maps = self.detector_maps(detector_px, detector_scores, features.shape[-1])
+        elif cfg.heatmap_residual:
             maps = peak_normalised(self.heatmaps_2d(features))
+        if cfg.heatmap_residual:
             volume, count = unproject_features(torch.cat([features, maps], dim=2), K_crop, dist, R, t, center_world,
                                                cfg.grid_size, cfg.grid_side_m, cfg.crop_px, view_valid,
                                                grid_rotation, return_count=True)
@@ -172,7 +195,8 @@ class MVNet(nn.Module):
                 torch.full((crops.shape[0],), float(crops.shape[1]), device=volume.device)
             # Voxels seen by few views would otherwise carry one view's full heat along its ray.
             seen = (count / views[:, None, None, None])[:, None]
-            scores = self.unet(volume[:, :F], cfg.bf16) + volume[:, F:] * seen
+            unet_in = volume if cfg.heatmap_source == "detector" else volume[:, :F]
+            scores = self.unet(unet_in, cfg.bf16) + volume[:, F:] * seen
         else:
             volume = unproject_features(features, K_crop, dist, R, t, center_world, cfg.grid_size, cfg.grid_side_m,
                                         cfg.crop_px, view_valid, grid_rotation)

@@ -7,6 +7,7 @@ soft-argmax network the maximum of its softmax volume ("latent heat map", supple
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -20,7 +21,9 @@ from workers.capture.schema import FrameRef
 from workers.geometry.camera import Camera
 from workers.geometry.projection import stack_cameras
 from workers.nets.data import crop_views
+from workers.nets.detections import DetectionCache, FrameDetections, detect_frames, stack_detections
 from workers.nets.handsegnet import HandSegNet
+from workers.nets.keypoint_maps import image_to_crop_px
 from workers.nets.localisation import HandLocation, LocalisationError, localise_hand
 from workers.nets.losses import grid_to_world, refined_argmax, soft_argmax
 from workers.nets.mvnet import MVNet
@@ -79,13 +82,18 @@ def readout(model: MVNet, scores: torch.Tensor) -> tuple[torch.Tensor, torch.Ten
 @torch.no_grad()
 def predict_from_crops(model: MVNet, crops: np.ndarray, K_crop: np.ndarray, centers_world: np.ndarray,
                        cameras: Sequence[Camera], view_valid: np.ndarray | None = None,
-                       batch_frames: int = 4) -> KeypointPrediction:
+                       batch_frames: int = 4, detector_px: np.ndarray | None = None,
+                       detector_scores: np.ndarray | None = None) -> KeypointPrediction:
     """MVNet on prepared crops.
 
     Args:
         crops: (N, C, S, S, 3) uint8; K_crop: (N, C, 3, 3); centers_world: (N, 3) metres;
         view_valid: (N, C) bool (default all); cameras: the C cameras.
+        detector_px: (N, C, K, 2) the detector's keypoints in crop pixels, detector_scores: (N, C, K) their
+            weights (keypoint_maps.image_to_crop_px; a detector-backed MVNet needs them).
     """
+    if model.config.heatmap_source == "detector" and (detector_px is None or detector_scores is None):
+        raise ValueError("a detector-backed MVNet needs the detector's keypoints (detector_px, detector_scores)")
     model.eval()
     device = _model_device(model)
     cams = stack_cameras(list(cameras), device=device)
@@ -97,9 +105,12 @@ def predict_from_crops(model: MVNet, crops: np.ndarray, K_crop: np.ndarray, cent
     for s in range(0, N, batch_frames):
         sl = slice(s, s + batch_frames)
         centers = torch.as_tensor(centers_world[sl], dtype=torch.float32, device=device)
+        detector = {} if model.config.heatmap_source != "detector" else {
+            "detector_px": torch.as_tensor(detector_px[sl], dtype=torch.float32, device=device),
+            "detector_scores": torch.as_tensor(detector_scores[sl], dtype=torch.float32, device=device)}
         scores = model(torch.as_tensor(crops[sl], device=device),
                        torch.as_tensor(K_crop[sl], dtype=torch.float32, device=device), cams["dist"], cams["R"],
-                       cams["t"], centers, torch.as_tensor(valid[sl], device=device))
+                       cams["t"], centers, torch.as_tensor(valid[sl], device=device), **detector)
         grid, conf = readout(model, scores)
         keypoints[sl] = grid_to_world(grid, centers, cfg.grid_size, cfg.grid_side_m).cpu().numpy()
         confidence[sl] = conf.cpu().numpy()
@@ -107,17 +118,23 @@ def predict_from_crops(model: MVNet, crops: np.ndarray, K_crop: np.ndarray, cent
 
 
 def predict_keypoints(model: MVNet, frames_views: Sequence[Views], cameras: Sequence[Camera],
-                      centers_world: np.ndarray, batch_frames: int = 4) -> KeypointPrediction:
+                      centers_world: np.ndarray, batch_frames: int = 4,
+                      detections: Sequence[FrameDetections] | None = None) -> KeypointPrediction:
     """3D keypoints and confidence of N frames.
 
     Args:
         model: a trained MVNet (checkpoints.load_model).
         frames_views: N frames, each C images (H_c, W_c, 3) uint8 RGB in camera order or by camera name.
         cameras: the rig's C cameras (image sizes are checked against them).
-        centers_world: (N, 3) hand centres (localise_hand), metres, world frame.
+        centers_world: (N, 3) hand centres (localise_hand, or FrameDetections.center_world), metres, world frame.
+        detections: N frames' detections (detections.detect_frames); a detector-backed MVNet needs them.
     Returns:
         KeypointPrediction.
     """
+    if detections is not None and len(detections) != len(frames_views):
+        raise ValueError(f"got {len(detections)} detections for {len(frames_views)} frames")
+    if model.config.heatmap_source == "detector" and detections is None:
+        raise ValueError("a detector-backed MVNet needs the frames' detections (detections.detect_frames)")
     centers_world = np.asarray(centers_world, float)
     if centers_world.shape != (len(frames_views), 3):
         raise ValueError(f"centers_world must be ({len(frames_views)}, 3), got {centers_world.shape}")
@@ -127,7 +144,11 @@ def predict_keypoints(model: MVNet, frames_views: Sequence[Views], cameras: Sequ
     crops = np.stack([p[0] for p in prepared])
     K_crop = np.stack([p[1] for p in prepared])
     valid = np.stack([p[2] for p in prepared])
-    return predict_from_crops(model, crops, K_crop, centers_world, cameras, valid, batch_frames)
+    det_px = det_scores = None
+    if model.config.heatmap_source == "detector" and detections is not None:
+        px, det_scores = stack_detections(detections)
+        det_px = image_to_crop_px(px, K_crop, np.stack([np.asarray(c.K, np.float64) for c in cameras]))
+    return predict_from_crops(model, crops, K_crop, centers_world, cameras, valid, batch_frames, det_px, det_scores)
 
 
 @torch.no_grad()
@@ -284,14 +305,23 @@ class FramePrediction:
 
 
 def predict_frames(mvnet: MVNet, frames: Sequence[FrameRef], cameras: Sequence[Camera],
-                   handsegnet: HandSegNet | None = None, batch_frames: int = 4) -> FramePrediction:
+                   handsegnet: HandSegNet | None = None, batch_frames: int = 4, *, handedness: str = "right",
+                   detection_cache: DetectionCache | None = None) -> FramePrediction:
     """The worker's path: images -> masks (HandSegNet, else the chroma-key masks) -> hand centre -> MVNet.
 
     HandSegNet's masks of a green-screen frame are limited to its chroma-key foreground (the hand is part
     of it; nothing outside can be hand). Frames whose hand cannot be localised get NaN keypoints and zero
-    confidence.
+    confidence. A detector-backed MVNet (heatmap_source="detector") also gets the detector's keypoints,
+    found inside the chroma-key masks where the frame has some (through `detection_cache`), else inside
+    HandSegNet's, and its grid centre is their lifted keypoints' robust centroid where enough were lifted
+    (else the masks' location).
+
+    Raises:
+        DetectorUnavailableError: a detector-backed MVNet and the model files are missing (choose the
+            configuration with detections.detector_backed first).
     """
-    views_all, masks_all, locations = [], [], []
+    use_detector = mvnet.config.heatmap_source == "detector"
+    views_all, masks_all, locations, detections = [], [], [], []
     for frame in frames:
         views = ordered_views(load_frame_images(frame, cameras), cameras)
         location: HandLocation | None
@@ -311,6 +341,20 @@ def predict_frames(mvnet: MVNet, frames: Sequence[FrameRef], cameras: Sequence[C
                 location = localise_hand(masks, cameras)
             except LocalisationError:
                 location = None
+        if use_detector:
+            if handsegnet is not None and not frame.mask_paths:
+                binary = [p > handsegnet.config.threshold for p in masks]
+                found = detect_frames([frame], cameras, handedness=handedness, images=lambda _f, v=views: v,
+                                      masks=lambda _f, b=binary: b)[0]
+            else:  # a chroma key locates the hand for the detector better than HandSegNet (and is cacheable)
+                found = detect_frames([frame], cameras, handedness=handedness, images=lambda _f, v=views: v,
+                                      cache=detection_cache)[0]
+            detections.append(found)
+            center = found.center_world()
+            if center is not None:  # the detector's centre; the masks' boxes stay where there are some
+                location = dataclasses.replace(location, center_world=center) if location is not None else \
+                    HandLocation(center, np.full((len(cameras), 4), np.nan), (found.scores > 0).any(axis=1),
+                                 float("nan"))
         if location is None:
             log.warning("frame %s/%d: the hand could not be localised", frame.sequence_id, frame.index)
         views_all.append(views)
@@ -323,7 +367,8 @@ def predict_frames(mvnet: MVNet, frames: Sequence[FrameRef], cameras: Sequence[C
     centers = np.full((N, 3), np.nan)
     if ok:
         centers_ok = np.stack([locations[i].center_world for i in ok])  # type: ignore[union-attr]
-        pred = predict_keypoints(mvnet, [views_all[i] for i in ok], cameras, centers_ok, batch_frames)
+        pred = predict_keypoints(mvnet, [views_all[i] for i in ok], cameras, centers_ok, batch_frames,
+                                 [detections[i] for i in ok] if use_detector else None)
         keypoints[ok], confidence[ok], centers[ok] = pred.keypoints_3d, pred.confidence, centers_ok
     return FramePrediction(KeypointPrediction(keypoints, confidence, confidence.mean(axis=1), centers),
                            masks_all, locations)

@@ -191,11 +191,18 @@ def mvnet_loss(model: MVNet, batch: dict[str, np.ndarray], cams: dict[str, torch
     keypoints = torch.as_tensor(batch["keypoints_3d"], device=device)
     weights = torch.isfinite(keypoints).all(-1).float()
     keypoints = torch.nan_to_num(keypoints)
+    detector = {}
+    if cfg.heatmap_source == "detector":
+        if "detector_px" not in batch:
+            raise ValueError("a detector-backed MVNet trains on a dataset with detections (build_mvnet_dataset "
+                             "with heatmap_source='detector')")
+        detector = {"detector_px": torch.as_tensor(batch["detector_px"], device=device),
+                    "detector_scores": torch.as_tensor(batch["detector_scores"], device=device)}
     if only_2d:
         features, loss = model.encode_views(crops), torch.zeros((), device=device)
     else:
         scores, features = model(crops, K_crop, dist, R, t, centers, view_valid, return_features=True,
-                                 grid_rotation=rotation)
+                                 grid_rotation=rotation, **detector)
         grid = world_to_grid(keypoints, centers, cfg.grid_size, cfg.grid_side_m, rotation)
         if cfg.loss == "softargmax":
             loss = softargmax_loss(scores, grid, weights)
@@ -243,6 +250,9 @@ def train_mvnet(dataset: MVNetDataset, config: NetsConfig | MVNetConfig, budget_
                          f"configuration ({cfg.crop_px} px, {cfg.crop_radius_m} m)")
     if len(dataset) == 0:
         raise ValueError("empty training set")
+    if cfg.heatmap_source == "detector" and dataset.detector_px is None:
+        raise ValueError("the configuration is detector-backed (heatmap_source='detector') but the dataset has no "
+                         "detections; build it with that configuration (build_mvnet_dataset)")
     device = torch.device(device) if device is not None else default_device()
     torch.manual_seed(seed)
     model = MVNet(cfg)

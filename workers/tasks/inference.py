@@ -24,7 +24,7 @@ from workers.tasks import round_progress
 from workers.tasks.context import WorkerContext
 from workers.tasks.inputs import InputError, load_frames, rig_of
 from workers.tasks.progress import JobCancelledError, ProgressReporter
-from workers.tasks.training import checkpoint_of
+from workers.tasks.training import ROUND_HANDEDNESS, checkpoint_of, detection_cache
 
 log = logging.getLogger(__name__)
 
@@ -71,7 +71,7 @@ def run_prediction_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
         for start in range(0, len(todo), chunk):
             reporter(start / max(1, len(todo)), f"predicting {start}/{len(todo)} samples")
             part = todo[start:start + chunk]
-            out = _predict(mvnet, handsegnet, part, cameras)
+            out = _predict(ctx, mvnet, handsegnet, part, cameras)
             for i, frame in enumerate(part):
                 _record(ctx, job_id, round_id, frame, out, i, payload, summary,
                         mask_source="handsegnet" if handsegnet is not None else "chroma_key")
@@ -80,7 +80,7 @@ def run_prediction_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
             lost = [f for i, f in enumerate(part) if handsegnet is not None and f.frame.mask_paths
                     and not np.isfinite(out.keypoints.keypoints_3d[i]).all()]
             if lost:
-                fallback = _predict(mvnet, None, lost, cameras)
+                fallback = _predict(ctx, mvnet, None, lost, cameras)
                 summary["not_localised"] -= len(lost)
                 for i, frame in enumerate(lost):
                     _record(ctx, job_id, round_id, frame, fallback, i, payload, summary, mask_source="chroma_key")
@@ -102,10 +102,18 @@ def run_prediction_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
         return {"job_id": job_id, "failed": message, "fit_job_ids": _fit_jobs_of(ctx, job_id)}
 
 
-def _predict(mvnet: Any, handsegnet: Any, frames: list[Any], cameras: list[Any]) -> Any:
-    from workers.nets.predict import predict_frames  # deferred: as in load_net
+def _predict(ctx: WorkerContext, mvnet: Any, handsegnet: Any, frames: list[Any], cameras: list[Any]) -> Any:
+    """predict_frames; a detector-backed MVNet (its checkpoint says so) also gets the detector's keypoints."""
+    # deferred: as in load_net (torch, and the detector's runtime, only where a job predicts)
+    from workers.detector import DetectorUnavailableError
+    from workers.nets.predict import predict_frames
 
-    return predict_frames(mvnet, [f.frame for f in frames], cameras, handsegnet)
+    try:
+        return predict_frames(mvnet, [f.frame for f in frames], cameras, handsegnet, handedness=ROUND_HANDEDNESS,
+                              detection_cache=detection_cache(ctx))
+    except DetectorUnavailableError as exc:
+        raise InputError(f"this MVNet is detector-backed, but {exc}; install the detector or train a paper-only "
+                         "one (HANDLOOP_MVNET_DETECTOR=false)") from None
 
 
 def _record(ctx: WorkerContext, job_id: int, round_id: int | None, frame: Any, out: Any, i: int,

@@ -10,6 +10,7 @@ checkpoint's metadata), so the networks accumulate training over the rounds.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 from dataclasses import dataclass
@@ -27,7 +28,8 @@ from backend.models.jobs import Job
 from backend.models.review import Round, RoundMember
 from backend.services import jobs
 from backend.services.errors import DomainError
-from workers.nets.configs import get_config
+from workers.nets.configs import CONFIGS, get_config
+from workers.nets.detections import DetectionCache, chroma_masks, detect_frames, detector_backed
 from workers.tasks.context import WorkerContext
 from workers.tasks.inputs import InputError, Rig, SampleFrame, capture_for, load_frames, read_mask, rig_of
 from workers.tasks.json_values import json_safe
@@ -142,6 +144,25 @@ def _round_of(session: Session, job: Job) -> tuple[Round, Job]:
     return round_, round_job
 
 
+# The hand the rounds' networks and the detector work on (the worker loads the right-hand model).
+ROUND_HANDEDNESS = "right"
+
+
+def round_nets_config(ctx: WorkerContext) -> tuple[Any, str | None]:
+    """The configuration a round trains: `<nets_config>-detector` when settings.mvnet_detector is on, such a
+    configuration exists and the detector is installed; else `nets_config` (paper-only). Returns it and, where
+    the detector was wanted but is missing, the sentence saying why (detections.detector_backed)."""
+    name = ctx.settings.nets_config
+    if ctx.settings.mvnet_detector and f"{name}-detector" in CONFIGS:
+        return detector_backed(get_config(f"{name}-detector"))
+    return get_config(name), None
+
+
+def detection_cache(ctx: WorkerContext) -> Any:
+    """Where the rounds keep per-frame detections (beside the checkpoints): each frame is detected once."""
+    return DetectionCache(ctx.settings.checkpoints_dir.resolve() / "detections")
+
+
 def run_training_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
     """Claim a train job, train its network on the round's D_i, record the version. Never raises for a
     training that cannot run: the job (and its round job) is marked failed with the reason."""
@@ -166,7 +187,7 @@ def run_training_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
             # on HandSegNet's masks), not on the mean keypoint.
             labels_masks = model_masks(ctx, session, tset)
             round_index = round_.index
-        config = get_config(ctx.settings.nets_config)
+        config, detector_note = round_nets_config(ctx)
         folder = ctx.settings.checkpoints_dir.resolve() / f"round-{round_index:03d}"
         budget = ctx.settings.round_handsegnet_budget_s if net == "handsegnet" else ctx.settings.round_mvnet_budget_s
         reporter = ProgressReporter(ctx, [job_id], round_of=int(round_job_id))  # training: elapsed share of its budget
@@ -181,6 +202,10 @@ def run_training_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
                    "train_seconds": result.metadata.get("train_seconds"),
                    "train_loss": result.metadata.get("metrics", {}).get("train_loss"),
                    "init_from": (result.metadata.get("init_from") or {}).get("path")}
+        if net == "mvnet":
+            outcome["heatmap_source"] = config.mvnet.heatmap_source
+            if detector_note:
+                outcome["detector_status"] = detector_note
         with ctx.session_factory.begin() as session:
             round_row = session.get(Round, session.get(Job, job_id).round_id)
             setattr(round_row, f"{net}_version", version)
@@ -228,8 +253,32 @@ def _train(ctx: WorkerContext, net: str, tset: TrainingSet, masks: list[dict[str
     if net == "handsegnet":
         dataset = build_handseg_dataset(capture, frames, hand_masks=masks)
         return train_handsegnet(dataset, config, budget, folder, **common)
-    dataset = build_mvnet_dataset(capture, frames, config.mvnet, keypoints_3d=tset.keypoints_3d, hand_masks=masks)
+    detections = None
+    if config.mvnet.heatmap_source == "detector":
+        reporter(0.0, f"{net}: detecting keypoints in {len(frames)} samples (cached per frame)", force=True)
+        detections = training_detections(ctx, frames, list(tset.rig.cameras), masks)
+    dataset = build_mvnet_dataset(capture, frames, config.mvnet, keypoints_3d=tset.keypoints_3d, hand_masks=masks,
+                                  detections=detections)
     return train_mvnet(dataset, config, budget, folder, **common)
+
+
+def training_detections(ctx: WorkerContext, frames: list[Any], cameras: list[Any],
+                        masks: list[dict[str, np.ndarray]] | None) -> list[Any]:
+    """The detector on each training frame, inside its chroma-key masks where it has some, else inside the labels'
+    model masks; through the rounds' detection cache (keyed by the masks too)."""
+    cache = detection_cache(ctx)
+    out = []
+    for i, frame in enumerate(frames):
+        chroma = chroma_masks(frame, cameras)
+        given = masks[i] if masks is not None else None
+        if chroma is not None or given is None:
+            out += detect_frames([frame], cameras, handedness=ROUND_HANDEDNESS, cache=cache)
+            continue
+        ordered = [np.asarray(given[c.name], bool) if c.name in given else None for c in cameras]
+        digest = hashlib.sha1(b"".join(np.packbits(m).tobytes() for m in ordered if m is not None)).hexdigest()[:12]
+        out += detect_frames([frame], cameras, handedness=ROUND_HANDEDNESS, masks=lambda _f, o=ordered: o,
+                             masks_label=f"labels-{digest}", cache=cache)
+    return out
 
 
 def reuse_checkpoint(ctx: WorkerContext, version: str) -> dict[str, Any]:

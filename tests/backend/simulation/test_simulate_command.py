@@ -111,3 +111,13 @@ def test_bench_sim_refuses_a_width_or_round_count_out_of_range():
                           (["--rounds", "11"], "rounds must be in 1..10, not 11")):
         result = runner.invoke(app, ["bench", "sim", "--quick", "--detector", "off", *args])
         assert result.exit_code == 2 and message in result.output, result.output
+
+
+def test_the_detector_off_run_trains_the_paper_only_mvnet():
+    from backend.simulation.bootstrap import BootstrapConfig
+    from backend.simulation.runner import ServerOptions, stack_overrides
+
+    assert stack_overrides(BootstrapConfig(detector=False), ServerOptions())["mvnet_detector"] is False
+    assert stack_overrides(BootstrapConfig(detector=True), ServerOptions())["mvnet_detector"] is True
+    explicit = ServerOptions(settings={"mvnet_detector": False, "nets_config": "tiny"})
+    assert stack_overrides(BootstrapConfig(detector=True), explicit) == {"mvnet_detector": False, "nets_config": "tiny"}

@@ -1,0 +1,216 @@
+"""The detector-backed MVNet (heatmap_source="detector"): maps rendered where the keypoints are, in the crop frame
+after every crop transform; configuration in the checkpoint; learning from (perfect) detections; the paper-only
+fallback when the model files are missing. The detector itself is not run here (tests/workers/detector does)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from workers.capture.reader import load_ground_truth
+from workers.detector import DetectorUnavailableError
+from workers.geometry.projection import project_points
+from workers.geometry.rig import default_rig
+from workers.nets.checkpoints import CheckpointError, load_model
+from workers.nets.configs import CONFIGS, MVNetConfig, config_digest, get_config, paper_only
+from workers.nets.data import augment_mvnet_batch, build_mvnet_dataset, crop_views
+from workers.nets.detections import FrameDetections, detector_backed
+from workers.nets.keypoint_maps import image_to_crop_px, render_keypoint_maps
+from workers.nets.mvnet import MVNet
+from workers.nets.predict import predict_from_crops, predict_keypoints
+from workers.nets.train import train_mvnet
+from workers.nets.unproject import project_batched
+
+# tiny's sizes, detector-backed, no augmentation that the two test frames cannot afford.
+TINY_DETECTOR = replace(get_config("tiny").mvnet, heatmap_residual=True, heatmap_source="detector",
+                        detector_sigma_px=1.0)
+
+
+def perfect_detections(frames, cameras, score: float = 1.0, shift_m: np.ndarray | None = None
+                       ) -> list[FrameDetections]:
+    """What a perfect detector would report: the ground truth's projections, every keypoint scored `score`;
+    with `shift_m` (3,) a biased one, whose keypoints all sit that far off the truth (metres, world frame)."""
+    out = []
+    for frame in frames:
+        gt = load_ground_truth(frame)
+        points = gt.keypoints_3d + (0 if shift_m is None else shift_m)
+        pixels, _ = project_points(points, list(cameras))
+        out.append(FrameDetections(pixels.astype(np.float32), np.full(pixels.shape[:2], score, np.float32),
+                                   points.copy(), np.ones(21)))
+    return out
+
+
+def test_rendered_maps_peak_at_the_keypoints_pixels():
+    rng = np.random.default_rng(0)
+    S = 24
+    pixels = rng.integers(0, S, (2, 3, 21, 2)).astype(np.float32)  # pixel centres of a map as large as the crop
+    weights = rng.uniform(0.2, 1.0, (2, 3, 21)).astype(np.float32)
+    maps = render_keypoint_maps(torch.as_tensor(pixels), torch.as_tensor(weights), S, S, 1.5)
+    assert maps.shape == (2, 3, 21, S, S)
+    flat = maps.flatten(-2).numpy()
+    np.testing.assert_array_equal(np.stack([flat.argmax(-1) % S, flat.argmax(-1) // S], -1), pixels)
+    np.testing.assert_allclose(flat.max(-1), weights, rtol=1e-6)
+    # No detection (NaN) or a zero score: an empty map, not a peak at the origin.
+    pixels[0, 1, 4] = np.nan
+    weights[1, 2, 7] = 0
+    maps = render_keypoint_maps(torch.as_tensor(pixels), torch.as_tensor(weights), S, S, 1.5)
+    assert float(maps[0, 1, 4].abs().max()) == 0 and float(maps[1, 2, 7].abs().max()) == 0
+    with pytest.raises(ValueError, match="disagree"):
+        render_keypoint_maps(torch.zeros(1, 2, 21, 2), torch.zeros(1, 2, 20), S, S, 1.0)
+
+
+def test_image_keypoints_land_on_the_crops_projection_after_augmentation(tiny_capture, tiny_frames):
+    """Keypoints detected in the full (distorted) image, moved by K_crop K^-1 of an augmented crop, are where the 3D
+    keypoints project with the crop's own intrinsics; the rendered map peaks at that pixel."""
+    config = replace(TINY_DETECTOR, crop_rotation_deg=40.0, crop_scale=0.2, center_jitter_m=0.01)
+    cameras = tiny_capture.cameras
+    dataset = build_mvnet_dataset(tiny_capture, tiny_frames, config,
+                                  detections=perfect_detections(tiny_frames, cameras))
+    batch = augment_mvnet_batch(dataset, np.arange(len(dataset)), config, np.random.default_rng(3))
+    K_crop = torch.as_tensor(batch["K_crop"], dtype=torch.float64)
+    from workers.geometry.projection import stack_cameras
+
+    cams = stack_cameras(list(cameras), dtype=torch.float64)
+    expected, _ = project_batched(torch.as_tensor(batch["keypoints_3d"], dtype=torch.float64), K_crop, cams["dist"],
+                                  cams["R"], cams["t"])
+    np.testing.assert_allclose(batch["detector_px"], expected.numpy(), atol=2e-3)
+    S = config.crop_px
+    maps = render_keypoint_maps(torch.as_tensor(batch["detector_px"]), torch.as_tensor(batch["detector_scores"]),
+                                S, S, 1.0)
+    nearest = np.rint(expected.numpy()).astype(int)
+    inside = ((nearest >= 0) & (nearest < S)).all(-1)
+    assert inside.mean() > 0.5
+    flat = maps.flatten(-2).numpy()
+    peak = np.stack([flat.argmax(-1) % S, flat.argmax(-1) // S], -1)
+    np.testing.assert_array_equal(peak[inside], nearest[inside])
+
+
+def test_image_to_crop_px_is_the_crop_transform():
+    cameras = default_rig(96)
+    center = np.array([0.02, 0.0, -0.01])
+    points = center + np.random.default_rng(1).normal(0, 0.04, (21, 3))
+    _, K_crop, valid, _ = crop_views([np.zeros((c.height, c.width, 3), np.uint8) for c in cameras], cameras, center,
+                                     32, 0.15)
+    assert valid.all()
+    image_px, _ = project_points(points, cameras)  # (C, 21, 2) with distortion
+    got = image_to_crop_px(image_px, K_crop, np.stack([c.K for c in cameras]))
+    for c, cam in enumerate(cameras):
+        A = K_crop[c] @ np.linalg.inv(cam.K)
+        want = (A[:2, :2] @ image_px[c].T).T + A[:2, 2]
+        np.testing.assert_allclose(got[c], want, atol=1e-9)
+
+
+def test_configuration_and_digest():
+    paper_cfg = get_config("cpu-small").mvnet
+    detector_cfg = get_config("cpu-small-detector").mvnet
+    assert paper_cfg.heatmap_source == "learned" and detector_cfg.heatmap_source == "detector"
+    # The new fields leave paper-only digests alone (existing checkpoints still load) ...
+    assert config_digest(paper_cfg) == config_digest(replace(paper_cfg, detector_sigma_px=3.0))
+    # ... and make a detector-backed network another architecture, its map width part of it.
+    assert config_digest(detector_cfg) != config_digest(replace(detector_cfg, heatmap_source="learned"))
+    assert config_digest(detector_cfg) != config_digest(replace(detector_cfg, detector_sigma_px=2.0))
+    assert paper_only(get_config("cpu-small-detector")) is CONFIGS["cpu-small"]
+    assert paper_only(get_config("cpu-small")) is CONFIGS["cpu-small"]
+    with pytest.raises(ValueError, match="heatmap_residual=True"):
+        MVNetConfig(heatmap_source="detector")
+    with pytest.raises(ValueError, match="'learned' or 'detector'"):
+        MVNetConfig(heatmap_source="mediapipe")  # type: ignore[arg-type]
+    MVNetConfig(heatmap_residual=True, heatmap_source="detector")  # no learned 2D head needed
+
+
+def test_detector_backed_mvnet_needs_detections(tiny_capture, tiny_frames, tmp_path):
+    model = MVNet(TINY_DETECTOR)
+    dataset = build_mvnet_dataset(tiny_capture, tiny_frames, TINY_DETECTOR,
+                                  detections=perfect_detections(tiny_frames, tiny_capture.cameras))
+    with pytest.raises(ValueError, match="detector_px"):
+        predict_from_crops(model, dataset.crops, dataset.K_crop, dataset.centers_world, dataset.cameras)
+    with pytest.raises(ValueError, match="detections"):
+        predict_keypoints(model, [{}], dataset.cameras, dataset.centers_world[:1])
+    paper_data = build_mvnet_dataset(tiny_capture, tiny_frames, get_config("tiny").mvnet)
+    with pytest.raises(ValueError, match="no detections"):
+        train_mvnet(paper_data, TINY_DETECTOR, budget_s=10, checkpoint_dir=tmp_path, max_steps=1)
+    with pytest.raises(ValueError, match="2 entries for"):
+        build_mvnet_dataset(tiny_capture, tiny_frames[:1], TINY_DETECTOR, detections=dataset_detections(dataset))
+
+
+def dataset_detections(dataset) -> list[FrameDetections]:
+    return [FrameDetections(p, s, np.full((21, 3), np.nan), np.full(21, np.nan))
+            for p, s in zip(dataset.detector_px, dataset.detector_scores, strict=True)]
+
+
+# A detector whose keypoints all sit 3 cm off (more than a voxel of tiny's grid): the 3D network must learn it.
+BIAS_M = np.array([0.03, 0.0, 0.0])
+
+
+@pytest.fixture(scope="module")
+def trained_on_biased_detections(tiny_capture, tiny_frames, tmp_path_factory):
+    detections = perfect_detections(tiny_frames, tiny_capture.cameras, shift_m=BIAS_M)
+    dataset = build_mvnet_dataset(tiny_capture, tiny_frames, TINY_DETECTOR, detections=detections)
+    result = train_mvnet(dataset, TINY_DETECTOR, budget_s=300, checkpoint_dir=tmp_path_factory.mktemp("det"),
+                         max_steps=150, seed=2)
+    return dataset, result
+
+
+def _error_mm(model, dataset) -> float:
+    pred = predict_from_crops(model, dataset.crops, dataset.K_crop, dataset.centers_world, dataset.cameras,
+                              dataset.view_valid, detector_px=_crop_px(dataset),
+                              detector_scores=dataset.detector_scores)
+    return float(1000 * np.linalg.norm(pred.keypoints_3d - dataset.keypoints_3d, axis=-1).mean())
+
+
+def _crop_px(dataset) -> np.ndarray:
+    return image_to_crop_px(dataset.detector_px, dataset.K_crop, np.stack([c.K for c in dataset.cameras]))
+
+
+def test_untrained_network_triangulates_perfect_detections(tiny_capture, tiny_frames):
+    """The U-Net's correction starts at zero: fed perfect keypoints, the untrained network is their triangulation."""
+    dataset = build_mvnet_dataset(tiny_capture, tiny_frames, TINY_DETECTOR,
+                                  detections=perfect_detections(tiny_frames, tiny_capture.cameras))
+    torch.manual_seed(0)
+    assert _error_mm(MVNet(TINY_DETECTOR).eval(), dataset) < 0.2 * 1000 * TINY_DETECTOR.voxel_m  # 5 mm
+
+
+def test_training_learns_the_detectors_bias(trained_on_biased_detections):
+    dataset, result = trained_on_biased_detections
+    torch.manual_seed(2)
+    untrained = MVNet(TINY_DETECTOR).eval()
+    trained_mm, untrained_mm = _error_mm(result.model, dataset), _error_mm(untrained, dataset)
+    assert untrained_mm > 0.8 * 1000 * np.linalg.norm(BIAS_M), untrained_mm  # untrained: where the detector says
+    assert trained_mm < 0.8 * untrained_mm, (trained_mm, untrained_mm)  # 150 steps: 30 -> 20.5 mm here
+    # Its confidence (eq. 8) falls when the detections lose their scores (the residual's heat goes with them).
+    pred = predict_from_crops(result.model, dataset.crops, dataset.K_crop, dataset.centers_world, dataset.cameras,
+                              detector_px=_crop_px(dataset), detector_scores=dataset.detector_scores)
+    weak = predict_from_crops(result.model, dataset.crops, dataset.K_crop, dataset.centers_world, dataset.cameras,
+                              detector_px=_crop_px(dataset), detector_scores=0.2 * dataset.detector_scores)
+    assert np.all(weak.sample_confidence < pred.sample_confidence)
+
+
+def test_checkpoint_records_the_detector_configuration(trained_on_biased_detections):
+    dataset, result = trained_on_biased_detections
+    assert result.metadata["config"]["heatmap_source"] == "detector"
+    assert result.metadata["config"]["detector_sigma_px"] == TINY_DETECTOR.detector_sigma_px
+    model, meta = load_model(result.checkpoint, "mvnet")
+    assert model.config == TINY_DETECTOR and meta["config_digest"] == config_digest(TINY_DETECTOR)
+    np.testing.assert_allclose(_error_mm(model, dataset), _error_mm(result.model, dataset), atol=1e-4)
+    with pytest.raises(CheckpointError, match="does not fit"):
+        load_model(result.checkpoint, "mvnet", replace(TINY_DETECTOR, heatmap_source="learned", aux_2d_weight=1.0))
+
+
+def test_missing_model_files_fall_back_to_the_paper_only_path(tiny_capture, tiny_frames, tmp_path, monkeypatch):
+    monkeypatch.setenv("HANDLOOP_DETECTOR_DIR", str(tmp_path / "no-models"))
+    config, message = detector_backed(get_config("cpu-small-detector"))
+    assert config is CONFIGS["cpu-small"]
+    assert "not available" in message and "is missing" in message and "paper-only" in message
+    assert detector_backed(get_config("tiny")) == (get_config("tiny"), None)
+    with pytest.raises(DetectorUnavailableError, match="is missing"):
+        build_mvnet_dataset(tiny_capture, tiny_frames, TINY_DETECTOR)
+    # The paper-only counterpart of a detector-backed configuration trains and predicts without the detector.
+    fallback, _ = detector_backed(replace(get_config("tiny"), name="tiny-detector", mvnet=TINY_DETECTOR))
+    assert fallback.mvnet.heatmap_source == "learned"
+    dataset = build_mvnet_dataset(tiny_capture, tiny_frames, fallback.mvnet)
+    result = train_mvnet(dataset, fallback, budget_s=30, checkpoint_dir=tmp_path / "ckpt", max_steps=2)
+    pred = predict_from_crops(result.model, dataset.crops, dataset.K_crop, dataset.centers_world, dataset.cameras)
+    assert np.isfinite(pred.keypoints_3d).all()

@@ -198,6 +198,13 @@ class NetsConfig:
         return cls(name=data["name"], mvnet=MVNetConfig(**mv), handsegnet=HandSegNetConfig(**hs))
 
 
+def detector_backed_variant(config: NetsConfig) -> NetsConfig:
+    """`config` with the detector's keypoint maps in place of MVNet's learned 2D head (`<name>-detector`); no 2D-only
+    warm-up: the maps are there from the first step, so the whole budget goes to the 3D network."""
+    mvnet = replace(config.mvnet, warmup_2d_fraction=0.0, heatmap_source="detector", detector_sigma_px=1.0)
+    return replace(config, name=f"{config.name}-detector", mvnet=mvnet)
+
+
 def config_digest(config: MVNetConfig | HandSegNetConfig) -> str:
     """A short hash of the fields that define what the weights mean: architecture, loss and metric scales
     (checkpoints refuse a configuration with another digest)."""
@@ -229,19 +236,6 @@ CONFIGS: dict[str, NetsConfig] = {
                                     crop_radius_m=0.14, batch_size=8, lr=2e-3, fine_prob=0.6, center_jitter=0.25,
                                     cut_paste_prob=0.9, recolor=1.0),
     ),
-    # cpu-small with the detector's keypoint maps in place of the learned 2D head (no 2D-only warm-up: the maps
-    # are there from the first step, so the whole budget goes to the 3D network).
-    "cpu-small-detector": NetsConfig(
-        name="cpu-small-detector",
-        mvnet=MVNetConfig(crop_px=64, crop_radius_m=0.14, backbone_widths=(32, 64, 128), stem_stride=2,
-                          decoder_levels=1, norm="batch", bf16=True, feature_channels=32, unet_widths=(16, 32, 48),
-                          aux_2d_weight=1.0, heatmap_residual=True, warmup_2d_fraction=0.0, lr=3e-3,
-                          center_jitter_m=0.02, cut_paste_prob=0.9, recolor=1.0, crop_rotation_deg=30.0,
-                          crop_scale=0.1, train_views=6, heatmap_source="detector", detector_sigma_px=1.0),
-        handsegnet=HandSegNetConfig(widths=(16, 32, 64), stem_stride=2, norm="batch", bf16=True, crop_px=104,
-                                    crop_radius_m=0.14, batch_size=8, lr=2e-3, fine_prob=0.6, center_jitter=0.25,
-                                    cut_paste_prob=0.9, recolor=1.0),
-    ),
     "paper": NetsConfig(
         name="paper",
         mvnet=MVNetConfig(crop_px=224, crop_radius_m=0.15, backbone_widths=(64, 128, 256, 128), convs_per_stage=3,
@@ -257,6 +251,7 @@ CONFIGS: dict[str, NetsConfig] = {
         handsegnet=HandSegNetConfig(widths=(8, 16), crop_px=32, batch_size=4, lr=5e-3),
     ),
 }
+CONFIGS["cpu-small-detector"] = detector_backed_variant(CONFIGS["cpu-small"])
 
 
 # The paper-only configuration each detector-backed one falls back to when the detector is not installed.

@@ -4,20 +4,16 @@ that one as a failure; a redelivered job records nothing twice; a cancelled fit 
 from __future__ import annotations
 
 import pytest
-from fastapi.testclient import TestClient
 from sqlalchemy import func, select
 
-from backend.app import create_app
 from backend.models.capture import Sample
 from backend.models.enums import JobState, SampleState
 from backend.models.fits import Fit
 from backend.models.jobs import Job
 from backend.models.labels import Click
 from backend.services import jobs
-from backend.services.jobs import InMemoryJobQueue
-from backend.settings import Settings
-from tests.support.live_stack import TEST_SETTINGS, USERS, prepare_database, tiny_capture
-from workers.tasks.context import build_context
+from tests.support.annotator_world import annotator_world
+from tests.support.live_stack import tiny_capture
 from workers.tasks.fits import run_fit_jobs
 
 CAPTURE: list = []  # the tiny capture of this session (set by `world`)
@@ -27,16 +23,8 @@ CAPTURE: list = []  # the tiny capture of this session (set by `world`)
 def world(tmp_path, capture_cache):
     capture = tiny_capture(capture_cache, frames=3)
     CAPTURE[:] = [capture]
-    settings = Settings(data_dir=tmp_path / "data", **TEST_SETTINGS)
-    prepare_database(settings, capture)
-    queue = InMemoryJobQueue()
-    app = create_app(settings, job_queue=queue)
-    with TestClient(app) as client:
-        token = client.post("/api/auth/token", data={"username": USERS["annotator"].email,
-                                                     "password": USERS["annotator"].password}).json()["access_token"]
-        client.headers["Authorization"] = f"Bearer {token}"
-        yield settings, client, queue, build_context(settings, job_queue=queue)
-    app.state.engine.dispose()
+    with annotator_world(tmp_path / "data", capture) as world:
+        yield world
 
 
 def _submit(settings, client, *, views: int | None = None, accepted_views: int = 0) -> int:

@@ -9,19 +9,15 @@ import uuid
 
 import numpy as np
 import pytest
-from fastapi.testclient import TestClient
 from sqlalchemy import select
 
-from backend.app import create_app
 from backend.models.capture import Sequence
 from backend.models.fits import Fit
 from backend.models.jobs import Job
-from backend.services.jobs import InMemoryJobQueue
-from backend.settings import Settings
-from tests.support.live_stack import TEST_SETTINGS, USERS, prepare_database, tiny_capture
+from tests.support.annotator_world import annotator_world
+from tests.support.live_stack import tiny_capture
 from workers.capture import load_ground_truth, read_capture
 from workers.geometry.projection import project_points
-from workers.tasks.context import build_context
 from workers.tasks.fit_sources import fit_input
 from workers.tasks.fits import engine_for, fit_config, run_fit_jobs
 
@@ -29,16 +25,8 @@ from workers.tasks.fits import engine_for, fit_config, run_fit_jobs
 @pytest.fixture
 def left_world(tmp_path, capture_cache):
     capture = tiny_capture(capture_cache, frames=2, side="left")
-    settings = Settings(data_dir=tmp_path / "data", **TEST_SETTINGS)
-    prepare_database(settings, capture)
-    queue = InMemoryJobQueue()
-    app = create_app(settings, job_queue=queue)
-    with TestClient(app) as client:
-        token = client.post("/api/auth/token", data={"username": USERS["annotator"].email,
-                                                     "password": USERS["annotator"].password}).json()["access_token"]
-        client.headers["Authorization"] = f"Bearer {token}"
-        yield capture, client, build_context(settings, job_queue=queue)
-    app.state.engine.dispose()
+    with annotator_world(tmp_path / "data", capture) as (_settings, client, _queue, ctx):
+        yield capture, client, ctx
 
 
 def _exact_clicks(capture_dir, task: dict) -> tuple[dict, object]:

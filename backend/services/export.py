@@ -48,13 +48,13 @@ def fit_source(fit: Fit) -> str:
 
 
 def _check_round(session: Session, up_to_round: int | None) -> None:
-    """A round index beyond the last round is a mistake to name, not an export of everything."""
+    """A round index beyond the last round names no round (404, as an unknown project), not everything."""
     if up_to_round is None:
         return
     last = session.scalar(select(func.max(Round.index)))
     if last is None or up_to_round > last:
         there = "no rounds yet" if last is None else f"the last round is D_{last}"
-        raise InvalidInputError(f"up_to_round={up_to_round} is beyond the rounds: {there}")
+        raise NotFoundError(f"round D_{up_to_round} not found (up_to_round={up_to_round}): {there}")
 
 
 def dataset(session: Session, up_to_round: int | None = None, project: str | None = None) -> dict[str, Any]:

@@ -163,7 +163,7 @@ def test_dataset_endpoint_names_the_hand_model(sqlite_env, capture_dir):
     bad = env.client.get("/api/admin/exports/dataset?up_to_round=-1", headers=env.headers(Role.admin))
     assert bad.status_code == 422
     beyond = env.client.get("/api/admin/exports/dataset?up_to_round=99", headers=env.headers(Role.admin))
-    assert beyond.status_code == 422 and "up_to_round=99 is beyond the rounds" in beyond.json()["detail"]
+    assert beyond.status_code == 404 and "round D_99 not found" in beyond.json()["detail"], beyond.text
     assert env.client.get("/api/admin/exports/dataset?up_to_round=0", headers=env.headers(Role.admin)).json()[
         "count"] == 4
 

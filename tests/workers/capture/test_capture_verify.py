@@ -6,6 +6,7 @@ from __future__ import annotations
 import zipfile
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -15,6 +16,7 @@ from workers.capture import (
     HandModelInfo,
     Subject,
     read_capture,
+    verify,
     write_capture_header,
     write_frame,
     write_sequence,
@@ -84,6 +86,37 @@ def test_a_jpeg_cut_at_1100_bytes_is_named(jpeg_capture):
     _cut(image, 1100)
     message = _broken(jpeg_capture)
     assert str(image) in message and "unreadable image" in message and message.startswith("1 broken file(s)")
+
+
+def _huffman_tables_offset(data: bytes) -> int:
+    """Where the first DHT segment's table bytes start (after its marker, length and class/id byte)."""
+    return data.index(b"\xff\xc4") + 5
+
+
+def test_a_jpeg_whose_huffman_tables_are_zeroed_is_named(jpeg_capture):
+    # Past the header read_capture checks, so only a decode finds it, and the 1/8-scale decode does.
+    image = jpeg_capture / "sequences/seq000/images/cam2/000000.jpg"
+    data = bytearray(image.read_bytes())
+    start = _huffman_tables_offset(bytes(data))
+    data[start:start + 16] = bytes(16)  # code counts all zero: no valid Huffman table
+    image.write_bytes(bytes(data))
+    message = _broken(jpeg_capture)
+    assert str(image) in message and "unreadable image" in message and message.startswith("1 broken file(s)")
+
+
+def test_a_jpeg_is_checked_at_one_eighth_scale_against_its_camera(jpeg_capture, monkeypatch):
+    flags: list[int] = []
+    decode = verify._decode
+    monkeypatch.setattr(verify, "_decode", lambda path, f: flags.append(f) or decode(path, f))
+    capture = read_capture(jpeg_capture)
+    verify_capture_files(capture, threads=1)
+    assert flags.count(cv2.IMREAD_REDUCED_COLOR_8) == FRAMES * len(capture.cameras)  # every image, no mask
+    camera = capture.cameras[0]
+    frame = capture.sequences[0].frames[0]
+    wrong = verify._Check(frame.image_paths[camera.name], "image", (camera.width + 16, camera.height))
+    assert "does not match the calibration's 'width' x 'height'" in verify._run(wrong, None)
+    right = verify._Check(frame.image_paths[camera.name], "image", (camera.width, camera.height))
+    assert verify._run(right, None) is None
 
 
 @pytest.mark.parametrize("keep", [0.5, -12], ids=["half", "all-but-IEND"])

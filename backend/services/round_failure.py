@@ -1,4 +1,4 @@
-"""A failed round leaves the round table as it was before its launch.
+"""A failed or cancelled round leaves the round table as it was before its launch.
 
 Launching round i+1 completes round i (services.rounds.launch) before any training has run. When the round's
 job then fails (too few labels for the networks, a training error, a worker that gave up), round i+1 is marked
@@ -7,7 +7,8 @@ payload as `reopen_on_failure`). Samples accepted while round i+1 was open (revi
 heuristic) move to round i: they joined the open round, and a later launch trains on them. The failed round
 keeps its index (its jobs and checkpoints name it); the next launch takes the index after it.
 
-Called by services.jobs.finish for every round job that fails, in the same transaction.
+Called by services.jobs.finish for every round job that fails, and by services.rounds.cancel when an admin
+cancels a running round (marked 'cancelled' instead, no failure text), in the same transaction.
 """
 
 from __future__ import annotations
@@ -32,30 +33,34 @@ def snapshot(round_: Round) -> dict[str, Any]:
     return {"round_id": round_.id, "state": str(round_.state), "counts": dict(round_.counts or {})}
 
 
-def reopen_previous(session: Session, round_job: Job, error: str | None) -> Round | None:
-    """Mark the failed round job's round 'failed' and reopen the round its launch completed; that round, or
-    None when there was nothing to undo (the round is not running: cancelled, already failed; or a later
-    round exists, which the reopening would contradict)."""
+def reopen_previous(session: Session, round_job: Job, error: str | None, *,
+                    outcome: RoundState = RoundState.failed) -> Round | None:
+    """Mark the round job's round `outcome` ('failed' or 'cancelled') and reopen the round its launch
+    completed; that round, or None when there was nothing to undo (the round is not running: cancelled,
+    already failed; or a later round exists, which the reopening would contradict). On a failure the round's
+    other training job is stopped here; a cancel stops its jobs itself (services.rounds.cancel)."""
     round_ = session.get(Round, round_job.round_id) if round_job.round_id is not None else None
     if round_ is None or round_.state != RoundState.running:
         return None
     now = utcnow()
-    round_.state = RoundState.failed
+    failed = outcome == RoundState.failed
+    action = "round.fail" if failed else "round.reopen"
+    round_.state = outcome
     round_.finished_at = now
-    round_.failure = (error or "its job failed")[:2000]
-    # The other network may still be training for this round: it is stopped (its progress reporter sees this).
-    for job in session.execute(select(Job).where(Job.round_id == round_.id, Job.kind == JobKind.train,
-                                                 Job.state.in_([JobState.queued, JobState.running]))).scalars():
-        job.state, job.finished_at, job.message = JobState.cancelled, now, ""
-        job.error = f"round {round_.index} failed: {error or 'its job failed'}"[:2000]
+    round_.failure = (error or "its job failed")[:2000] if failed else None
+    if failed:  # the other network may still be training for this round: stopped (its progress reporter sees it)
+        for job in session.execute(select(Job).where(Job.round_id == round_.id, Job.kind == JobKind.train,
+                                                     Job.state.in_([JobState.queued, JobState.running]))).scalars():
+            job.state, job.finished_at, job.message = JobState.cancelled, now, ""
+            job.error = f"round {round_.index} failed: {error or 'its job failed'}"[:2000]
     later = session.execute(select(Round.id).where(Round.index > round_.index).limit(1)).scalar_one_or_none()
     before = dict((round_job.payload or {}).get("reopen_on_failure") or {})
     previous = session.get(Round, before["round_id"]) if before.get("round_id") is not None else \
         session.execute(select(Round).where(Round.index < round_.index).order_by(Round.index.desc())
                         .limit(1)).scalar_one_or_none()
     if later is not None or previous is None or previous.state != RoundState.completed:
-        audit.record(session, None, "round.fail", "round", round_.id, error=error, reopened=None)
-        logger.warning("round %s failed (%s); no earlier round reopened", round_.index, error)
+        audit.record(session, None, action, "round", round_.id, error=error, reopened=None)
+        logger.warning("round %s %s (%s); no earlier round reopened", round_.index, outcome, error)
         round_.counts = _member_counts(session, round_.id)
         return None
     moved = session.execute(update(RoundMember).where(RoundMember.round_id == round_.id)
@@ -65,10 +70,10 @@ def reopen_previous(session: Session, round_job: Job, error: str | None) -> Roun
     previous.state = before.get("state") or RoundState.running
     previous.finished_at = None
     previous.counts = dict(before.get("counts") or {})
-    audit.record(session, None, "round.fail", "round", round_.id, error=error, reopened=previous.id,
+    audit.record(session, None, action, "round", round_.id, error=error, reopened=previous.id,
                  members_moved=moved)
-    logger.warning("round %s failed (%s); round %s is open again (%d accepted samples moved to it)", round_.index,
-                   error, previous.index, moved)
+    logger.warning("round %s %s (%s); round %s is open again (%d accepted samples moved to it)", round_.index,
+                   outcome, error, previous.index, moved)
     return previous
 
 

@@ -109,9 +109,15 @@ def cancel(session: Session, queue: jobs.JobQueue, round_id: int, actor_id: int)
     round_ = get_round(session, round_id)
     if round_.state != RoundState.running:
         raise ConflictError(f"round {round_.index} is '{round_.state}'; only a running round can be cancelled")
-    round_.state = RoundState.cancelled
-    round_.finished_at = utcnow()
-    round_.counts = _counts(session, round_.id)
+    round_job = session.execute(select(Job).where(Job.round_id == round_id, Job.kind == JobKind.round)
+                                .limit(1)).scalar_one_or_none()
+    # As a failed round: the round its launch completed is open again, as it was (services.round_failure).
+    reopened = round_failure.reopen_previous(session, round_job, None, outcome=RoundState.cancelled) \
+        if round_job is not None else None
+    if reopened is None and round_.state == RoundState.running:
+        round_.state = RoundState.cancelled
+        round_.finished_at = utcnow()
+        round_.counts = _counts(session, round_.id)
     for job in session.execute(select(Job).where(Job.round_id == round_id,
                                                  Job.state.in_([JobState.queued, JobState.running]))).scalars():
         jobs.cancel(session, queue, job.id, actor_id)

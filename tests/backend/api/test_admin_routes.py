@@ -76,11 +76,19 @@ def test_rounds_launch_cancel_and_jobs(env, h):
     assert env.queue.enqueued == [(body["job_id"], "round")]
     rounds = env.client.get("/api/admin/rounds", headers=env.headers(ADMIN)).json()
     assert [(r["index"], r["state"]) for r in rounds] == [(0, "completed"), (1, "running")]
+    before = rounds[0]
     job = env.client.get(f"/api/admin/jobs/{body['job_id']}", headers=env.headers(ADMIN)).json()
     assert job["state"] == "queued" and job["kind"] == "round"
     cancelled = env.client.post(f"/api/admin/rounds/{body['round']['id']}/cancel", headers=env.headers(ADMIN))
     assert cancelled.status_code == 200 and cancelled.json()["state"] == "cancelled"
+    assert cancelled.json()["failure"] is None
     assert env.queue.revoked == [body["job_id"]]
+    # The round table as it was before the launch: D_0 open again with its labels, as after a failed round.
+    rounds = env.client.get("/api/admin/rounds", headers=env.headers(ADMIN)).json()
+    assert [(r["index"], r["state"]) for r in rounds] == [(0, "running"), (1, "cancelled")]
+    assert rounds[0]["finished_at"] is None and before["finished_at"] is not None
+    stats = env.client.get("/api/admin/rounds/statistics", headers=env.headers(ADMIN)).json()
+    assert [r["index"] for r in stats["rounds"] if r["added_total"]] == [0]
     again = env.client.post(f"/api/admin/rounds/{body['round']['id']}/cancel", headers=env.headers(ADMIN))
     assert again.status_code == 409 and "only a running round" in again.json()["detail"]
     listed = env.client.get("/api/admin/jobs?state=cancelled", headers=env.headers(ADMIN)).json()

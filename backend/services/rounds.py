@@ -109,8 +109,9 @@ def cancel(session: Session, queue: jobs.JobQueue, round_id: int, actor_id: int)
     round_ = get_round(session, round_id)
     if round_.state != RoundState.running:
         raise ConflictError(f"round {round_.index} is '{round_.state}'; only a running round can be cancelled")
+    # The round job's row first, then its children (the workers' progress writers lock in the same order).
     round_job = session.execute(select(Job).where(Job.round_id == round_id, Job.kind == JobKind.round)
-                                .limit(1)).scalar_one_or_none()
+                                .limit(1).with_for_update()).scalar_one_or_none()
     # As a failed round: the round its launch completed is open again, as it was (services.round_failure).
     reopened = round_failure.reopen_previous(session, round_job, None, outcome=RoundState.cancelled) \
         if round_job is not None else None
@@ -119,7 +120,8 @@ def cancel(session: Session, queue: jobs.JobQueue, round_id: int, actor_id: int)
         round_.finished_at = utcnow()
         round_.counts = _counts(session, round_.id)
     for job in session.execute(select(Job).where(Job.round_id == round_id,
-                                                 Job.state.in_([JobState.queued, JobState.running]))).scalars():
+                                                 Job.state.in_([JobState.queued, JobState.running]))
+                               .order_by(Job.id)).scalars():
         jobs.cancel(session, queue, job.id, actor_id)
     audit.record(session, actor_id, "round.cancel", "round", round_.id)
     return round_

@@ -47,6 +47,11 @@ class ProgressReporter:
         self.interval_s = min(interval_s, ctx.settings.job_heartbeat_timeout_s / 4)
         self._last = 0.0
 
+    def _anchors(self) -> list[int]:
+        """The parent rows this reporter writes besides its own jobs, in the order they are locked."""
+        ids = [self.round_of, self.heartbeat_of, self.parent[0] if self.parent is not None else None]
+        return list(dict.fromkeys(i for i in ids if i is not None))
+
     def drop(self, job_id: int) -> None:
         if job_id in self.live:
             self.live.remove(job_id)
@@ -59,8 +64,11 @@ class ProgressReporter:
         fraction = min(1.0, max(0.0, float(fraction)))
         cancelled: list[int] = []
         with self.ctx.session_factory.begin() as session:
-            if self.round_of is not None:
-                round_progress.lock(session, self.round_of)  # the round before its children (lock order)
+            # Lock order: the round (or other parent) before its children, as every other writer does
+            # (round_progress.lock, rounds.cancel): a heartbeat written after the children's rows could deadlock
+            # on PostgreSQL with a cancel that holds the round and waits for a child.
+            for anchor in self._anchors():
+                round_progress.lock(session, anchor)
             for job_id in self.live:
                 try:
                     jobs.update_progress(session, job_id, fraction, message[:500])

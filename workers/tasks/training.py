@@ -10,6 +10,7 @@ checkpoint's metadata), so the networks accumulate training over the rounds.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import logging
@@ -34,6 +35,7 @@ from workers.tasks.context import WorkerContext
 from workers.tasks.inputs import InputError, Rig, SampleFrame, capture_for, load_frames, read_mask, rig_of
 from workers.tasks.json_values import json_safe
 from workers.tasks.progress import JobCancelledError, ProgressReporter
+from workers.tasks.working_inputs import working_frames, working_mask_dicts, working_rig, working_rig_record
 
 log = logging.getLogger(__name__)
 
@@ -186,6 +188,11 @@ def run_training_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
             # HandSegNet learns the masks; MVNet's training crops are centred on them (as prediction crops are
             # on HandSegNet's masks), not on the mean keypoint.
             labels_masks = model_masks(ctx, session, tset)
+            # The networks read the working copies, with the cameras and the label masks scaled alike.
+            wrig = working_rig(session, tset.rig)
+            tset = dataclasses.replace(tset, rig=working_rig_record(tset.rig, wrig),
+                                       frames=working_frames(ctx, tset.frames, wrig))
+            labels_masks = working_mask_dicts(labels_masks, wrig)
             round_index = round_.index
         config, detector_note = round_nets_config(ctx)
         folder = ctx.settings.checkpoints_dir.resolve() / f"round-{round_index:03d}"

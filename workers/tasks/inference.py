@@ -67,13 +67,12 @@ def run_prediction_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
             frames = load_frames(ctx, session, [s for s in sample_ids if s not in done])
             todo = [f for f in frames.values() if f.state in PREDICTABLE]
             wrig = working_rig(session, rig_of(ctx, session, todo[0].project_id)) if todo else None
-        todo = working_frames(ctx, todo, wrig) if wrig is not None else []  # the networks read working copies
         reporter = ProgressReporter(ctx, [job_id], round_of=int(round_job_id) if round_job_id else None)
         summary = {"predicted": 0, "not_localised": 0, "skipped": len(sample_ids) - len(todo)}
         chunk = 4
         for start in range(0, len(todo), chunk):
             reporter(start / max(1, len(todo)), f"predicting {start}/{len(todo)} samples")
-            part = todo[start:start + chunk]
+            part = working_frames(ctx, todo[start:start + chunk], wrig)  # the networks read working copies
             out = _predict(ctx, mvnet, handsegnet, part, wrig)
             for i, frame in enumerate(part):
                 _record(ctx, job_id, round_id, frame, out, i, payload, summary,

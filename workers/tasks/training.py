@@ -190,8 +190,6 @@ def run_training_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
             labels_masks = model_masks(ctx, session, tset)
             # The networks read the working copies, with the cameras and the label masks scaled alike.
             wrig = working_rig(session, tset.rig)
-            tset = dataclasses.replace(tset, rig=working_rig_record(tset.rig, wrig),
-                                       frames=working_frames(ctx, tset.frames, wrig))
             labels_masks = working_mask_dicts(labels_masks, wrig)
             round_index = round_.index
         config, detector_note = round_nets_config(ctx)
@@ -199,6 +197,8 @@ def run_training_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
         budget = ctx.settings.round_handsegnet_budget_s if net == "handsegnet" else ctx.settings.round_mvnet_budget_s
         reporter = ProgressReporter(ctx, [job_id], round_of=int(round_job_id))  # training: elapsed share of its budget
         reporter(0.0, f"{net}: preparing {len(tset)} samples", force=True)
+        tset = dataclasses.replace(tset, rig=working_rig_record(tset.rig, wrig), frames=working_frames(
+            ctx, tset.frames, wrig, lambda n: reporter(0.0, f"{net}: working copies of {n}/{len(tset)} samples")))
         result = _train(ctx, net, tset, labels_masks, config, budget, folder, reporter,
                         seed=ctx.settings.round_seed + round_index,
                         extra={"round_index": round_index, "round_job_id": round_job_id,

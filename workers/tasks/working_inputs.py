@@ -122,7 +122,8 @@ def probabilities_at_full_resolution(maps: Sequence[np.ndarray], wrig: WorkingRi
 
 def lifted_at_full_resolution(lifted: LiftedKeypoints, wrig: WorkingRig) -> LiftedKeypoints:
     """The detector's answer on working copies with pixels in full-resolution pixels: per view keypoints and
-    box, and the reprojection residual (in the first reduced camera's scale: all reduced cameras share W)."""
+    box exactly; the reprojection residual (a median over views) scaled by the first reduced camera's factor,
+    exact when the reduced cameras share one full width, approximate in a rig of mixed widths."""
     if not wrig.reduced:
         return lifted
     views: list[ViewKeypoints | None] = []

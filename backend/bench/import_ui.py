@@ -31,8 +31,8 @@ from backend.models.capture import Project
 from backend.models.enums import Role
 from backend.runtime import start_stack
 from backend.services.users import create_user
-from backend.services.working_images import DERIVED_PREFIX
 from backend.settings import Settings
+from workers.capture.working import DERIVED_PREFIX
 
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",

@@ -7,7 +7,9 @@ const RANK = { annotator: 0, reviewer: 1, admin: 2 };
 const PAGES = {
   annotate: { label: "Annotate", role: "annotator", load: () => import("./annotate.js").then((m) => m.mountAnnotate) },
   review: { label: "Review", role: "reviewer", load: () => import("./review.js").then((m) => m.mountReview) },
-  admin: { label: "Admin", role: "admin", load: () => import("./admin.js").then((m) => m.mountAdmin) },
+  // The admin page (admin.js) with the calibration check's section (calibration_check.js) added to it.
+  admin: { label: "Admin", role: "admin", load: () => Promise.all([import("./admin.js"), import("./calibration_check.js")])
+    .then(([admin, check]) => check.withCalibrationCheck(admin.mountAdmin)) },
 };
 const HOME = { annotator: "annotate", reviewer: "review", admin: "admin" };
 

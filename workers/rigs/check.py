@@ -257,7 +257,8 @@ def check_capture(path: Path, *, source: str = "auto", sequence_id: str | None =
         CheckError: no usable keypoint source; CaptureError: the capture is malformed.
     """
     # deferred: the capture reader pulls in cv2 and PIL; the API imports this module for check_keypoints
-    from workers.capture import load_frame_images, load_frame_masks, load_ground_truth, read_capture
+    from workers.capture import load_frame_masks, load_ground_truth, read_capture
+    from workers.capture.working import load_working_images, mask_to_working, to_full_px, working_cameras
 
     capture = read_capture(path, check_images=False)
     try:
@@ -265,6 +266,7 @@ def check_capture(path: Path, *, source: str = "auto", sequence_id: str | None =
     except KeyError as exc:
         raise CheckError(str(exc.args[0])) from None
     cameras = list(capture.cameras)
+    small = list(working_cameras(cameras, capture.working_width_px))
     has_gt = bool(frames) and all(f.ground_truth_path is not None for f in frames)
     notes: list[str] = []
     if source == "auto":
@@ -285,11 +287,13 @@ def check_capture(path: Path, *, source: str = "auto", sequence_id: str | None =
         else:
             from workers.detector import DetectorInputError, detect_frame  # deferred: the pipeline (torch)
 
-            images = load_frame_images(frame, cameras)
+            # The detector reads the images at the capture's working width; its keypoints come back in full pixels.
+            images = load_working_images(frame.image_paths, cameras, small)
             masks = load_frame_masks(frame)
             try:
-                lifted = detect_frame([images[c.name] for c in cameras], cameras,
-                                      [masks.get(c.name) for c in cameras] if masks else None,
+                lifted = detect_frame([images[c.name] for c in cameras], small,
+                                      [mask_to_working(masks[c.name], s) if c.name in masks else None
+                                       for c, s in zip(cameras, small, strict=True)] if masks else None,
                                       handedness=capture.hand_model.side)  # type: ignore[arg-type]
             except DetectorInputError as exc:
                 notes.append(f"{frame.sequence_id} frame {frame.index}: skipped ({exc})")
@@ -298,7 +302,7 @@ def check_capture(path: Path, *, source: str = "auto", sequence_id: str | None =
             vis = np.zeros((len(cameras), 21), bool)
             for c, view in enumerate(lifted.views):
                 if view is not None:
-                    kp[c] = view.keypoints_px
+                    kp[c] = to_full_px(view.keypoints_px, small[c], cameras[c])
                     vis[c] = view.scores >= DETECTOR_MIN_SCORE
             keypoints.append(kp)
             visible.append(vis)

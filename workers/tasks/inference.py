@@ -7,6 +7,7 @@ A redelivered job skips the samples it already recorded (predictions are unique 
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from typing import Any
 
@@ -25,6 +26,7 @@ from workers.tasks.context import WorkerContext
 from workers.tasks.inputs import InputError, load_frames, rig_of
 from workers.tasks.progress import JobCancelledError, ProgressReporter
 from workers.tasks.training import ROUND_HANDEDNESS, checkpoint_of, detection_cache
+from workers.tasks.working_inputs import WorkingRig, probabilities_at_full_resolution, working_frames, working_rig
 
 log = logging.getLogger(__name__)
 
@@ -64,14 +66,14 @@ def run_prediction_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
             done = set(session.execute(select(Prediction.sample_id).where(Prediction.job_id == job_id)).scalars())
             frames = load_frames(ctx, session, [s for s in sample_ids if s not in done])
             todo = [f for f in frames.values() if f.state in PREDICTABLE]
-            cameras = list(rig_of(ctx, session, todo[0].project_id).cameras) if todo else []
+            wrig = working_rig(session, rig_of(ctx, session, todo[0].project_id)) if todo else None
         reporter = ProgressReporter(ctx, [job_id], round_of=int(round_job_id) if round_job_id else None)
         summary = {"predicted": 0, "not_localised": 0, "skipped": len(sample_ids) - len(todo)}
         chunk = 4
         for start in range(0, len(todo), chunk):
             reporter(start / max(1, len(todo)), f"predicting {start}/{len(todo)} samples")
-            part = todo[start:start + chunk]
-            out = _predict(ctx, mvnet, handsegnet, part, cameras)
+            part = working_frames(ctx, todo[start:start + chunk], wrig)  # the networks read working copies
+            out = _predict(ctx, mvnet, handsegnet, part, wrig)
             for i, frame in enumerate(part):
                 _record(ctx, job_id, round_id, frame, out, i, payload, summary,
                         mask_source="handsegnet" if handsegnet is not None else "chroma_key")
@@ -80,7 +82,7 @@ def run_prediction_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
             lost = [f for i, f in enumerate(part) if handsegnet is not None and f.frame.mask_paths
                     and not np.isfinite(out.keypoints.keypoints_3d[i]).all()]
             if lost:
-                fallback = _predict(ctx, mvnet, None, lost, cameras)
+                fallback = _predict(ctx, mvnet, None, lost, wrig)
                 summary["not_localised"] -= len(lost)
                 for i, frame in enumerate(lost):
                     _record(ctx, job_id, round_id, frame, fallback, i, payload, summary, mask_source="chroma_key")
@@ -102,18 +104,20 @@ def run_prediction_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
         return {"job_id": job_id, "failed": message, "fit_job_ids": _fit_jobs_of(ctx, job_id)}
 
 
-def _predict(ctx: WorkerContext, mvnet: Any, handsegnet: Any, frames: list[Any], cameras: list[Any]) -> Any:
-    """predict_frames; a detector-backed MVNet (its checkpoint says so) also gets the detector's keypoints."""
+def _predict(ctx: WorkerContext, mvnet: Any, handsegnet: Any, frames: list[Any], wrig: WorkingRig) -> Any:
+    """predict_frames on the working copies; a detector-backed MVNet (its checkpoint says so) also gets the
+    detector's keypoints. The masks come back at the views' full size."""
     # deferred: as in load_net (torch, and the detector's runtime, only where a job predicts)
     from workers.detector import DetectorUnavailableError
     from workers.nets.predict import predict_frames
 
     try:
-        return predict_frames(mvnet, [f.frame for f in frames], cameras, handsegnet, handedness=ROUND_HANDEDNESS,
-                              detection_cache=detection_cache(ctx))
+        out = predict_frames(mvnet, [f.frame for f in frames], list(wrig.cameras), handsegnet,
+                             handedness=ROUND_HANDEDNESS, detection_cache=detection_cache(ctx))
     except DetectorUnavailableError as exc:
         raise InputError(f"this MVNet is detector-backed, but {exc}; install the detector or train a paper-only "
                          "one (HANDLOOP_MVNET_DETECTOR=false)") from None
+    return dataclasses.replace(out, masks=[probabilities_at_full_resolution(m, wrig) for m in out.masks])
 
 
 def _record(ctx: WorkerContext, job_id: int, round_id: int | None, frame: Any, out: Any, i: int,

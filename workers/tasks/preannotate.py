@@ -43,6 +43,7 @@ from workers.tasks.detection_inputs import SOURCE, detection_record, lifted_coun
 from workers.tasks.fits import run_fit_jobs
 from workers.tasks.inputs import NUM_KEYPOINTS, InputError, Rig, SampleFrame, load_frames, rig_of
 from workers.tasks.progress import JobCancelledError, ProgressReporter
+from workers.tasks.working_inputs import lifted_at_full_resolution, working_frame, working_masks, working_rig
 
 log = logging.getLogger(__name__)
 
@@ -100,10 +101,11 @@ def _detect_sample(ctx: WorkerContext, frame: SampleFrame, rig: Rig, handedness:
     try:
         with ctx.session_factory() as session:
             masks, mask_ids = masks_for(ctx, session, frame, rig)
-        images = load_frame_images(frame.frame, rig.cameras)
-        ordered = [images[cam.name] for cam in rig.cameras]
-        lifted = detect(ordered, rig.cameras, masks if mask_ids else None, handedness=handedness)
-        record = detection_record(lifted, frame.view_ids)
+            wrig = working_rig(session, rig)  # the detector reads the working copies; the record is in full pixels
+        images = load_frame_images(working_frame(ctx, frame, wrig).frame, wrig.cameras)
+        ordered = [images[cam.name] for cam in wrig.cameras]
+        lifted = detect(ordered, wrig.cameras, working_masks(masks, wrig) if mask_ids else None, handedness=handedness)
+        record = detection_record(lifted_at_full_resolution(lifted, wrig), frame.view_ids)
     except (DetectorInputError, CaptureError, InputError, KeyError) as exc:
         return None, f"detector input: {exc}"
     except DetectorUnavailableError:

@@ -10,6 +10,7 @@ checkpoint's metadata), so the networks accumulate training over the rounds.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import logging
@@ -34,6 +35,7 @@ from workers.tasks.context import WorkerContext
 from workers.tasks.inputs import InputError, Rig, SampleFrame, capture_for, load_frames, read_mask, rig_of
 from workers.tasks.json_values import json_safe
 from workers.tasks.progress import JobCancelledError, ProgressReporter
+from workers.tasks.working_inputs import working_frames, working_mask_dicts, working_rig, working_rig_record
 
 log = logging.getLogger(__name__)
 
@@ -186,12 +188,17 @@ def run_training_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
             # HandSegNet learns the masks; MVNet's training crops are centred on them (as prediction crops are
             # on HandSegNet's masks), not on the mean keypoint.
             labels_masks = model_masks(ctx, session, tset)
+            # The networks read the working copies, with the cameras and the label masks scaled alike.
+            wrig = working_rig(session, tset.rig)
+            labels_masks = working_mask_dicts(labels_masks, wrig)
             round_index = round_.index
         config, detector_note = round_nets_config(ctx)
         folder = ctx.settings.checkpoints_dir.resolve() / f"round-{round_index:03d}"
         budget = ctx.settings.round_handsegnet_budget_s if net == "handsegnet" else ctx.settings.round_mvnet_budget_s
         reporter = ProgressReporter(ctx, [job_id], round_of=int(round_job_id))  # training: elapsed share of its budget
         reporter(0.0, f"{net}: preparing {len(tset)} samples", force=True)
+        tset = dataclasses.replace(tset, rig=working_rig_record(tset.rig, wrig), frames=working_frames(
+            ctx, tset.frames, wrig, lambda n: reporter(0.0, f"{net}: working copies of {n}/{len(tset)} samples")))
         result = _train(ctx, net, tset, labels_masks, config, budget, folder, reporter,
                         seed=ctx.settings.round_seed + round_index,
                         extra={"round_index": round_index, "round_job_id": round_job_id,

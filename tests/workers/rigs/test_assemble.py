@@ -220,3 +220,37 @@ def test_other_codecs_are_decoded_and_a_cut_video_is_refused(rig, tmp_path: Path
     with pytest.raises(CaptureError, match=r"cam2.avi: camera 'cam2': (the video ends|frame \d+ is not a complete)"):
         assemble_capture(rig, tmp_path / "x", videos=mjpeg, workers=1)
     assert not (tmp_path / "x").exists()
+
+
+def test_the_key_colour_is_a_per_capture_setting(rig, tmp_path: Path) -> None:
+    """A blue screen keyed with --key-color: the hand square is the foreground; keyed with the default green
+    the blue screen stays foreground (the colour is used, not assumed); a malformed colour is refused."""
+    blue = (30, 60, 200)  # RGB
+    images = tmp_path / "blue"
+    for k, cam in enumerate(rig):
+        (images / cam.name).mkdir(parents=True)
+        for i in range(2):
+            rgb = np.zeros((cam.height, cam.width, 3), np.uint8)
+            rgb[:] = blue
+            x, y = 4 + 8 * i, 10 + 3 * k
+            rgb[y:y + 20, x:x + 16] = (230, 200, 170)
+            cv2.imwrite(str(images / cam.name / f"{i}.png"), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    save_calibration(rig, tmp_path / "calibration.json")
+    runner = CliRunner()
+    base = ["capture", "assemble", "--calibration", str(tmp_path / "calibration.json"), "--images", str(images),
+            "--green-screen", "--workers", "1"]
+    result = runner.invoke(app, [*base, "--key-color", "#1e3cc8", "--out", str(tmp_path / "b")])
+    assert result.exit_code == 0, result.output
+    seq = read_capture(tmp_path / "b").sequences[0]
+    assert seq.chroma_key == ChromaKey(color="#1e3cc8").to_dict()
+    mask = load_frame_masks(seq.frames[1])["cam3"]
+    expected = np.zeros_like(mask)
+    expected[10 + 9:10 + 9 + 20, 12:12 + 16] = True
+    assert (mask != expected).mean() < 0.02
+    assert (tmp_path / "b" / "previews" / "chroma_key_seq000.jpg").is_file()
+    result = runner.invoke(app, [*base, "--out", str(tmp_path / "g")])  # the default key colour: green
+    assert result.exit_code == 0, result.output
+    assert load_frame_masks(read_capture(tmp_path / "g").sequences[0].frames[1])["cam3"].mean() > 0.95
+    result = runner.invoke(app, [*base, "--key-color", "blue", "--out", str(tmp_path / "x")])
+    assert result.exit_code == 2 and "field 'color' must be a hex colour" in result.output
+    assert not (tmp_path / "x").exists()

@@ -26,10 +26,11 @@ def _keypoints(rng: np.random.Generator) -> np.ndarray:
     return rng.normal(0.0, 0.04, 3) + rng.normal(0.0, 0.05, (21, 3))
 
 
-def _write_capture(root: Path, cameras: list[Camera], seed: int = 0) -> list[np.ndarray]:
+def _write_capture(root: Path, cameras: list[Camera], seed: int = 0, working_width_px: int | None = None
+                   ) -> list[np.ndarray]:
     rng = np.random.default_rng(seed)
     write_capture_header(root, "check", cameras, [Subject("s0")], HandModelInfo("test", is_mano=False),
-                         synthetic=True)
+                         synthetic=True, working_width_px=working_width_px)
     names = [c.name for c in cameras]
     write_sequence(root, "seq000", subject_id="s0", split="train", green_screen=False, fps=10.0, num_frames=FRAMES,
                    holds_object=False, camera_names=names, image_format="png", with_ground_truth=True)
@@ -185,3 +186,45 @@ def test_detector_keypoints_go_through_the_same_check(capture: Path, monkeypatch
     assert report.source == "detector" and report.frames == FRAMES and report.flagged == ["cam2"]
     assert calls[0] == (8, 8, None, "right") and len(calls) == FRAMES
     assert check_capture(capture).source == "ground-truth"  # auto prefers ground truth
+
+
+def test_the_detector_reads_the_working_width_and_its_keypoints_come_back_in_full_pixels(tmp_path: Path,
+                                                                                       monkeypatch) -> None:
+    """A capture with a working width: the detector is given the views at that width with the cameras scaled
+    alike (it answers with the truth projected by the true cameras at that width); the check works in full
+    pixels and still flags a camera 2 degrees off."""
+    import sys
+    import types
+
+    import workers.detector
+    from workers.capture import load_ground_truth, read_capture
+    from workers.detector.types import LiftedKeypoints, ViewKeypoints
+
+    full = default_rig(320)
+    _write_capture(tmp_path / "cap", full, working_width_px=128)
+    frames = list(read_capture(tmp_path / "cap").sequences[0].frames)
+    seen = []
+
+    def detect_frame(images, cameras, masks=None, *, handedness="right"):
+        gt = load_ground_truth(frames[len(seen)])
+        seen.append(([im.shape for im in images], [(c.width, c.height) for c in cameras]))
+        px, _ = project_points(gt.keypoints_3d, [c.scaled(128) for c in full])  # the true rig, at 128 px
+        views = tuple(ViewKeypoints(px[c], np.full(21, 0.9), 0.99, handedness, np.zeros(4), 0.0)
+                      for c in range(len(cameras)))
+        return LiftedKeypoints(gt.keypoints_3d, np.ones(21), np.ones((21, len(cameras)), bool), np.zeros(21), views)
+
+    fake = types.ModuleType("workers.detector.pipeline")
+    fake.detect_frame = detect_frame
+    fake.detector_status = lambda: None
+    monkeypatch.setitem(sys.modules, "workers.detector.pipeline", fake)
+    monkeypatch.setattr(workers.detector, "pipeline", fake, raising=False)
+    report = check_capture(tmp_path / "cap", source="detector")
+    small = [c.scaled(128) for c in full]
+    assert len(seen) == FRAMES and all(s == ([(c.height, c.width, 3) for c in small],
+                                             [(c.width, c.height) for c in small]) for s in seen)
+    assert report.flagged == [] and max(c.reprojection_px for c in report.cameras) < 1e-6  # full pixels, exactly
+    cameras = default_rig(320)
+    cameras[6] = _rotated(cameras[6], 2.0)
+    _recalibrate(tmp_path / "cap", cameras)
+    seen.clear()
+    assert check_capture(tmp_path / "cap", source="detector").flagged == ["cam6"]

@@ -169,3 +169,28 @@ def test_a_lease_taken_by_someone_else_shows_a_banner_and_their_page_stays_clean
                            "document.body.dataset.ready === 'annotate-empty'", timeout=30_000)
     assert page.is_hidden(".lease-banner")
     assert not t.errors and not admin.errors, (t.errors, admin.errors)
+
+
+def test_a_lease_lapsed_while_the_server_was_unreachable_loses_no_click(live_stack, tab):
+    # Clicks placed while no request gets through (the server down, the network gone) and the lease lapsing
+    # meanwhile: when the server answers again the draft is saved (the lease re-taken on the way) and submits.
+    stack = live_stack(worker=False)
+    t = tab()
+    sign_in_annotator(t, stack)
+    page = t.page
+    place(page, 0, 2)
+    wait_saved(page, 1)
+    sample = page.evaluate(SAMPLE)
+    page.route("**/api/**", lambda route: route.abort("connectionrefused"))
+    place(page, 1, 3)
+    page.wait_for_selector("body[data-draft-state=error]", state="attached", timeout=30_000)
+    lapse_lease(stack, sample)
+    before = page.evaluate(CLICKS)
+    page.unroute("**/api/**")
+    page.wait_for_function("() => Number(document.body.dataset.draftSaved) >= 2 && "
+                           "document.body.dataset.draftState === 'saved'", timeout=30_000)
+    assert page.get_attribute("body", "data-lease") is None and page.is_hidden(".lease-banner")
+    page.reload()  # what the server kept is all of it
+    wait_shown(page)
+    assert page.evaluate(SAMPLE) == sample and page.evaluate(CLICKS) == before and len(before) == 5
+    assert not t.errors, t.errors

@@ -14,7 +14,7 @@ const KEPT_KEY = "handloop.unsavedDraft"; // + "." + queue: {userId, sampleId, r
 const KEPT_MAX_AGE_MS = 24 * 3600 * 1000;
 
 // The work the server did not take for `queue`, or null.
-export function keptDraft(queue) {
+function keptDraft(queue) {
   try {
     const kept = JSON.parse(sessionStorage.getItem(`${KEPT_KEY}.${queue}`) || "null");
     return kept && Date.now() - kept.keptAt < KEPT_MAX_AGE_MS ? kept : null;

@@ -1,4 +1,4 @@
-"""A reviewer's note is never lost to a lease: one that lapsed while the server was unreachable is re-taken
+"""A reviewer's note is never lost to the Back button or a lease: one that lapsed while the server was unreachable is re-taken
 when it answers again (the sample still free) and the note goes with the decision; when someone else took the
 sample meanwhile, a banner says so with one button to go on, and the new holder sees none of the note.
 Real browser, real API, real worker (it fits the two samples)."""
@@ -43,7 +43,14 @@ def test_a_lease_lapsed_while_offline_is_retaken_and_a_lost_one_shows_a_banner(l
     first = int(page.get_attribute("body", "data-sample"))
     page.keyboard.press("r")
     page.keyboard.type("wrist")
-    _saved(page, 1)
+    page.go_back()  # at once, before the debounced save: leaving the page saves what is pending
+    page.wait_for_function(f"() => document.body.dataset.ready === 'review' && document.body.dataset.sample === "
+                           f"'{first}' && document.body.dataset.draft !== undefined && "
+                           "document.body.dataset.draft !== 'none'", timeout=60_000)
+    assert page.input_value(".reason-input") == "wrist"  # the note came back with the page
+    assert page.get_attribute("body", "data-draft") == "1"  # saved once, as the page went
+    page.click(".reason-input")  # the caret at its end, typing goes on
+    page.keyboard.press("End")
 
     # The server unreachable (every API request fails) while the lease lapses; the note typed meanwhile is
     # saved once it answers again: the save is refused as lapsed, the lease re-taken, the save repeated.

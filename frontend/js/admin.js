@@ -226,7 +226,7 @@ class AdminPage {
 
   renderJobs() {
     const rows = this.jobs.map((j) => h("tr", { dataset: { job: String(j.id), state: j.state } },
-      h("td", {}, String(j.id)), h("td", {}, j.kind), h("td", {}, j.sample_id === null ? "–" : String(j.sample_id)),
+      h("td", {}, String(j.id)), h("td", {}, j.kind), h("td", { class: "num sample" }, j.sample_id === null ? "–" : String(j.sample_id)),
       h("td", {}, j.state), h("td", { class: "muted started" }, started(j)),
       h("td", { class: "num took" }, duration(j)),
       h("td", {}, progressBar(j.progress)),

@@ -52,13 +52,13 @@ export async function mountAnnotate(root, ctx) {
 }
 
 class AnnotatePage {
-  constructor(root, { api }) {
+  constructor(root, { api, user }) {
     this.api = api;
     this.root = root;
     this.leases = new LeaseKeeper(api, "annotate");
     this.leases.onretaken = (sampleId, token) => this.leaseRetaken(sampleId, token);
     this.leases.onlost = (sampleId, error) => this.leaseLost(sampleId, error);
-    this.drafts = new DraftSaver(api, "annotate", { snapshot: () => this.draftBody(),
+    this.drafts = new DraftSaver(api, "annotate", { userId: user.id, snapshot: () => this.draftBody(),
       onstatus: (state, detail) => this.draftStatus(state, detail),
       onlease: () => this.task && this.leases.retake(this.task.sample_id).catch(() => null) });
     this.history = new History();

@@ -1,22 +1,60 @@
 // Work in progress saved on the server as it is made (PUT .../draft, debounced), so a reload, another tab,
 // the Back button or a new login restores it (backend/services/drafts.py). While a change is not yet
 // saved, leaving the page asks first; a page being hidden or unmounted saves at once.
+//
+// What the server could not take when the page went (the token expired or was revoked: a 401, and the page
+// signs out) is kept in this tab's sessionStorage with the server revision it was made on; when the same
+// sample's draft is read again (after signing in again) and the server has nothing newer, it is restored
+// and saved. It is dropped once saved, when the server holds a newer draft, or after a day.
 
 // Saves still travelling when a page unmounts (Back, a route change): the next page waits for them before
 // it reads the draft, so it never restores an older one.
 const inFlight = new Set();
+const KEPT_KEY = "handloop.unsavedDraft"; // + "." + queue: {userId, sampleId, revision, payload, keptAt}
+const KEPT_MAX_AGE_MS = 24 * 3600 * 1000;
+
+// The work the server did not take for `queue`, or null.
+function keptDraft(queue) {
+  try {
+    const kept = JSON.parse(sessionStorage.getItem(`${KEPT_KEY}.${queue}`) || "null");
+    return kept && Date.now() - kept.keptAt < KEPT_MAX_AGE_MS ? kept : null;
+  } catch {
+    return null;
+  }
+}
+
+// Keep `body` (made at `madeAt` on server revision `revision`) unless newer work of the sample is kept.
+function keep(queue, userId, sampleId, revision, body, madeAt) {
+  const kept = keptDraft(queue);
+  if (kept && kept.sampleId === sampleId && kept.userId === userId && kept.keptAt > madeAt) return;
+  const { lease_token: _token, ...payload } = body; // the lease it was made under may be re-taken by then
+  try {
+    sessionStorage.setItem(`${KEPT_KEY}.${queue}`, JSON.stringify({ userId, sampleId, revision, payload,
+      keptAt: madeAt }));
+  } catch {
+    // storage full or denied: the server's last draft is what there is
+  }
+}
+
+// Drop the sample's kept work (only what was kept before `upTo`, the time a save that went through was made).
+function dropKept(queue, sampleId, upTo = Infinity) {
+  const kept = keptDraft(queue);
+  if (kept === null || (kept.sampleId === sampleId && kept.keptAt <= upTo)) sessionStorage.removeItem(`${KEPT_KEY}.${queue}`);
+}
 
 export function draftsSettled() {
   return Promise.all([...inFlight].map((p) => p.catch(() => null)));
 }
 
 export class DraftSaver {
-  // queue: "annotate" | "review"; snapshot(): the request body for the current state, or null if nothing
-  // to save; onstatus(state, detail): "unsaved" | "saving" | "saved" | "error"; onlease(error): a save
-  // was refused for the lease (403 / 409), the page re-takes it or tells the user.
-  constructor(api, queue, { snapshot, onstatus = () => {}, onlease = () => {}, delayMs = 700 }) {
+  // queue: "annotate" | "review"; userId: whose work it is (work kept in the tab is only ever restored to
+  // them); snapshot(): the request body for the current state, or null if nothing to save;
+  // onstatus(state, detail): "unsaved" | "saving" | "saved" | "error"; onlease(error): a save was refused
+  // for the lease (403 / 409), the page re-takes it or tells the user.
+  constructor(api, queue, { userId, snapshot, onstatus = () => {}, onlease = () => {}, delayMs = 700 }) {
     this.api = api;
     this.queue = queue;
+    this.userId = userId;
     this.snapshot = snapshot;
     this.onstatus = onstatus;
     this.onlease = onlease;
@@ -28,6 +66,7 @@ export class DraftSaver {
     this.revision = 0;
     this.onBeforeUnload = (e) => {
       if (!this.unsaved) return;
+      this.keepHere();
       this.flush({ keepalive: true });
       e.preventDefault();
       e.returnValue = ""; // the browser's own "leave site?" question
@@ -53,17 +92,43 @@ export class DraftSaver {
     this.sampleId = sampleId;
     this.dirty = false;
     this.revision = revision;
+    if (this.keptFor === sampleId) {
+      this.keptFor = null;
+      this.changed(); // the work restored from this tab goes to the server
+    }
   }
 
   // The caller's draft of a sample, or null (none, or the lease is not theirs: then nothing is restored).
+  // Work kept in this tab that the server never got (see above) comes back instead when it is newer.
   async load(sampleId) {
     await draftsSettled();
+    let draft;
     try {
-      return await this.api.get(this.url(sampleId));
+      draft = await this.api.get(this.url(sampleId));
     } catch (error) {
-      if (error.status === 403 || error.status === 409) return null;
+      if (error.status === 403 || error.status === 409) {
+        dropKept(this.queue, sampleId);
+        return null;
+      }
       throw error;
     }
+    const kept = keptDraft(this.queue);
+    if (kept === null || kept.sampleId !== sampleId || kept.userId !== this.userId) return draft;
+    const revision = draft ? draft.revision : 0;
+    if (revision > kept.revision) {
+      dropKept(this.queue, sampleId); // saved after it was kept (the keepalive save went through)
+      return draft;
+    }
+    this.keptFor = sampleId; // shown, then saved by track()
+    return { sample_id: sampleId, revision, payload: kept.payload, updated_at: new Date(kept.keptAt).toISOString(),
+      kept: true };
+  }
+
+  // Keep what is not saved yet in this tab (the server may refuse it: the page is going).
+  keepHere() {
+    if (this.sampleId === null || !this.dirty) return;
+    const body = this.snapshot();
+    if (body) keep(this.queue, this.userId, this.sampleId, this.revision, body, Date.now());
   }
 
   changed() {
@@ -92,11 +157,13 @@ export class DraftSaver {
     const body = this.snapshot();
     if (!body) return null;
     const sampleId = this.sampleId;
+    const base = this.revision, madeAt = Date.now();
     this.dirty = false;
     this.onstatus("saving");
     const request = this.api.fetch("PUT", this.url(sampleId), { body, keepalive })
       .then((response) => response.json())
       .then((draft) => {
+        dropKept(this.queue, sampleId, madeAt);
         if (this.sampleId === sampleId) {
           this.revision = draft.revision;
           this.onstatus(this.dirty ? "unsaved" : "saved", draft);
@@ -104,6 +171,8 @@ export class DraftSaver {
         return draft;
       })
       .catch((error) => {
+        // Signed out (expired or revoked token): kept here, restored after signing in again.
+        if (error.status === 401) keep(this.queue, this.userId, sampleId, base, body, madeAt);
         if (this.sampleId === sampleId) {
           this.dirty = true; // still to save
           this.onstatus("error", error);
@@ -140,16 +209,23 @@ export class DraftSaver {
 
   // The sample was submitted (the server deleted its draft) or given up: nothing more to save for it.
   forget() {
+    if (this.sampleId !== null) dropKept(this.queue, this.sampleId);
+    this.clear();
+  }
+
+  clear() {
     clearTimeout(this.timer);
     this.timer = null;
     this.dirty = false;
     this.sampleId = null;
   }
 
+  // The page goes: what is not saved is kept in the tab and sent (the request outlives the page).
   stop() {
+    this.keepHere();
     if (this.unsaved) this.flush({ keepalive: true });
     window.removeEventListener("beforeunload", this.onBeforeUnload);
     document.removeEventListener("visibilitychange", this.onHide);
-    this.forget();
+    this.clear();
   }
 }

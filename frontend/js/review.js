@@ -68,14 +68,14 @@ export async function mountReview(root, ctx) {
 }
 
 class ReviewPage {
-  constructor(root, { api }) {
+  constructor(root, { api, user }) {
     this.api = api;
     this.root = root;
     this.leases = new LeaseKeeper(api, "review");
     this.leases.onretaken = (sampleId, token) => this.leaseRetaken(sampleId, token);
     this.leases.onlost = (sampleId, error) => this.leaseLost(sampleId, error);
     // The reviewer's note in progress (decision picked, reason typed) survives a reload like annotations.
-    this.drafts = new DraftSaver(api, "review", { snapshot: () => this.draftBody(),
+    this.drafts = new DraftSaver(api, "review", { userId: user.id, snapshot: () => this.draftBody(),
       onstatus: (state, detail) => {
         document.body.dataset.draftState = state;
         if (state === "saved") document.body.dataset.draftSaved = String(detail.revision);

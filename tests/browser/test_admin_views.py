@@ -22,7 +22,7 @@ def test_the_launch_button_says_why_not_and_the_counts_show_leases(live_stack, t
     stack = live_stack(worker=False, round_min_training_samples=2)
     with stack.client("annotator") as http:
         task = http.post("/api/annotate/next").json()  # one sample on an annotator's screen
-    finished, waiting = _two_jobs(stack)
+    finished, waiting = _two_jobs(stack, task["sample_id"])
     t = tab()
     user = stack.users["admin"]
     sign_in(t, stack.base_url, user.email, user.password, "admin")
@@ -36,6 +36,8 @@ def test_the_launch_button_says_why_not_and_the_counts_show_leases(live_stack, t
     assert headers[:6] == ["id", "kind", "sample", "state", "started", "took"], headers
     done_row = f'#jobs tr[data-job="{finished}"]'
     assert page.inner_text(f"{done_row} td.took") == "12.0 s"  # the attempt, not the 5 minutes in the queue
+    assert page.inner_text(f"{done_row} td.sample") == str(task["sample_id"])
+    assert page.inner_text(f'#jobs tr[data-job="{waiting}"] td.sample') == "–"
     assert ":" in page.inner_text(f"{done_row} td.started")
     assert page.inner_text(f"{done_row} td.msg") == "done"  # not its last progress message
     assert page.inner_text(f'#jobs tr[data-job="{waiting}"] td.started').startswith("waiting since")
@@ -49,12 +51,12 @@ def test_the_launch_button_says_why_not_and_the_counts_show_leases(live_stack, t
     assert not t.errors, t.errors
 
 
-def _two_jobs(stack) -> tuple[int, int]:
-    """A job that waited 5 minutes, ran 12 s and succeeded after reporting "predicting 0/16", and a job no
-    worker has started."""
+def _two_jobs(stack, sample_id: int) -> tuple[int, int]:
+    """A job of `sample_id` that waited 5 minutes, ran 12 s and succeeded after reporting "predicting 0/16",
+    and a job of no sample that no worker has started."""
     factory = stack.session_factory()
     with factory() as session, session.begin():
-        done = jobs.create(session, InMemoryJobQueue(), JobKind.predict, payload={})
+        done = jobs.create(session, InMemoryJobQueue(), JobKind.predict, sample_id=sample_id, payload={})
         waiting = jobs.create(session, InMemoryJobQueue(), JobKind.predict, payload={})
     with factory() as session, session.begin():
         jobs.claim(session, done.id, "w1:1", stale_after_s=60)

@@ -31,6 +31,8 @@ def test_every_listed_key_does_what_the_panel_says(live_stack, tab):
     page = t.page
     state = lambda: page.evaluate(STATE)  # noqa: E731
     status = lambda v, k: page.evaluate(STATUS, [v, k])  # noqa: E731
+    # The sequence named as the exports name it (seq000), not "sequence 1".
+    assert page.inner_text(".sample-head .muted").startswith("seq000 · frame "), page.inner_text(".sample-head")
     listed = page.eval_on_selector_all(".help td kbd", "els => els.map((e) => e.textContent)")
     for key in ("1 … 6", "O", "N", "A / Enter", "Tab / Shift+Tab", "Del / Backspace", "M", "P", "[ ] / wheel",
                 "+ / - / 0", "H", "Ctrl+Z / Ctrl+Shift+Z / Ctrl+Y", "Ctrl+Enter", "Esc", "?"):
@@ -126,4 +128,98 @@ def test_every_listed_key_does_what_the_panel_says(live_stack, tab):
     page.keyboard.press("Control+Enter")
     page.wait_for_function(f"() => document.body.dataset.sample !== '{sample}' || "
                            "document.body.dataset.ready === 'annotate-empty'", timeout=30_000)
+    assert not t.errors, t.errors
+
+
+# The Keys panel, row by row (a row added to the panel without a test here fails the next test).
+PANEL = ["1 … 6", "click", "drag", "A / Enter", "O", "N", "Del / Backspace", "Tab / Shift+Tab", "M", "[ ] / wheel",
+         "P", "wheel, right-drag", "+ / - / 0", "H", "Ctrl+Z / Ctrl+Shift+Z / Ctrl+Y", "Ctrl+Enter", "Esc", "?"]
+VIEWPORT = "() => { const p = window.__handloop.page; return [p.vp.scale, p.vp.ox, p.vp.oy]; }"
+CLICK = "([v, k]) => { const p = window.__handloop.page; return p.annotation.get(p.views[v].id, k); }"
+
+
+def test_the_pointer_rows_of_the_panel_and_the_keys_they_combine_with(live_stack, tab):
+    # The rows the test above does not press: Backspace, a drag (and Esc ending it unapplied), the wheel
+    # (zoom at the cursor; brush size in mask mode, Ctrl+wheel zooms there), right-drag and Space+drag pan,
+    # 0 twice (the hand, then the whole image).
+    stack = live_stack(worker=False)
+    t = tab()
+    user = stack.users["annotator"]
+    sign_in(t, stack.base_url, user.email, user.password, "annotate")
+    page = t.page
+    listed = page.eval_on_selector_all(".help td kbd", "els => els.map((e) => e.textContent)")
+    assert listed == PANEL, listed
+    status = lambda v, k: page.evaluate(STATUS, [v, k])  # noqa: E731
+    viewport = lambda: page.evaluate(VIEWPORT)  # noqa: E731
+
+    # Backspace clears the picked keypoint, as Del does.
+    page.keyboard.press("1")
+    click_at(page, 30.0, 40.0)
+    page.keyboard.press("1")
+    page.keyboard.press("Backspace")
+    assert status(0, 0) == "unset"
+    # drag: a point placed, then dragged 10 image px to the right; Esc during a drag leaves it where it was.
+    click_at(page, 30.0, 40.0)
+    start = page.evaluate(SCREEN_OF, [30.0, 40.0])
+    scale = viewport()[0]
+    page.mouse.move(*start)
+    page.mouse.down()
+    page.mouse.move(start[0] + 10 * scale, start[1], steps=4)
+    page.mouse.up()
+    moved = page.evaluate(CLICK, [0, 0])
+    assert abs(moved["x"] - 40.0) < 0.6 and abs(moved["y"] - 40.0) < 0.6, moved
+    here = page.evaluate(SCREEN_OF, [moved["x"], moved["y"]])
+    page.mouse.move(*here)
+    page.mouse.down()
+    page.mouse.move(here[0] + 20 * scale, here[1] + 5 * scale, steps=4)
+    page.keyboard.press("Escape")
+    page.mouse.up()
+    assert page.evaluate(CLICK, [0, 0]) == moved
+
+    # wheel: zoom at the cursor in points mode (the image point under it stays put).
+    canvas = page.locator("canvas.main-canvas").bounding_box()
+    cursor = [canvas["x"] + canvas["width"] * 0.3, canvas["y"] + canvas["height"] * 0.4]
+    page.mouse.move(*cursor)
+    under = page.evaluate("([x, y]) => window.__handloop.page.vp.toImage(x, y)",
+                          [cursor[0] - canvas["x"], cursor[1] - canvas["y"]])
+    before = viewport()
+    page.mouse.wheel(0, -200)
+    page.wait_for_function(f"() => window.__handloop.page.vp.scale > {before[0]}")
+    after = page.evaluate("([u, v]) => window.__handloop.page.vp.toScreen(u, v)", under)
+    assert abs(after[0] - (cursor[0] - canvas["x"])) < 0.5 and abs(after[1] - (cursor[1] - canvas["y"])) < 0.5
+    # In mask mode the wheel sizes the brush and leaves the zoom; Ctrl+wheel zooms.
+    page.keyboard.press("m")
+    radius, zoom = page.evaluate(STATE)["radius"], viewport()
+    page.mouse.wheel(0, -100)
+    page.wait_for_function(f"() => window.__handloop.page.radius > {radius}")
+    assert viewport() == zoom
+    page.keyboard.down("Control")
+    page.mouse.wheel(0, 200)
+    page.keyboard.up("Control")
+    page.wait_for_function(f"() => window.__handloop.page.vp.scale < {zoom[0]}")
+    page.keyboard.press("p")
+    # right-drag pans, Space + drag pans (in points mode, where a left drag would place a point).
+    placed = page.evaluate("() => window.__handloop.page.annotation.clicks.get(window.__handloop.page.view.id).size")
+    for hold in ("right", "Space"):
+        before = viewport()
+        page.mouse.move(*cursor)
+        if hold == "Space":
+            page.keyboard.down("Space")
+        page.mouse.down(button="right" if hold == "right" else "left")
+        page.mouse.move(cursor[0] + 40, cursor[1] + 25, steps=4)
+        page.mouse.up(button="right" if hold == "right" else "left")
+        if hold == "Space":
+            page.keyboard.up("Space")
+        after = viewport()
+        assert after[0] == before[0] and abs(after[1] - before[1] - 40) < 0.5 and abs(after[2] - before[2] - 25) < 0.5
+    assert page.evaluate("() => window.__handloop.page.annotation.clicks.get(window.__handloop.page.view.id).size") \
+        == placed  # panning placed nothing
+    # 0 fits the hand; pressed again, the whole image.
+    page.keyboard.press("0")
+    hand = viewport()
+    page.keyboard.press("0")
+    whole = viewport()
+    whole_scale = page.evaluate("""() => { const p = window.__handloop.page; const r = p.canvas.getBoundingClientRect();
+      return Math.min((r.width - 16) / p.view.width, (r.height - 16) / p.view.height); }""")
+    assert abs(whole[0] - whole_scale) < 1e-6 and hand[0] > whole[0], (hand, whole, whole_scale)  # closer on the hand
     assert not t.errors, t.errors

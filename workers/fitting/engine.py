@@ -436,6 +436,7 @@ class FittingEngine:
             loss_terms={name: float(value[b]) for name, value in terms.items()},
             iterations=iterations,
             seconds=seconds,
+            accepted_2d=None if obs.from_proposal is None else np.asarray(obs.from_proposal, dtype=bool).copy(),
         )
         return FitResult(
             betas=params["betas"][b].detach().double().cpu().numpy(),

@@ -37,6 +37,9 @@ class FrameObservations:
             (HandSegNet predictions, masks drawn to stop at the wrist).
         keypoints_3d: optional (21, 3) metres, world frame (MVNet predictions or triangulated clicks).
         keypoint_3d_weights: optional (21,) >= 0 (e.g. MVNet confidences); default 1 where finite.
+        from_proposal: optional (C, 21) bool, True where the annotator accepted the point from a proposal
+            instead of placing it (its weight already carries PROPOSAL_CLICK_WEIGHT); the fit's 2D residuals
+            are reported apart for those (FitDiagnostics). None: every point was placed by hand.
     """
 
     clicks_px: np.ndarray
@@ -45,6 +48,7 @@ class FrameObservations:
     masks_include_forearm: bool = True
     keypoints_3d: np.ndarray | None = None
     keypoint_3d_weights: np.ndarray | None = None
+    from_proposal: np.ndarray | None = None
 
     @classmethod
     def empty(cls, num_views: int) -> FrameObservations:
@@ -61,6 +65,9 @@ class FrameObservations:
             raise FitInputError(f"click_weights must have shape ({C}, {NUM_KEYPOINTS}), got {weights.shape}")
         if not np.all(np.isfinite(weights)) or np.any(weights < 0):
             raise FitInputError("click_weights must be finite and non-negative")
+        if self.from_proposal is not None and np.shape(self.from_proposal) != (C, NUM_KEYPOINTS):
+            raise FitInputError(f"from_proposal must have shape ({C}, {NUM_KEYPOINTS}), "
+                                f"got {np.shape(self.from_proposal)}")
         used = weights > 0
         if not np.all(np.isfinite(clicks[used])):
             c, k = np.argwhere(used & ~np.isfinite(clicks).all(-1))[0]

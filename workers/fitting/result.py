@@ -14,6 +14,9 @@ class FitDiagnostics:
         iou_per_view: (C,) IoU of the model mask with the (wrist-cut) given mask; NaN without a mask.
         residual_2d_px: (C, 21) distance of each projected model keypoint to its click, pixels; NaN
             where not clicked.
+        accepted_2d: (C, 21) bool, True where that click is a proposal the annotator accepted (not placed by
+            hand). A fit lands near the proposals it was given, so their residuals say little about it: the
+            summaries keep them apart and `mean_residual_2d_px` is over the points placed by hand only.
         residual_3d_mm: (21,) distance to the given 3D keypoints, millimetres; NaN where none.
         loss_terms: final value of each weighted loss term (name -> value).
         iterations: optimisation steps taken.
@@ -26,16 +29,33 @@ class FitDiagnostics:
     loss_terms: dict[str, float]
     iterations: int
     seconds: float
+    accepted_2d: np.ndarray | None = None
+
+    def by_origin(self) -> dict[str, dict[str, float | int | None]]:
+        """The 2D residuals to points placed by hand ("clicked") apart from accepted proposals ("accepted"):
+        each count, mean and max in pixels (None without any)."""
+        finite = np.isfinite(self.residual_2d_px)
+        accepted = np.zeros_like(finite) if self.accepted_2d is None else np.asarray(self.accepted_2d, dtype=bool)
+        out: dict[str, dict[str, float | int | None]] = {}
+        for name, chosen in (("clicked", finite & ~accepted), ("accepted", finite & accepted)):
+            values = self.residual_2d_px[chosen]
+            out[name] = {"n": int(values.size), "mean_px": round(float(values.mean()), 4) if values.size else None,
+                         "max_px": round(float(values.max()), 4) if values.size else None}
+        return out
 
     def to_dict(self) -> dict:
         def clean(a: np.ndarray) -> list:
             return [None if not np.isfinite(x) else round(float(x), 4) for x in np.ravel(a)]
 
+        origin = self.by_origin()
+        accepted = np.zeros(np.shape(self.residual_2d_px), bool) if self.accepted_2d is None else self.accepted_2d
         return {
             "iou_per_view": clean(self.iou_per_view),
             "mean_iou": _nanmean(self.iou_per_view),
             "residual_2d_px": np.where(np.isfinite(self.residual_2d_px), self.residual_2d_px, np.nan).round(3).tolist(),
-            "mean_residual_2d_px": _nanmean(self.residual_2d_px),
+            "mean_residual_2d_px": origin["clicked"]["mean_px"],
+            "residual_2d_by_origin": origin,
+            "accepted_2d": [[int(c), int(k)] for c, k in np.argwhere(accepted & np.isfinite(self.residual_2d_px))],
             "residual_3d_mm": clean(self.residual_3d_mm),
             "loss_terms": {k: round(v, 6) for k, v in self.loss_terms.items()},
             "iterations": self.iterations,

@@ -202,7 +202,7 @@ def from_annotation(ctx: WorkerContext, session: Session, job: Job, frame: Sampl
         masks.append(read_mask(ctx, row.storage_key, (cam.height, cam.width), f"sample {frame.sample_id} view {c}"))
         mask_ids.append(row.id)
     observations = FrameObservations(clicks, weights, masks=tuple(masks) if any(m is not None for m in masks) else None,
-                                     masks_include_forearm=True)
+                                     masks_include_forearm=True, from_proposal=accepted)
     used = weights > 0
     inputs = {"source": "annotation", "submission_ids": [submission.id], "mask_ids": mask_ids,
               "clicks": int(used.sum()), "clicked": int((used & ~accepted).sum()),

@@ -3,6 +3,7 @@ that one as a failure; a redelivered job records nothing twice; a cancelled fit 
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 from sqlalchemy import func, select
 
@@ -117,3 +118,27 @@ def test_points_accepted_from_proposals_weigh_less_than_clicks_in_the_fit_input(
     assert set(clicked) == {1.0} and set(accepted) == {PROPOSAL_CLICK_WEIGHT} and PROPOSAL_CLICK_WEIGHT < 1
     assert given.inputs["clicked"] == len(clicked) and given.inputs["accepted_proposals"] == len(accepted)
     assert given.inputs["clicks"] == len(placed)
+    origin = given.observations.from_proposal  # (C, 21) bool, handed to the fit for its residuals
+    assert {(view_ids[c], int(k)) for c, k in np.argwhere(origin)} == {key for key, f in placed.items() if f}
+
+
+def test_the_recorded_fit_keeps_residuals_to_accepted_proposals_apart(world):
+    from workers.tasks.fit_sources import fit_input
+
+    settings, client, _, ctx = world
+    job_id = _submit(settings, client, accepted_views=3)
+    with ctx.session_factory() as session:
+        view_ids = list(fit_input(ctx, session, session.get(Job, job_id)).view_ids)  # the fit's view order
+    summary = run_fit_jobs(ctx, [job_id])
+    assert len(summary.fitted) == 1, summary
+    with ctx.session_factory() as session:
+        fit = session.execute(select(Fit).where(Fit.sample_id == session.get(Job, job_id).sample_id)).scalar_one()
+        placed = {(r.view_id, r.keypoint): r.from_proposal for r in session.execute(
+            select(Click).where(Click.sample_id == fit.sample_id, Click.x_px.is_not(None))).scalars()}
+    d = fit.diagnostics
+    by_origin = d["residual_2d_by_origin"]
+    n_accepted = sum(1 for f in placed.values() if f)
+    assert by_origin["accepted"]["n"] == n_accepted > 0
+    assert by_origin["clicked"]["n"] == len(placed) - n_accepted > 0
+    assert d["mean_residual_2d_px"] == by_origin["clicked"]["mean_px"]
+    assert {(view_ids[c], k) for c, k in d["accepted_2d"]} == {key for key, f in placed.items() if f}

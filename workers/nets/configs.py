@@ -14,7 +14,7 @@ from typing import Any, Literal
 
 LossKind = Literal["scorevolume", "softargmax"]
 HeatmapSource = Literal["learned", "detector"]
-DetectorResidual = Literal["views", "agreement"]
+DetectorResidual = Literal["views", "agreement", "likelihood"]
 
 
 @dataclass(frozen=True)
@@ -66,7 +66,10 @@ class MVNetConfig:
             score-weighted maps summed over the views that see a voxel, divided by the number of views (its peak is
             about the detectors' mean score); "agreement" = divided by the sum of the weights instead, a weighted
             average of the views' Gaussians: 1 where every view that found the keypoint agrees, as the peak-normalised
-            score targets (so the U-Net learns a shift, not a rescaling, and eq. 8 reads the views' agreement).
+            score targets (so the U-Net learns a shift, not a rescaling, and eq. 8 reads the views' agreement);
+            "likelihood" = at each voxel the Gaussian of the weighted mean squared reprojection distance to the views'
+            keypoints (keypoint_maps.likelihood_volume): the same peak without the rays the averages leave along each
+            view's line of sight (which the L2 loss first spends its steps removing).
         unet_image_features: detector-backed only: the 3D U-Net sees the 2D CNN's unprojected image features
             beside the detector's maps; False: the detector's maps alone (no 2D CNN at all): the refinement is
             learned from the views' geometry, which carries over to unseen hands from a few dozen labels where
@@ -124,8 +127,9 @@ class MVNetConfig:
                              "through the unprojection and the heat-map residual)")
         if self.heatmap_source == "detector" and not self.detector_sigma_px > 0:
             raise ValueError(f"detector_sigma_px must be positive, got {self.detector_sigma_px}")
-        if self.detector_residual not in ("views", "agreement"):
-            raise ValueError(f"detector_residual must be 'views' or 'agreement', got {self.detector_residual!r}")
+        if self.detector_residual not in ("views", "agreement", "likelihood"):
+            raise ValueError(f"detector_residual must be 'views', 'agreement' or 'likelihood', got "
+                             f"{self.detector_residual!r}")
         if not self.unet_image_features and (self.heatmap_source != "detector" or self.aux_2d_weight > 0):
             raise ValueError("unet_image_features=False needs heatmap_source='detector' and aux_2d_weight=0 (without "
                              "image features there is no 2D CNN for a 2D head)")

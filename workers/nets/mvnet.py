@@ -15,7 +15,7 @@ from torch import nn
 from workers.handmodel.keypoints import NUM_KEYPOINTS
 from workers.nets.blocks import conv_block, max_pool_2x2, unet_pass
 from workers.nets.configs import MVNetConfig
-from workers.nets.keypoint_maps import render_keypoint_maps
+from workers.nets.keypoint_maps import likelihood_volume, render_keypoint_maps
 from workers.nets.losses import peak_normalised
 from workers.nets.unproject import unproject_features
 
@@ -213,7 +213,12 @@ class MVNet(nn.Module):
             seen = (count / views[:, None, None, None])[:, None]
             unet_in = volume if cfg.heatmap_source == "detector" else volume[:, :F]
             residual = volume[:, F:] * seen  # sum over the views that see a voxel of w G, / the views
-            if cfg.heatmap_source == "detector" and cfg.detector_residual == "agreement":
+            if cfg.heatmap_source == "detector" and cfg.detector_residual == "likelihood":
+                sigma_crop_px = cfg.detector_sigma_px * cfg.crop_px / cfg.feature_px
+                residual = likelihood_volume(detector_px, detector_scores, K_crop, dist, R, t, center_world,
+                                             cfg.grid_size, cfg.grid_side_m, cfg.crop_px, sigma_crop_px, view_valid,
+                                             grid_rotation)
+            elif cfg.heatmap_source == "detector" and cfg.detector_residual == "agreement":
                 residual = residual * (views[:, None] / detector_weight_sum(detector_scores, view_valid))[..., None,
                                                                                                         None, None]
             scores = self.unet(unet_in, cfg.bf16) + residual

@@ -235,7 +235,7 @@ def test_agreement_and_maps_only_fields_validate_and_enter_the_digest():
     assert config_digest(TINY_AGREEMENT) != config_digest(views)
     assert config_digest(TINY_AGREEMENT) != config_digest(replace(TINY_AGREEMENT, unet_image_features=True))
     assert config_digest(detector_cfg) != config_digest(replace(detector_cfg, grid_size=2 * detector_cfg.grid_size))
-    with pytest.raises(ValueError, match="'views' or 'agreement'"):
+    with pytest.raises(ValueError, match="'views', 'agreement' or 'likelihood'"):
         replace(TINY_DETECTOR, detector_residual="mean")
     with pytest.raises(ValueError, match="unet_image_features=False needs"):
         replace(get_config("tiny").mvnet, unet_image_features=False)  # learned maps need the 2D CNN
@@ -251,7 +251,8 @@ def test_agreement_residual_peaks_at_one_where_the_views_agree(tiny_capture, tin
     scales with the scores; both read out the triangulation."""
     cameras = tiny_capture.cameras
     confidences = {}
-    for name, config in (("agreement", TINY_AGREEMENT), ("views", replace(TINY_DETECTOR, aux_2d_weight=0.0))):
+    for name, config in (("agreement", TINY_AGREEMENT), ("views", replace(TINY_DETECTOR, aux_2d_weight=0.0)),
+                         ("likelihood", replace(TINY_AGREEMENT, detector_residual="likelihood"))):
         for score in (1.0, 0.4):
             dataset = build_mvnet_dataset(tiny_capture, tiny_frames, config,
                                           detections=perfect_detections(tiny_frames, cameras, score=score))
@@ -266,6 +267,34 @@ def test_agreement_residual_peaks_at_one_where_the_views_agree(tiny_capture, tin
     np.testing.assert_allclose(confidences["agreement", 0.4], confidences["agreement", 1.0], rtol=1e-4)
     assert np.all(confidences["agreement", 1.0] > 0.6)  # < 1: the peak falls between voxel centres of 25 mm
     np.testing.assert_allclose(confidences["views", 0.4], 0.4 * confidences["views", 1.0], rtol=1e-4)
+    # The likelihood has no rays: its peak falls off less between voxel centres than the averages' does.
+    np.testing.assert_allclose(confidences["likelihood", 0.4], confidences["likelihood", 1.0], rtol=1e-4)
+    assert np.all(confidences["likelihood", 1.0] > confidences["agreement", 1.0])
+
+
+def test_likelihood_volume_is_one_at_the_keypoint_and_falls_off_with_reprojection_distance():
+    from workers.geometry.projection import stack_cameras
+    from workers.nets.keypoint_maps import likelihood_volume
+
+    cameras = default_rig(96)
+    center = np.array([0.01, -0.02, 0.0])
+    point = center + np.array([0.0125, -0.0125, 0.0125])  # a voxel centre of an 8-voxel grid of side 0.2 m
+    _, K_crop, valid, _ = crop_views([np.zeros((c.height, c.width, 3), np.uint8) for c in cameras], cameras, center,
+                                     32, 0.15)
+    cams = stack_cameras(list(cameras))
+    K_t = torch.as_tensor(K_crop[None], dtype=torch.float32)
+    px, _ = project_batched(torch.as_tensor(point[None, None], dtype=torch.float32), K_t, cams["dist"], cams["R"],
+                            cams["t"])  # (1, C, 1, 2)
+    keypoints = px.expand(1, len(cameras), 2, 2).clone()
+    keypoints[:, 0, 1] = float("nan")  # keypoint 1: view 0 found nothing
+    weights = torch.full((1, len(cameras), 2), 0.7)
+    volume = likelihood_volume(keypoints, weights, K_t, cams["dist"], cams["R"], cams["t"],
+                               torch.as_tensor(center[None], dtype=torch.float32), 8, 0.2, 32, 2.0)
+    assert volume.shape == (1, 2, 8, 8, 8)
+    peak = np.unravel_index(int(volume[0, 0].argmax()), (8, 8, 8))
+    assert peak == (4, 3, 4) and float(volume[0, 0].max()) == pytest.approx(1.0, abs=1e-3)
+    assert float(volume[0, 1].max()) == pytest.approx(1.0, abs=1e-3)  # the other views agree: still 1
+    assert float(volume[0, 0, 0, 0, 0]) < 1e-3  # far from the keypoint: no ray through it
 
 
 def test_maps_only_network_learns_the_detectors_bias_and_round_trips(tiny_capture, tiny_frames, tmp_path):

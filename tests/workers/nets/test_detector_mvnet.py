@@ -281,6 +281,7 @@ def test_likelihood_volume_is_one_at_the_keypoint_and_falls_off_with_reprojectio
     point = center + np.array([0.0125, -0.0125, 0.0125])  # a voxel centre of an 8-voxel grid of side 0.2 m
     _, K_crop, valid, _ = crop_views([np.zeros((c.height, c.width, 3), np.uint8) for c in cameras], cameras, center,
                                      32, 0.15)
+    assert valid.all()
     cams = stack_cameras(list(cameras))
     K_t = torch.as_tensor(K_crop[None], dtype=torch.float32)
     px, _ = project_batched(torch.as_tensor(point[None, None], dtype=torch.float32), K_t, cams["dist"], cams["R"],

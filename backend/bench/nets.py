@@ -3,7 +3,8 @@ a fixed budget and evaluate on held-out subjects in front of other backgrounds.
 
 Full run: 16 sequences x 60 frames at 320 px (12 training sequences = 720 frames of 6 subjects, 4
 evaluation sequences = 240 frames of 2 other subjects); HandSegNet 180 s (on 240 of the training frames),
-each MVNet 400 s of training (the soft-argmax network only for the confidence comparison).
+each MVNet 400 s of training (the soft-argmax network only for the confidence comparison); `--mvnet-steps N`
+trains every MVNet for exactly N steps instead (figures that do not depend on the machine's load).
 --quick: 8 sequences x 4 frames at 160 px, 10 s / 15 s budgets. The synthetic capture is cached in the
 data folder and reused when its settings match (synthesis is not training time).
 
@@ -178,7 +179,7 @@ def run(*, quick: bool = False, data_dir: Path | None = None, out_dir: Path | No
 
     def bar_progress(bar: Any) -> Any:
         def update(p: TrainProgress) -> None:
-            bar.n = min(bar.total, round(p.seconds)) if bar.total is not None else p.step
+            bar.n = p.step if bar.unit == "step" else min(bar.total, round(p.seconds))
             bar.set_postfix(step=p.step, loss=f"{p.loss:.4g}", refresh=False)
             bar.refresh()
         return update
@@ -196,8 +197,8 @@ def run(*, quick: bool = False, data_dir: Path | None = None, out_dir: Path | No
     for name, budget in jobs:
         load_before = os.getloadavg()[0]
         steps_only = name != "handsegnet" and mvnet_steps is not None
-        with tqdm(total=round(budget) if not steps_only else None, desc=f"train {name}", unit="s",
-                  file=sys.stderr) as bar:
+        with tqdm(total=round(budget) if not steps_only else mvnet_steps, desc=f"train {name}",
+                  unit="step" if steps_only else "s", file=sys.stderr) as bar:
             if name == "handsegnet":
                 result = train_handsegnet(seg_data, config, budget, ckpt, resume=False, seed=seed,
                                           progress=bar_progress(bar))

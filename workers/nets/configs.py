@@ -231,8 +231,10 @@ def detector_backed_variant(config: NetsConfig, grid_size: int = 24, grid_side_m
     detector maps' width (1.5 voxels = 17.5 mm = 1 pixel of the 16 x 16 map over 0.28 m), the residual normalised
     to the views' agreement (peak 1 where they agree, as the targets), and the 3D U-Net on the detector's maps
     alone: no 2D CNN, no 2D head, no 2D-only warm-up."""
-    sigma_voxels = 1.0 * (2 * config.mvnet.crop_radius_m / config.mvnet.feature_px) / (grid_side_m / grid_size)
-    mvnet = replace(config.mvnet, warmup_2d_fraction=0.0, heatmap_source="detector", detector_sigma_px=1.0,
+    sigma_map_px = 1.0
+    # the maps' width in metres at the hand (one map pixel spans 2 crop_radius_m / feature_px) in voxels
+    sigma_voxels = sigma_map_px * (2 * config.mvnet.crop_radius_m / config.mvnet.feature_px) / (grid_side_m / grid_size)
+    mvnet = replace(config.mvnet, warmup_2d_fraction=0.0, heatmap_source="detector", detector_sigma_px=sigma_map_px,
                     grid_size=grid_size, grid_side_m=grid_side_m, sigma_voxels=round(sigma_voxels, 3),
                     detector_residual="agreement", unet_image_features=False, aux_2d_weight=0.0)
     return replace(config, name=f"{config.name}-detector", mvnet=mvnet)
@@ -319,8 +321,7 @@ def paper_only(config: NetsConfig) -> NetsConfig:
 
 def get_config(name: str, **mvnet_overrides: Any) -> NetsConfig:
     """The named configuration ("cpu-small", "cpu-small-detector", "cpu-small-detector-coarse", "paper", "tiny"),
-    optionally with MVNet
-    fields replaced."""
+    optionally with MVNet fields replaced."""
     if name not in CONFIGS:
         raise ValueError(f"unknown network configuration {name!r}; choose from {sorted(CONFIGS)}")
     config = CONFIGS[name]

@@ -3,7 +3,8 @@ a fixed budget and evaluate on held-out subjects in front of other backgrounds.
 
 Full run: 16 sequences x 60 frames at 320 px (12 training sequences = 720 frames of 6 subjects, 4
 evaluation sequences = 240 frames of 2 other subjects); HandSegNet 180 s (on 240 of the training frames),
-each MVNet 400 s of training (the soft-argmax network only for the confidence comparison).
+each MVNet 400 s of training (the soft-argmax network only for the confidence comparison); `--mvnet-steps N`
+trains every MVNet for exactly N steps instead (figures that do not depend on the machine's load).
 --quick: 8 sequences x 4 frames at 160 px, 10 s / 15 s budgets. The synthetic capture is cached in the
 data folder and reused when its settings match (synthesis is not training time).
 
@@ -116,17 +117,22 @@ MVNET_CHOICES = ("paper", "detector", "both")
 
 def run(*, quick: bool = False, data_dir: Path | None = None, out_dir: Path | None = None, seed: int = 0,
         config_name: str = "cpu-small", threads: int = 1, emit_json: bool = True, mvnet: str = "both",
-        detector_config_name: str = "cpu-small-detector", frames_per_sequence: int | None = None) -> dict[str, Any]:
+        detector_config_name: str = "cpu-small-detector", frames_per_sequence: int | None = None,
+        mvnet_steps: int | None = None) -> dict[str, Any]:
     """Run the benchmark and return its record (printed as the last stdout line when `emit_json`).
 
     `threads` sets torch's CPU threads (default 1: on a shared machine more threads than free cores
     slow convolutions several-fold). `mvnet`: which MVNet(s) to train and measure (MVNET_CHOICES).
     `frames_per_sequence` replaces the size's frame count (same budgets; a capture of its own).
+    `mvnet_steps`: train every MVNet for exactly this many steps instead of the size's time budget (figures that
+    do not depend on the machine's load; the cosine schedule runs over the steps).
     """
 
 
     if mvnet not in MVNET_CHOICES:
         raise ValueError(f"mvnet must be one of {MVNET_CHOICES}, got {mvnet!r}")
+    if mvnet_steps is not None and mvnet_steps < 1:
+        raise ValueError(f"mvnet_steps must be >= 1, got {mvnet_steps}")
     started = time.perf_counter()
     torch.set_num_threads(threads)
     load_start = [round(x, 2) for x in os.getloadavg()]
@@ -173,7 +179,7 @@ def run(*, quick: bool = False, data_dir: Path | None = None, out_dir: Path | No
 
     def bar_progress(bar: Any) -> Any:
         def update(p: TrainProgress) -> None:
-            bar.n = min(bar.total, round(p.seconds))
+            bar.n = p.step if bar.unit == "step" else min(bar.total, round(p.seconds))
             bar.set_postfix(step=p.step, loss=f"{p.loss:.4g}", refresh=False)
             bar.refresh()
         return update
@@ -183,22 +189,26 @@ def run(*, quick: bool = False, data_dir: Path | None = None, out_dir: Path | No
     train_s: dict[str, float] = {}
     train_steps: dict[str, int] = {}
     train_load: dict[str, list[float]] = {}
-    jobs = [("handsegnet", size.handseg_budget_s)] + [(name, size.mvnet_budget_s) for name in paper_nets]
+    # A step budget trains for exactly that many steps, whatever the time (budget inf, max_steps).
+    mvnet_budget_s = size.mvnet_budget_s if mvnet_steps is None else float("inf")
+    jobs = [("handsegnet", size.handseg_budget_s)] + [(name, mvnet_budget_s) for name in paper_nets]
     if det_config is not None:
-        jobs.append(("detector", size.mvnet_budget_s))
+        jobs.append(("detector", mvnet_budget_s))
     for name, budget in jobs:
         load_before = os.getloadavg()[0]
-        with tqdm(total=round(budget), desc=f"train {name}", unit="s", file=sys.stderr) as bar:
+        steps_only = name != "handsegnet" and mvnet_steps is not None
+        with tqdm(total=round(budget) if not steps_only else mvnet_steps, desc=f"train {name}",
+                  unit="step" if steps_only else "s", file=sys.stderr) as bar:
             if name == "handsegnet":
                 result = train_handsegnet(seg_data, config, budget, ckpt, resume=False, seed=seed,
                                           progress=bar_progress(bar))
             elif name == "detector":
                 result = train_mvnet(datasets["detector"], det_config, budget, ckpt / name, resume=False, seed=seed,
-                                     progress=bar_progress(bar))
+                                     progress=bar_progress(bar), max_steps=mvnet_steps)
             else:
                 mv_config = get_config(config_name, loss=name)
                 result = train_mvnet(datasets["paper"], mv_config, budget, ckpt / name, resume=False, seed=seed,
-                                     progress=bar_progress(bar))
+                                     progress=bar_progress(bar), max_steps=mvnet_steps)
         trained[name], train_s[name] = result.model, result.metadata["train_seconds"]
         train_steps[name] = int(result.metadata["steps"])
         # 1-minute load average when the phase started and ended: tells compute starvation from a bad model.
@@ -385,7 +395,8 @@ def run(*, quick: bool = False, data_dir: Path | None = None, out_dir: Path | No
     bench_settings = {
         "quick": quick, "config": config_name, "seed": seed, "sequences": size.sequences,
         "frames_per_sequence": size.frames, "width_px": size.width_px,
-        "handseg_budget_s": size.handseg_budget_s, "mvnet_budget_s": size.mvnet_budget_s,
+        "handseg_budget_s": size.handseg_budget_s,
+        "mvnet_budget_s": size.mvnet_budget_s if mvnet_steps is None else None, "mvnet_steps": mvnet_steps,
         "device": "cuda" if torch.cuda.is_available() else "cpu", "torch_threads": threads,
         "load_average_at_end": [round(x, 2) for x in os.getloadavg()], "load_average_at_start": load_start,
         "capture": str(capture.root), "mvnet": mvnet,

@@ -14,6 +14,7 @@ from typing import Any, Literal
 
 LossKind = Literal["scorevolume", "softargmax"]
 HeatmapSource = Literal["learned", "detector"]
+DetectorResidual = Literal["views", "agreement", "likelihood"]
 
 
 @dataclass(frozen=True)
@@ -58,6 +59,21 @@ class MVNetConfig:
         heatmap_residual: add the view-averaged 2D keypoint maps (the auxiliary head's, peak-normalised,
             weighted by the fraction of views that see a voxel) to the 3D U-Net's output, so the score
             volumes start from a triangulation-like estimate the U-Net refines (needs aux_2d_weight > 0).
+        heatmap_source: "learned" (the auxiliary 2D head's maps) or "detector" (the pretrained detector's
+            keypoints rendered as Gaussians of `detector_sigma_px` feature-map pixels, keypoint_maps.py).
+        detector_sigma_px: standard deviation of the detector's rendered maps, pixels of the feature map.
+        detector_residual: detector-backed only, the heat-map residual's normalisation: "views" = the views'
+            score-weighted maps summed over the views that see a voxel, divided by the number of views (its peak is
+            about the detectors' mean score); "agreement" = divided by the sum of the weights instead, a weighted
+            average of the views' Gaussians: 1 where every view that found the keypoint agrees, as the peak-normalised
+            score targets (so the U-Net learns a shift, not a rescaling, and eq. 8 reads the views' agreement);
+            "likelihood" = at each voxel the Gaussian of the weighted mean squared reprojection distance to the views'
+            keypoints (keypoint_maps.likelihood_volume): the same peak without the rays the averages leave along each
+            view's line of sight (which the L2 loss first spends its steps removing).
+        unet_image_features: detector-backed only: the 3D U-Net sees the 2D CNN's unprojected image features
+            beside the detector's maps; False: the detector's maps alone (no 2D CNN at all): the refinement is
+            learned from the views' geometry, which carries over to unseen hands from a few dozen labels where
+            image features learned from them do not (docs/networks.md, "Detector-backed MVNet").
     """
 
     crop_px: int = 32
@@ -91,6 +107,8 @@ class MVNetConfig:
     heatmap_residual: bool = False
     heatmap_source: HeatmapSource = "learned"
     detector_sigma_px: float = 1.0
+    detector_residual: DetectorResidual = "views"
+    unet_image_features: bool = True
 
     def __post_init__(self) -> None:
         if self.loss not in ("scorevolume", "softargmax"):
@@ -109,6 +127,12 @@ class MVNetConfig:
                              "through the unprojection and the heat-map residual)")
         if self.heatmap_source == "detector" and not self.detector_sigma_px > 0:
             raise ValueError(f"detector_sigma_px must be positive, got {self.detector_sigma_px}")
+        if self.detector_residual not in ("views", "agreement", "likelihood"):
+            raise ValueError(f"detector_residual must be 'views', 'agreement' or 'likelihood', got "
+                             f"{self.detector_residual!r}")
+        if not self.unet_image_features and (self.heatmap_source != "detector" or self.aux_2d_weight > 0):
+            raise ValueError("unet_image_features=False needs heatmap_source='detector' and aux_2d_weight=0 (without "
+                             "image features there is no 2D CNN for a 2D head)")
         learned_maps = self.heatmap_residual and self.heatmap_source == "learned"
         if (learned_maps or self.warmup_2d_fraction > 0) and self.aux_2d_weight <= 0:
             raise ValueError("heatmap_residual (learned maps) and warmup_2d_fraction need the 2D keypoint head "
@@ -198,11 +222,30 @@ class NetsConfig:
         return cls(name=data["name"], mvnet=MVNetConfig(**mv), handsegnet=HandSegNetConfig(**hs))
 
 
-def detector_backed_variant(config: NetsConfig) -> NetsConfig:
-    """`config` with the detector's keypoint maps in place of MVNet's learned 2D head (`<name>-detector`); no 2D-only
-    warm-up: the maps are there from the first step, so the whole budget goes to the 3D network."""
-    mvnet = replace(config.mvnet, warmup_2d_fraction=0.0, heatmap_source="detector", detector_sigma_px=1.0)
+def detector_backed_variant(config: NetsConfig, grid_size: int = 24, grid_side_m: float = 0.28) -> NetsConfig:
+    """`config` with the detector's keypoint maps in place of MVNet's learned 2D head (`<name>-detector`).
+
+    Sized for the detector's precision (docs/networks.md, "Detector-backed MVNet"): a grid of `grid_side_m` (the
+    crop's side: a hand spans ~0.2 m, the grid is centred on its lifted keypoints) at `grid_size` voxels (0.28 m /
+    24 = 11.7 mm; 32 voxels were as precise per step and 2.3x slower per step on this CPU), Gaussian targets of the
+    detector maps' width (1.5 voxels = 17.5 mm = 1 pixel of the 16 x 16 map over 0.28 m), the residual normalised
+    to the views' agreement (peak 1 where they agree, as the targets), and the 3D U-Net on the detector's maps
+    alone: no 2D CNN, no 2D head, no 2D-only warm-up."""
+    sigma_map_px = 1.0
+    # the maps' width in metres at the hand (one map pixel spans 2 crop_radius_m / feature_px) in voxels
+    sigma_voxels = sigma_map_px * (2 * config.mvnet.crop_radius_m / config.mvnet.feature_px) / (grid_side_m / grid_size)
+    mvnet = replace(config.mvnet, warmup_2d_fraction=0.0, heatmap_source="detector", detector_sigma_px=sigma_map_px,
+                    grid_size=grid_size, grid_side_m=grid_side_m, sigma_voxels=round(sigma_voxels, 3),
+                    detector_residual="agreement", unet_image_features=False, aux_2d_weight=0.0)
     return replace(config, name=f"{config.name}-detector", mvnet=mvnet)
+
+
+def coarse_detector_variant(config: NetsConfig) -> NetsConfig:
+    """The first detector-backed design (2026-12-02, kept to measure beside the current one): `config`'s grid (16^3
+    over 0.4 m, targets of 2 voxels = 50 mm), the detector's maps beside the 2D CNN's image features into the U-Net,
+    the residual divided by the number of views (`<name>-detector-coarse`)."""
+    mvnet = replace(config.mvnet, warmup_2d_fraction=0.0, heatmap_source="detector", detector_sigma_px=1.0)
+    return replace(config, name=f"{config.name}-detector-coarse", mvnet=mvnet)
 
 
 def config_digest(config: MVNetConfig | HandSegNetConfig) -> str:
@@ -221,6 +264,10 @@ def config_digest(config: MVNetConfig | HandSegNetConfig) -> str:
     if data.get("heatmap_source", "learned") != "learned":  # absent from paper-only digests: those stay as they were
         arch["heatmap_source"] = data["heatmap_source"]
         arch["detector_sigma_px"] = data["detector_sigma_px"]
+    if data.get("detector_residual", "views") != "views":  # absent where "views": earlier digests stay as they were
+        arch["detector_residual"] = data["detector_residual"]
+    if not data.get("unet_image_features", True):  # absent where True: earlier digests stay as they were
+        arch["unet_image_features"] = False
     return hashlib.sha1(json.dumps(arch, sort_keys=True).encode()).hexdigest()[:12]
 
 
@@ -252,10 +299,11 @@ CONFIGS: dict[str, NetsConfig] = {
     ),
 }
 CONFIGS["cpu-small-detector"] = detector_backed_variant(CONFIGS["cpu-small"])
+CONFIGS["cpu-small-detector-coarse"] = coarse_detector_variant(CONFIGS["cpu-small"])
 
 
 # The paper-only configuration each detector-backed one falls back to when the detector is not installed.
-PAPER_ONLY: dict[str, str] = {"cpu-small-detector": "cpu-small"}
+PAPER_ONLY: dict[str, str] = {"cpu-small-detector": "cpu-small", "cpu-small-detector-coarse": "cpu-small"}
 
 
 def paper_only(config: NetsConfig) -> NetsConfig:
@@ -267,12 +315,13 @@ def paper_only(config: NetsConfig) -> NetsConfig:
         return CONFIGS[PAPER_ONLY[config.name]]
     mv = config.mvnet
     return replace(config, name=f"{config.name}-paper-only",
-                   mvnet=replace(mv, heatmap_source="learned", aux_2d_weight=mv.aux_2d_weight or 1.0))
+                   mvnet=replace(mv, heatmap_source="learned", aux_2d_weight=mv.aux_2d_weight or 1.0,
+                                 detector_residual="views", unet_image_features=True))
 
 
 def get_config(name: str, **mvnet_overrides: Any) -> NetsConfig:
-    """The named configuration ("cpu-small", "cpu-small-detector", "paper", "tiny"), optionally with MVNet
-    fields replaced."""
+    """The named configuration ("cpu-small", "cpu-small-detector", "cpu-small-detector-coarse", "paper", "tiny"),
+    optionally with MVNet fields replaced."""
     if name not in CONFIGS:
         raise ValueError(f"unknown network configuration {name!r}; choose from {sorted(CONFIGS)}")
     config = CONFIGS[name]

@@ -15,7 +15,7 @@ from torch import nn
 from workers.handmodel.keypoints import NUM_KEYPOINTS
 from workers.nets.blocks import conv_block, max_pool_2x2, unet_pass
 from workers.nets.configs import MVNetConfig
-from workers.nets.keypoint_maps import render_keypoint_maps
+from workers.nets.keypoint_maps import likelihood_volume, render_keypoint_maps
 from workers.nets.losses import peak_normalised
 from workers.nets.unproject import unproject_features
 
@@ -107,18 +107,30 @@ class UNet3d(nn.Module):
         return self.head(unet_pass(x, self.down, self.up, self.merge, self.pool))
 
 
+def detector_weight_sum(scores: torch.Tensor, view_valid: torch.Tensor | None, floor: float = 1e-3) -> torch.Tensor:
+    """scores (B, C, K) the detector's map weights (NaN = 0), view_valid (B, C) -> (B, K) their sum over the valid
+    views, at least `floor` (a keypoint no view detected then has a zero residual, not a division by zero)."""
+    w = torch.nan_to_num(scores.float(), nan=0.0)
+    if view_valid is not None:
+        w = w * view_valid[..., None].to(w.dtype)
+    return w.sum(dim=1).clamp(min=floor)
+
+
 class MVNet(nn.Module):
     """Multi-view 3D keypoint network of the configuration it was built with (`self.config`)."""
 
     def __init__(self, config: MVNetConfig, num_keypoints: int = NUM_KEYPOINTS) -> None:
         super().__init__()
         self.config = config
+        # No 2D CNN where the U-Net sees the detector's maps alone (unet_image_features=False).
         self.encoder = FeatureEncoder2d(config.backbone_widths, config.convs_per_stage, config.feature_channels,
-                                        config.decoder_levels, config.stem_stride, config.norm)
+                                        config.decoder_levels, config.stem_stride, config.norm) \
+            if config.unet_image_features else None
         # Optional 2D keypoint heads on the shared features (deep supervision, see losses.heatmap_2d_loss).
         self.head_2d = nn.Conv2d(config.feature_channels, num_keypoints, 1) if config.aux_2d_weight > 0 else None
-        # Detector-backed: the U-Net sees the unprojected detector maps beside the image features.
-        unet_in = config.feature_channels + (num_keypoints if config.heatmap_source == "detector" else 0)
+        # Detector-backed: the U-Net sees the unprojected detector maps beside the image features (or alone).
+        unet_in = (config.feature_channels if config.unet_image_features else 0) + \
+            (num_keypoints if config.heatmap_source == "detector" else 0)
         self.unet = UNet3d(unet_in, config.unet_widths, num_keypoints, config.norm)
         if config.heatmap_source == "detector":
             # The untrained network's score volumes are the detector's unprojected maps (a triangulation); the
@@ -129,11 +141,15 @@ class MVNet(nn.Module):
         self.register_buffer("rgb_std", torch.tensor(RGB_STD).view(1, 3, 1, 1), persistent=False)
 
     def encode_views(self, crops: torch.Tensor) -> torch.Tensor:
-        """crops (B, C, S, S, 3) uint8 or float in [0, 1] -> features (B, C, F, h, h)."""
+        """crops (B, C, S, S, 3) uint8 or float in [0, 1] -> features (B, C, F, h, h); F = 0 (an empty tensor)
+        where the configuration has no 2D CNN (unet_image_features=False)."""
         B, C, S = crops.shape[:3]
         if crops.shape[2:] != (self.config.crop_px, self.config.crop_px, 3):
             raise ValueError(f"crops must be (B, C, {self.config.crop_px}, {self.config.crop_px}, 3) for this "
                              f"configuration, got {tuple(crops.shape)}")
+        if self.encoder is None:
+            h = self.config.feature_px
+            return torch.zeros((B, C, 0, h, h), device=crops.device)
         x = crops.reshape(B * C, S, S, 3).permute(0, 3, 1, 2)  # a channels-last view: what oneDNN prefers
         x = x.float() / 255.0 if crops.dtype == torch.uint8 else x.float()
         x = ((x - self.rgb_mean) / self.rgb_std).contiguous(memory_format=torch.channels_last)
@@ -196,7 +212,16 @@ class MVNet(nn.Module):
             # Voxels seen by few views would otherwise carry one view's full heat along its ray.
             seen = (count / views[:, None, None, None])[:, None]
             unet_in = volume if cfg.heatmap_source == "detector" else volume[:, :F]
-            scores = self.unet(unet_in, cfg.bf16) + volume[:, F:] * seen
+            residual = volume[:, F:] * seen  # sum over the views that see a voxel of w G, / the views
+            if cfg.heatmap_source == "detector" and cfg.detector_residual == "likelihood":
+                sigma_crop_px = cfg.detector_sigma_px * cfg.crop_px / cfg.feature_px
+                residual = likelihood_volume(detector_px, detector_scores, K_crop, dist, R, t, center_world,
+                                             cfg.grid_size, cfg.grid_side_m, cfg.crop_px, sigma_crop_px, view_valid,
+                                             grid_rotation)
+            elif cfg.heatmap_source == "detector" and cfg.detector_residual == "agreement":
+                residual = residual * (views[:, None] / detector_weight_sum(detector_scores, view_valid))[..., None,
+                                                                                                        None, None]
+            scores = self.unet(unet_in, cfg.bf16) + residual
         else:
             volume = unproject_features(features, K_crop, dist, R, t, center_world, cfg.grid_size, cfg.grid_side_m,
                                         cfg.crop_px, view_valid, grid_rotation)

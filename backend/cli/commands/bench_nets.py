@@ -23,6 +23,9 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         frames_per_sequence: int | None = typer.Option(
             None, "--frames-per-sequence", min=1, max=1000,
             help="Frames per synthetic sequence instead of the size's (60 full, 4 quick); budgets unchanged."),
+        mvnet_steps: int | None = typer.Option(
+            None, "--mvnet-steps", min=1, max=1_000_000,
+            help="Train every MVNet for exactly this many steps instead of the time budget (load-independent)."),
         detector_config: str = typer.Option("cpu-small-detector", "--detector-config",
                                              help="Configuration of the detector-backed MVNet."),
     ) -> None:
@@ -40,7 +43,7 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
             raise typer.BadParameter(f"{detector_config!r} is not detector-backed", param_hint="--detector-config")
         record = run(quick=quick, data_dir=data, out_dir=out, seed=seed, config_name=config, threads=threads,
                      emit_json=json_out, mvnet=mvnet, detector_config_name=detector_config,
-                     frames_per_sequence=frames_per_sequence)
+                     frames_per_sequence=frames_per_sequence, mvnet_steps=mvnet_steps)
         if not json_out:
             side = record["side_by_side"]
             typer.echo(f"MVNet paper-only / detector-backed: {side['keypoint_mm']['paper']} / "

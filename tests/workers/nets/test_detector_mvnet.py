@@ -105,14 +105,20 @@ def test_image_to_crop_px_is_the_crop_transform():
 
 def test_configuration_and_digest():
     paper_cfg = get_config("cpu-small").mvnet
-    detector_cfg = get_config("cpu-small-detector").mvnet
+    detector_cfg = get_config("cpu-small-detector-coarse").mvnet  # the first design: image features beside the maps
     assert paper_cfg.heatmap_source == "learned" and detector_cfg.heatmap_source == "detector"
+    assert get_config("cpu-small-detector").mvnet.heatmap_source == "detector"
     # The new fields leave paper-only digests alone (existing checkpoints still load) ...
     assert config_digest(paper_cfg) == config_digest(replace(paper_cfg, detector_sigma_px=3.0))
     # ... and make a detector-backed network another architecture, its map width part of it.
     assert config_digest(detector_cfg) != config_digest(replace(detector_cfg, heatmap_source="learned"))
     assert config_digest(detector_cfg) != config_digest(replace(detector_cfg, detector_sigma_px=2.0))
     assert paper_only(get_config("cpu-small-detector")) is CONFIGS["cpu-small"]
+    assert paper_only(get_config("cpu-small-detector-coarse")) is CONFIGS["cpu-small"]
+    # Unnamed detector-backed configurations fall back to the same sizes with the learned 2D head and the 2D CNN.
+    unnamed = paper_only(replace(get_config("tiny"), name="tiny-detector", mvnet=TINY_AGREEMENT))
+    assert unnamed.mvnet.heatmap_source == "learned" and unnamed.mvnet.unet_image_features
+    assert MVNet(unnamed.mvnet).encoder is not None
     assert paper_only(get_config("cpu-small")) is CONFIGS["cpu-small"]
     with pytest.raises(ValueError, match="heatmap_residual=True"):
         MVNetConfig(heatmap_source="detector")
@@ -214,3 +220,94 @@ def test_missing_model_files_fall_back_to_the_paper_only_path(tiny_capture, tiny
     result = train_mvnet(dataset, fallback, budget_s=30, checkpoint_dir=tmp_path / "ckpt", max_steps=2)
     pred = predict_from_crops(result.model, dataset.crops, dataset.K_crop, dataset.centers_world, dataset.cameras)
     assert np.isfinite(pred.keypoints_3d).all()
+
+
+# Detector-backed, the U-Net on the detector's maps alone, the residual a weighted average of the views' Gaussians.
+TINY_AGREEMENT = replace(TINY_DETECTOR, detector_residual="agreement", unet_image_features=False, aux_2d_weight=0.0)
+
+
+def test_agreement_and_maps_only_fields_validate_and_enter_the_digest():
+    base = get_config("cpu-small").mvnet
+    detector_cfg = get_config("cpu-small-detector").mvnet
+    # Earlier digests stay as they were where the new fields keep their defaults.
+    assert config_digest(base) == config_digest(replace(base, detector_residual="views", unet_image_features=True))
+    views = replace(TINY_AGREEMENT, detector_residual="views")
+    assert config_digest(TINY_AGREEMENT) != config_digest(views)
+    assert config_digest(TINY_AGREEMENT) != config_digest(replace(TINY_AGREEMENT, unet_image_features=True))
+    assert config_digest(detector_cfg) != config_digest(replace(detector_cfg, grid_size=2 * detector_cfg.grid_size))
+    with pytest.raises(ValueError, match="'views', 'agreement' or 'likelihood'"):
+        replace(TINY_DETECTOR, detector_residual="mean")
+    with pytest.raises(ValueError, match="unet_image_features=False needs"):
+        replace(get_config("tiny").mvnet, unet_image_features=False)  # learned maps need the 2D CNN
+    with pytest.raises(ValueError, match="unet_image_features=False needs"):
+        replace(TINY_DETECTOR, unet_image_features=False, aux_2d_weight=1.0)  # a 2D head without a 2D CNN
+    model = MVNet(TINY_AGREEMENT)
+    assert model.encoder is None and model.head_2d is None
+
+
+def test_agreement_residual_peaks_at_one_where_the_views_agree(tiny_capture, tiny_frames):
+    """Untrained (zero head), perfect keypoints: the agreement residual's peak is ~1 whatever the detector's score
+    level (eq. 8 then reads the views' agreement, on the scale of the peak-normalised targets); the "views" residual
+    scales with the scores; both read out the triangulation."""
+    cameras = tiny_capture.cameras
+    confidences = {}
+    for name, config in (("agreement", TINY_AGREEMENT), ("views", replace(TINY_DETECTOR, aux_2d_weight=0.0)),
+                         ("likelihood", replace(TINY_AGREEMENT, detector_residual="likelihood"))):
+        for score in (1.0, 0.4):
+            dataset = build_mvnet_dataset(tiny_capture, tiny_frames, config,
+                                          detections=perfect_detections(tiny_frames, cameras, score=score))
+            torch.manual_seed(0)
+            model = MVNet(config).eval()
+            pred = predict_from_crops(model, dataset.crops, dataset.K_crop, dataset.centers_world, dataset.cameras,
+                                      dataset.view_valid, detector_px=_crop_px(dataset),
+                                      detector_scores=dataset.detector_scores)
+            err = 1000 * np.linalg.norm(pred.keypoints_3d - dataset.keypoints_3d, axis=-1)
+            assert err.mean() < 0.2 * 1000 * config.voxel_m, (name, score, err.mean())
+            confidences[name, score] = pred.sample_confidence
+    np.testing.assert_allclose(confidences["agreement", 0.4], confidences["agreement", 1.0], rtol=1e-4)
+    assert np.all(confidences["agreement", 1.0] > 0.6)  # < 1: the peak falls between voxel centres of 25 mm
+    np.testing.assert_allclose(confidences["views", 0.4], 0.4 * confidences["views", 1.0], rtol=1e-4)
+    # The likelihood has no rays: its peak falls off less between voxel centres than the averages' does.
+    np.testing.assert_allclose(confidences["likelihood", 0.4], confidences["likelihood", 1.0], rtol=1e-4)
+    assert np.all(confidences["likelihood", 1.0] > confidences["agreement", 1.0])
+
+
+def test_likelihood_volume_is_one_at_the_keypoint_and_falls_off_with_reprojection_distance():
+    from workers.geometry.projection import stack_cameras
+    from workers.nets.keypoint_maps import likelihood_volume
+
+    cameras = default_rig(96)
+    center = np.array([0.01, -0.02, 0.0])
+    point = center + np.array([0.0125, -0.0125, 0.0125])  # a voxel centre of an 8-voxel grid of side 0.2 m
+    _, K_crop, valid, _ = crop_views([np.zeros((c.height, c.width, 3), np.uint8) for c in cameras], cameras, center,
+                                     32, 0.15)
+    assert valid.all()
+    cams = stack_cameras(list(cameras))
+    K_t = torch.as_tensor(K_crop[None], dtype=torch.float32)
+    px, _ = project_batched(torch.as_tensor(point[None, None], dtype=torch.float32), K_t, cams["dist"], cams["R"],
+                            cams["t"])  # (1, C, 1, 2)
+    keypoints = px.expand(1, len(cameras), 2, 2).clone()
+    keypoints[:, 0, 1] = float("nan")  # keypoint 1: view 0 found nothing
+    weights = torch.full((1, len(cameras), 2), 0.7)
+    volume = likelihood_volume(keypoints, weights, K_t, cams["dist"], cams["R"], cams["t"],
+                               torch.as_tensor(center[None], dtype=torch.float32), 8, 0.2, 32, 2.0)
+    assert volume.shape == (1, 2, 8, 8, 8)
+    peak = np.unravel_index(int(volume[0, 0].argmax()), (8, 8, 8))
+    assert peak == (4, 3, 4) and float(volume[0, 0].max()) == pytest.approx(1.0, abs=1e-3)
+    assert float(volume[0, 1].max()) == pytest.approx(1.0, abs=1e-3)  # the other views agree: still 1
+    assert float(volume[0, 0, 0, 0, 0]) < 1e-3  # far from the keypoint: no ray through it
+
+
+def test_maps_only_network_learns_the_detectors_bias_and_round_trips(tiny_capture, tiny_frames, tmp_path):
+    detections = perfect_detections(tiny_frames, tiny_capture.cameras, shift_m=BIAS_M)
+    dataset = build_mvnet_dataset(tiny_capture, tiny_frames, TINY_AGREEMENT, detections=detections)
+    result = train_mvnet(dataset, TINY_AGREEMENT, budget_s=300, checkpoint_dir=tmp_path, max_steps=150, seed=2)
+    torch.manual_seed(2)
+    trained_mm, untrained_mm = _error_mm(result.model, dataset), _error_mm(MVNet(TINY_AGREEMENT).eval(), dataset)
+    assert untrained_mm > 0.8 * 1000 * np.linalg.norm(BIAS_M), untrained_mm
+    assert trained_mm < 0.8 * untrained_mm, (trained_mm, untrained_mm)
+    model, meta = load_model(result.checkpoint, "mvnet")
+    assert model.config == TINY_AGREEMENT and meta["config_digest"] == config_digest(TINY_AGREEMENT)
+    np.testing.assert_allclose(_error_mm(model, dataset), trained_mm, atol=1e-4)
+    with pytest.raises(CheckpointError):  # another digest: refused
+        load_model(result.checkpoint, "mvnet", replace(TINY_AGREEMENT, detector_residual="views"))

@@ -31,7 +31,8 @@ def next_task(session: SessionDep, settings: SettingsDep, user: AnnotatorUser) -
 def submit(sample_id: Id, body: SubmissionCreate, session: SessionDep, settings: SettingsDep,
            queue: JobQueueDep, storage: StorageDep, user: AnnotatorUser) -> Response:
     """Clicks and mask corrections for a leased sample; queues a fit. Idempotent on `submission_id`."""
-    result = submissions.submit(session, queue, storage, user, sample_id, body, settings.max_clicks_per_submission)
+    result = submissions.submit(session, queue, storage, user, sample_id, body, settings.max_clicks_per_submission,
+                                sole_statement=True)
     commit_in_route(session)
     s = result.submission
     public = SubmissionPublic.model_construct(

@@ -3,7 +3,8 @@ role checks written once."""
 
 from __future__ import annotations
 
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Callable, Iterator
+from contextlib import contextmanager
 from typing import Annotated, Any
 
 import anyio
@@ -39,10 +40,10 @@ async def get_session(request: Request) -> AsyncIterator[Session]:
     GET and HEAD requests only read: their transactions do not take SQLite's writer lock
     (backend.db.session.read_only_engine), so image serving never queues behind submissions.
 
-    A route may commit itself, at its end and in its own thread (`commit_in_route`): then the connection goes
-    back to the pool before the route's thread is freed, so a request never holds a pooled connection while it
-    waits for a thread (with more requests in flight than threads and connections, e.g. a thousand idle-paced
-    annotators, that wait exhausted the pool)."""
+    A route that commits itself, in its own thread, gives the connection back to the pool before the route's
+    thread is freed, so a request never holds a pooled connection while it waits for a thread (with more
+    requests in flight than threads and connections, e.g. a thousand idle-paced annotators, that wait exhausted
+    the pool). The annotators' two hot routes open and end their transaction themselves (`route_session`)."""
     state = request.app.state
     factory = state.read_session_factory if request.method in _SAFE_METHODS else state.session_factory
     session: Session = factory()
@@ -60,10 +61,21 @@ async def get_session(request: Request) -> AsyncIterator[Session]:
     run_after_commit(session)
 
 
-def commit_in_route(session: Session) -> None:
-    """Commit at the end of a (sync) route, in its thread: see get_session. A failed commit raises as the
-    dependency's would (the request writes nothing)."""
-    session.commit()
+@contextmanager
+def route_session(request: Request) -> Iterator[Session]:
+    """get_session's transaction, opened and ended by a (sync) route in its own thread: committed when the block
+    ends (a failed commit raises, the request writes nothing), rolled back on any error, closed either way, then
+    the after-commit work (the fit hand-off). For the annotators' two hot routes: the generator dependency cost
+    the event loop an exit stack and a shielded exit per request (~0.4 ms of server CPU per cycle, measured)."""
+    session: Session = request.app.state.session_factory()
+    try:
+        yield session
+        session.commit()
+    except BaseException:
+        _abort(session)
+        raise
+    session.close()
+    run_after_commit(session)
 
 
 def _load_principal(factory: Callable[[], Session], user_id: int) -> Principal | None:

@@ -34,8 +34,8 @@ class Strict(BaseModel):
     @field_validator("*", mode="before")
     @classmethod
     def _from_json_values(cls, value: Any, info: ValidationInfo) -> Any:
-        if type(value) is str and "\x00" in value:  # PostgreSQL cannot store it (a 500 there, not a 422)
-            raise ValueError("text must not contain NUL (0x00) characters")
+        if type(value) is str:
+            _no_nul(value)
         kind = _field_kinds(cls).get(info.field_name or "")
         if kind is None:
             return value
@@ -45,17 +45,38 @@ class Strict(BaseModel):
             if isinstance(value, list) and any(map(isinstance, value, repeat(float))):
                 return [_whole(v) for v in value]
             return value
-        if not isinstance(value, str):
-            return value
-        try:
-            return kind(value)
-        except ValueError:
-            allowed = ", ".join(repr(member.value) for member in kind)
-            raise ValueError(f"{value!r} is not one of {allowed}") from None
+        return enum_from_json(kind, value)
 
 
-def _whole(value: Any) -> Any:
-    return int(value) if type(value) is float and value.is_integer() else value
+def _no_nul(value: str) -> None:
+    if "\x00" in value:  # PostgreSQL cannot store it (a 500 there, not a 422)
+        raise ValueError("text must not contain NUL (0x00) characters")
+
+
+def enum_from_json(kind: type[Enum], value: Any) -> Any:
+    """A JSON string as the member of `kind` it names (what Strict does for an enum field); anything but a string
+    is left to the field's own (strict) validation."""
+    if type(value) is not str:
+        return value
+    _no_nul(value)  # (Strict checked it already; a model's own validator calling this may not have)
+    try:
+        return kind(value)
+    except ValueError:
+        allowed = ", ".join(repr(member.value) for member in kind)
+        raise ValueError(f"{value!r} is not one of {allowed}") from None
+
+
+def whole(value: Any) -> Any:
+    """A float without a fractional part as an int (JSON Schema counts `3.0` as an integer); else unchanged
+    (a string is checked for NUL, as Strict does)."""
+    if type(value) is float:
+        return int(value) if value.is_integer() else value
+    if type(value) is str:
+        _no_nul(value)
+    return value
+
+
+_whole = whole
 
 
 @cache

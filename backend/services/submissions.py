@@ -2,10 +2,13 @@
 new submission queues a fit.
 
 The annotators' hot path, so written with Core statements on the session's connection (no ORM objects).
-Lock the sample (with its views and any submission already stored under this client id, in the same
-statement); then, on PostgreSQL, one statement writes the job, the submission, all clicks, the sample's new
-state, the audit rows and the drafts' deletion (services.submit_statement: two round trips in all); SQLite
-runs those writes as separate statements (in-process: no round trips to save).
+On PostgreSQL, a click-only submission from the route is first tried as one statement in autocommit, the
+checks as its gate (services.submit_statement.SUBMIT_ALONE: one round trip). The checked path, taken
+otherwise and whenever that statement wrote nothing: lock the sample (with its views and any submission
+already stored under this client id, in the same statement), check in Python, then, on PostgreSQL, one
+statement writes the job, the submission, all clicks, the sample's new state, the audit rows and the drafts'
+deletion (two round trips in all); SQLite runs those writes as separate statements (in-process: no round
+trips to save).
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ from typing import Any
 
 from sqlalchemy import func, insert, select, update
 from sqlalchemy.dialects import postgresql, sqlite
+from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from backend.db.base import utcnow
@@ -25,7 +29,13 @@ from backend.models.labels import Click, Mask, Submission
 from backend.schemas.tasks import SubmissionCreate
 from backend.services import audit, drafts, jobs, queues, submit_statement
 from backend.services.annotation_input import check_clicks, check_masks
-from backend.services.errors import ConflictError, DomainError, InvalidInputError, NotFoundError
+from backend.services.errors import (
+    ConflictError,
+    DomainError,
+    InvalidInputError,
+    NotFoundError,
+    ServiceUnavailableError,
+)
 from backend.services.masks import encode_png
 from backend.services.state_machine import check_path
 from backend.services.storage import Storage
@@ -113,7 +123,17 @@ def _insert_clicks(session: Session, body: SubmissionCreate, submission_id: int,
 
 
 def submit(session: Session, queue: jobs.JobQueue, storage: Storage, user: Actor, sample_id: int,
-           body: SubmissionCreate, max_clicks: int) -> SubmitResult:
+           body: SubmissionCreate, max_clicks: int, *, sole_statement: bool = False) -> SubmitResult:
+    """Store a submission and queue its fit, or return the one stored under its client id (duplicate).
+
+    `sole_statement`: the caller's request writes nothing else. On PostgreSQL, when the session has not begun
+    a transaction, a click-only submission is then tried as one statement in autocommit
+    (submit_statement.SUBMIT_ALONE); when one of its checks fails it wrote nothing, and the checked path
+    below (lock, checks, writes, in a transaction) answers, naming the error."""
+    if sole_statement:
+        written = _submit_alone(session, queue, user, sample_id, body, max_clicks)
+        if written is not None:
+            return written
     rows = _lock_with_views(session, sample_id, body.submission_id)
     if not rows:
         found = _existing(session, body.submission_id, user, sample_id)  # same precedence as before: 409 first
@@ -161,6 +181,38 @@ def submit(session: Session, queue: jobs.JobQueue, storage: Storage, user: Actor
     info = SubmissionInfo(submission_id, body.submission_id, sample_id, user.id, len(body.clicks), len(decoded),
                           job_id, now)
     return SubmitResult(info, duplicate=False)
+
+
+def _submit_alone(session: Session, queue: jobs.JobQueue, user: Actor, sample_id: int, body: SubmissionCreate,
+                  max_clicks: int) -> SubmitResult | None:
+    """PostgreSQL: the submission in one statement, in autocommit; None when it is not tried (SQLite, a
+    transaction already begun, masks, checks that need no database failing, the broker unreachable) or wrote
+    nothing. Whatever makes it step aside, the checked path gives the answer it gave before, with the same
+    precedence of errors."""
+    if (session.get_bind().dialect.name != "postgresql" or session.in_transaction() or body.masks
+            or len(body.clicks) > max_clicks
+            or len({(c.view_id, c.keypoint) for c in body.clicks}) != len(body.clicks)):
+        return None
+    try:
+        queue.ensure_available()  # before anything is written: an unreachable broker is a 503 that writes nothing
+    except ServiceUnavailableError:
+        return None  # the checked path raises it again, after the checks that came first there
+    now = utcnow()
+    conn = session.connection(execution_options={"isolation_level": "AUTOCOMMIT"})
+    try:
+        written = submit_statement.write_alone(
+            conn, sample_id=sample_id, user_id=user.id, client_id=body.submission_id, lease_token=body.lease_token,
+            time_spent_s=body.time_spent_s, clicks=body.clicks,
+            payload={"client_submission_id": body.submission_id, "source": "annotation"}, now=now)
+    except IntegrityError:  # the client id was taken meanwhile: the statement wrote nothing
+        written = None
+    if written is None:
+        session.rollback()  # the autocommit connection back to the pool: the checked path runs in a transaction
+        return None
+    job_id, submission_id = written
+    after_commit(session, lambda: queue.enqueue(job_id, JobKind.fit.value))
+    return SubmitResult(SubmissionInfo(submission_id, body.submission_id, sample_id, user.id, len(body.clicks), 0,
+                                       job_id, now), duplicate=False)
 
 
 def _write_separately(session: Session, queue: jobs.JobQueue, user: Actor, sample_id: int, from_state: str,

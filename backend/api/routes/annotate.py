@@ -1,8 +1,8 @@
 from __future__ import annotations
 
-from fastapi import APIRouter, Response
+from fastapi import APIRouter, Request, Response
 
-from backend.api.deps import AnnotatorUser, JobQueueDep, SessionDep, SettingsDep, StorageDep, commit_in_route
+from backend.api.deps import AnnotatorUser, JobQueueDep, SettingsDep, StorageDep, route_session
 from backend.api.routes.leases import lease_routes
 from backend.api.routes.tasks_common import json_response, task_of
 from backend.models.enums import LeaseKind
@@ -16,23 +16,24 @@ router.include_router(lease_routes(LeaseKind.annotate, AnnotatorUser, AnnotateDr
 
 
 @router.post("/next", response_model=TaskPublic, responses={204: {"description": "The queue is empty."}})
-def next_task(session: SessionDep, settings: SettingsDep, user: AnnotatorUser) -> Response:
+def next_task(request: Request, settings: SettingsDep, user: AnnotatorUser) -> Response:
     """Lease the next sample needing annotation (or return the one you already hold, renewed)."""
-    lease = queues.acquire(session, user, LeaseKind.annotate, settings.lease_seconds, sole_statement=True)
-    if lease is None:
-        return Response(status_code=204)
-    task = task_of(session, lease)  # PostgreSQL: built from the lease statement's rows alone
-    commit_in_route(session)
+    with route_session(request) as session:
+        lease = queues.acquire(session, user, LeaseKind.annotate, settings.lease_seconds, sole_statement=True)
+        if lease is None:
+            return Response(status_code=204)
+        task = task_of(session, lease)  # PostgreSQL: built from the lease statement's rows alone
     return json_response(task)
 
 
 @router.post("/samples/{sample_id}/submissions", response_model=SubmissionPublic, status_code=201,
              responses={200: {"description": "Already submitted with this submission_id: nothing new written."}})
-def submit(sample_id: Id, body: SubmissionCreate, session: SessionDep, settings: SettingsDep,
-           queue: JobQueueDep, storage: StorageDep, user: AnnotatorUser) -> Response:
+def submit(sample_id: Id, body: SubmissionCreate, request: Request, settings: SettingsDep, queue: JobQueueDep,
+           storage: StorageDep, user: AnnotatorUser) -> Response:
     """Clicks and mask corrections for a leased sample; queues a fit. Idempotent on `submission_id`."""
-    result = submissions.submit(session, queue, storage, user, sample_id, body, settings.max_clicks_per_submission)
-    commit_in_route(session)
+    with route_session(request) as session:
+        result = submissions.submit(session, queue, storage, user, sample_id, body,
+                                    settings.max_clicks_per_submission, sole_statement=True)
     s = result.submission
     public = SubmissionPublic.model_construct(
         id=s.id, submission_id=s.client_id, sample_id=s.sample_id, n_clicks=s.n_clicks, n_masks=s.n_masks,

@@ -34,16 +34,20 @@ RESTS = ("annotate", "keep")  # what happens to samples the reviewers' queue doe
 MIN_VIEWS = 2  # one view cannot place a hand in 3D
 
 
-def detector_problem(*, import_runtime: bool = True) -> str | None:
+def detector_problem() -> str | None:
     """None when the pretrained detector can run on this install (the workers share it), else why not.
 
-    With `import_runtime` (the pre-annotation job's check, in the worker) the runtime is imported: installed
-    but unable to load is a problem (an import also asks this: its samples' queue depends on the answer).
-    Without it (the API: the admin page's status, a launch) the model files' checksums and the runtime's
-    presence on the import path: nothing heavy is imported (not the detector's pipeline, torch or the
-    runtime), so it answers in milliseconds; the job's own check catches the rest and fails it before
-    anything is written."""
-    return loaded_detector_status() if import_runtime else detector_status()
+    The runtime is imported: installed but unable to load (its native library) is a problem. Asked by the
+    pre-annotation job in the worker, by a launch (refused rather than queued to fail) and by an import (its
+    samples' queue depends on the answer); the first import of the runtime takes seconds."""
+    return loaded_detector_status()
+
+
+def quick_detector_problem() -> str | None:
+    """As `detector_problem` from the model files' checksums and the runtime's presence on the import path:
+    nothing heavy is imported (not the detector's pipeline, torch or the runtime), so the admin page's status
+    answers in milliseconds. A runtime that is installed but cannot load passes it (a launch then says so)."""
+    return detector_status()
 
 
 def project_problem(session: Session, project_id: int) -> str | None:
@@ -93,7 +97,7 @@ def running_job(session: Session, project_id: int) -> Job | None:
 
 def overview(session: Session) -> dict[str, object]:
     """Whether the detector can run, and per project its samples, how many are unlabeled, its running job."""
-    problem = detector_problem(import_runtime=False)
+    problem = quick_detector_problem()
     rows = session.execute(
         select(Project.id, Project.name, func.count(Sample.id),
                func.coalesce(func.sum(case((Sample.state == SampleState.unlabeled, 1), else_=0)), 0))
@@ -124,7 +128,7 @@ def launch(session: Session, queue: jobs.JobQueue, project_id: int, *, actor_id:
     """
     if rest not in RESTS:
         raise InvalidInputError(f"rest must be one of {list(RESTS)}, not {rest!r}")
-    problem = detector_problem(import_runtime=False)
+    problem = detector_problem()
     if problem is not None:
         raise ServiceUnavailableError(f"pre-annotation is unavailable: {problem}")
     if session.get(Project, project_id) is None:
@@ -154,7 +158,7 @@ def import_capture(session: Session, storage: Storage, queue: jobs.JobQueue, pat
     """
     from backend.services import importer  # deferred: its capture reader pulls in cv2 and PIL
 
-    problem = detector_problem() if enabled else None  # the import is heavy already; its samples wait on the answer
+    problem = detector_problem() if enabled else None
     run = enabled and problem is None
     result = importer.import_capture(session, storage, path, project_name=project_name,
                                      queue_for_annotation=queue_for_annotation and not run, actor_id=actor_id,

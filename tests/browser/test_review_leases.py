@@ -1,6 +1,6 @@
-"""A reviewer's note is never lost to the Back button or a lease: one that lapsed while the server was unreachable is re-taken
-when it answers again (the sample still free) and the note goes with the decision; when someone else took the
-sample meanwhile, a banner says so with one button to go on, and the new holder sees none of the note.
+"""A reviewer's note is never lost to the Back button or a lease: one that lapsed while the server was unreachable
+is re-taken when it answers again (the sample still free) and the note goes with the decision; when someone else
+took the sample meanwhile, a banner says so with one button to go on, and the new holder sees none of the note.
 Real browser, real API, real worker (it fits the two samples)."""
 
 from __future__ import annotations

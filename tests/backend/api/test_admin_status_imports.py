@@ -120,8 +120,9 @@ def test_a_runtime_that_cannot_load_passes_the_status_but_not_the_workers(monkey
     try:
         # The API's status (the admin page's first load) only looks on the import path: available.
         assert model_files.detector_status() is None
-        assert preannotation.detector_problem(import_runtime=False) is None
-        # The workers import it: the pre-annotation job's check and MVNet's detector-backed configuration.
+        assert preannotation.quick_detector_problem() is None
+        # The workers import it (the pre-annotation job's check, MVNet's detector-backed configuration), and so
+        # does a launch: refused, not queued to fail.
         for status in (workers_status(), preannotation.detector_problem()):
             assert status is not None and "cannot open shared object file" in status, status
         config, message = detector_backed(CONFIGS["cpu-small-detector"])

@@ -54,7 +54,8 @@ def make_world(tmp_path, capture_cache, monkeypatch):
             headers[role] = {"Authorization": f"Bearer {token.json()['access_token']}"}
         fake = FakeDetector(capture)
         monkeypatch.setattr(preannotate, "detect", fake)
-        monkeypatch.setattr(preannotation, "detector_problem", lambda **_: None)
+        monkeypatch.setattr(preannotation, "detector_problem", lambda: None)
+        monkeypatch.setattr(preannotation, "quick_detector_problem", lambda: None)  # the admin page's status
         return client, headers, queue, build_context(settings, job_queue=queue), capture, fake
 
     yield make
@@ -109,7 +110,8 @@ def test_bad_requests_are_refused_with_what_is_wrong(make_world):
 
 def test_without_the_detector_the_action_is_refused_with_its_sentence(make_world, monkeypatch):
     client, headers, queue, ctx, _, _ = make_world()
-    monkeypatch.setattr(preannotation, "detector_problem", lambda **_: MISSING)
+    monkeypatch.setattr(preannotation, "detector_problem", lambda: MISSING)
+    monkeypatch.setattr(preannotation, "quick_detector_problem", lambda: MISSING)
     status = client.get("/api/admin/preannotation", headers=headers["admin"]).json()
     assert (status["available"], status["reason"]) == (False, MISSING)
     refused = client.post("/api/admin/preannotation", json={"project_id": _project_id(ctx)}, headers=headers["admin"])
@@ -121,7 +123,7 @@ def test_without_the_detector_the_action_is_refused_with_its_sentence(make_world
 def test_the_setting_pre_annotates_an_import(make_world, monkeypatch, detector):
     client, headers, queue, ctx, capture, _ = make_world(preannotate_on_import=True)
     if detector == "missing":
-        monkeypatch.setattr(preannotation, "detector_problem", lambda **_: MISSING)
+        monkeypatch.setattr(preannotation, "detector_problem", lambda: MISSING)
     imported = client.post("/api/admin/imports", json={"path": str(capture), "project": "second"},
                            headers=headers["admin"])
     assert imported.status_code == 201, imported.text

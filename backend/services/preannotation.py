@@ -26,7 +26,7 @@ from backend.services import audit, jobs
 from backend.services.annotation_set import queue_for_annotation as queue_samples
 from backend.services.errors import ConflictError, InvalidInputError, NotFoundError, ServiceUnavailableError
 from backend.services.storage import Storage
-from workers.detector.model_files import detector_status
+from workers.detector.model_files import detector_status, loaded_detector_status
 
 Rest = Literal["annotate", "keep"]
 MAX_LISTED = 20  # ids named in an error message
@@ -37,8 +37,16 @@ MIN_VIEWS = 2  # one view cannot place a hand in 3D
 def detector_problem() -> str | None:
     """None when the pretrained detector can run on this install (the workers share it), else why not.
 
-    The model files' checksums and the runtime's presence on the import path: nothing heavy is imported (not
-    the detector's pipeline, torch or the runtime), so the admin page's status answers in milliseconds."""
+    The runtime is imported: installed but unable to load (its native library) is a problem. Asked by the
+    pre-annotation job in the worker, by a launch (refused rather than queued to fail) and by an import (its
+    samples' queue depends on the answer); the first import of the runtime takes seconds."""
+    return loaded_detector_status()
+
+
+def quick_detector_problem() -> str | None:
+    """As `detector_problem` from the model files' checksums and the runtime's presence on the import path:
+    nothing heavy is imported (not the detector's pipeline, torch or the runtime), so the admin page's status
+    answers in milliseconds. A runtime that is installed but cannot load passes it (a launch then says so)."""
     return detector_status()
 
 
@@ -89,7 +97,7 @@ def running_job(session: Session, project_id: int) -> Job | None:
 
 def overview(session: Session) -> dict[str, object]:
     """Whether the detector can run, and per project its samples, how many are unlabeled, its running job."""
-    problem = detector_problem()
+    problem = quick_detector_problem()
     rows = session.execute(
         select(Project.id, Project.name, func.count(Sample.id),
                func.coalesce(func.sum(case((Sample.state == SampleState.unlabeled, 1), else_=0)), 0))

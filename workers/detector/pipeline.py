@@ -14,7 +14,7 @@ import numpy as np
 from workers.detector.crops import Crop
 from workers.detector.landmark_model import LandmarkModel, landmark_model
 from workers.detector.lifting import lift
-from workers.detector.model_files import detector_status  # noqa: F401  (re-exported: workers.detector.detector_status)
+from workers.detector.model_files import loaded_detector_status as detector_status  # noqa: F401  (re-exported: the workers' check, runtime imported)
 from workers.detector.palm import palm_detector
 from workers.detector.types import DetectorInputError, Handedness, LiftedKeypoints, ViewKeypoints
 from workers.detector.view import StartCrop, detect_view, refined_crop, start_crops

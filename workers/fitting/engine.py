@@ -437,6 +437,7 @@ class FittingEngine:
             iterations=iterations,
             seconds=seconds,
             accepted_2d=None if obs.from_proposal is None else np.asarray(obs.from_proposal, dtype=bool).copy(),
+            points_source=obs.points_source,
         )
         return FitResult(
             betas=params["betas"][b].detach().double().cpu().numpy(),

@@ -17,6 +17,8 @@ OCCLUDED_CLICK_WEIGHT = 0.3
 # is one a person let through at a glance; the bench's scripted annotator corrects those more than 4 px off).
 # A triangulated proposal is moreover the annotator's own clicks again, not new evidence.
 PROPOSAL_CLICK_WEIGHT = 0.25
+# Where a frame's 2D points come from (FrameObservations.points_source).
+POINTS_SOURCES = ("annotation", "detector")
 
 
 class FitInputError(ValueError):
@@ -40,6 +42,8 @@ class FrameObservations:
         from_proposal: optional (C, 21) bool, True where the annotator accepted the point from a proposal
             instead of placing it (its weight already carries PROPOSAL_CLICK_WEIGHT); the fit's 2D residuals
             are reported apart for those (FitDiagnostics). None: every point was placed by hand.
+        points_source: "annotation" (clicks_px are annotators' points, from_proposal marking the accepted
+            ones) or "detector" (the pretrained detector's keypoints: none placed by hand).
     """
 
     clicks_px: np.ndarray
@@ -49,6 +53,7 @@ class FrameObservations:
     keypoints_3d: np.ndarray | None = None
     keypoint_3d_weights: np.ndarray | None = None
     from_proposal: np.ndarray | None = None
+    points_source: str = "annotation"
 
     @classmethod
     def empty(cls, num_views: int) -> FrameObservations:
@@ -65,6 +70,8 @@ class FrameObservations:
             raise FitInputError(f"click_weights must have shape ({C}, {NUM_KEYPOINTS}), got {weights.shape}")
         if not np.all(np.isfinite(weights)) or np.any(weights < 0):
             raise FitInputError("click_weights must be finite and non-negative")
+        if self.points_source not in POINTS_SOURCES:
+            raise FitInputError(f"points_source must be one of {POINTS_SOURCES}, got {self.points_source!r}")
         if self.from_proposal is not None and np.shape(self.from_proposal) != (C, NUM_KEYPOINTS):
             raise FitInputError(f"from_proposal must have shape ({C}, {NUM_KEYPOINTS}), "
                                 f"got {np.shape(self.from_proposal)}")

@@ -16,7 +16,9 @@ class FitDiagnostics:
             where not clicked.
         accepted_2d: (C, 21) bool, True where that click is a proposal the annotator accepted (not placed by
             hand). A fit lands near the proposals it was given, so their residuals say little about it: the
-            summaries keep them apart and `mean_residual_2d_px` is over the points placed by hand only.
+            summaries keep them apart and `mean_residual_2d_px` is over the points placed by hand when any.
+        points_source: "annotation" (residual_2d_px is to annotators' points: placed by hand or accepted) or
+            "detector" (to the pretrained detector's keypoints: none placed by hand).
         residual_3d_mm: (21,) distance to the given 3D keypoints, millimetres; NaN where none.
         loss_terms: final value of each weighted loss term (name -> value).
         iterations: optimisation steps taken.
@@ -30,14 +32,17 @@ class FitDiagnostics:
     iterations: int
     seconds: float
     accepted_2d: np.ndarray | None = None
+    points_source: str = "annotation"
 
     def by_origin(self) -> dict[str, dict[str, float | int | None]]:
-        """The 2D residuals to points placed by hand ("clicked") apart from accepted proposals ("accepted"):
-        each count, mean and max in pixels (None without any)."""
+        """The 2D residuals to points placed by hand ("clicked") apart from accepted proposals ("accepted") and
+        the detector's keypoints ("detector"): each count, mean and max in pixels (None without any)."""
         finite = np.isfinite(self.residual_2d_px)
         accepted = np.zeros_like(finite) if self.accepted_2d is None else np.asarray(self.accepted_2d, dtype=bool)
+        detector = finite if self.points_source == "detector" else np.zeros_like(finite)
         out: dict[str, dict[str, float | int | None]] = {}
-        for name, chosen in (("clicked", finite & ~accepted), ("accepted", finite & accepted)):
+        for name, chosen in (("clicked", finite & ~accepted & ~detector), ("accepted", finite & accepted & ~detector),
+                             ("detector", detector)):
             values = self.residual_2d_px[chosen]
             out[name] = {"n": int(values.size), "mean_px": round(float(values.mean()), 4) if values.size else None,
                          "max_px": round(float(values.max()), 4) if values.size else None}
@@ -49,11 +54,15 @@ class FitDiagnostics:
 
         origin = self.by_origin()
         accepted = np.zeros(np.shape(self.residual_2d_px), bool) if self.accepted_2d is None else self.accepted_2d
+        # Over the points placed by hand when there are any (proposals would flatter the fit), else over what
+        # the fit had (accepted proposals, the detector's keypoints); `mean_residual_2d_of` names which.
+        of = next((name for name in ("clicked", "accepted", "detector") if origin[name]["n"]), None)
         return {
             "iou_per_view": clean(self.iou_per_view),
             "mean_iou": _nanmean(self.iou_per_view),
             "residual_2d_px": np.where(np.isfinite(self.residual_2d_px), self.residual_2d_px, np.nan).round(3).tolist(),
-            "mean_residual_2d_px": origin["clicked"]["mean_px"],
+            "mean_residual_2d_px": origin[of]["mean_px"] if of else None,
+            "mean_residual_2d_of": of,
             "residual_2d_by_origin": origin,
             "accepted_2d": [[int(c), int(k)] for c, k in np.argwhere(accepted & np.isfinite(self.residual_2d_px))],
             "residual_3d_mm": clean(self.residual_3d_mm),

@@ -105,7 +105,7 @@ def observations_from_detection(record: dict[str, Any], cameras: Sequence[Camera
     keypoint_weights = np.where(lifted, np.clip(confidence, 0.0, 1.0), 0.0)
     return FrameObservations(clicks, weights, masks=tuple(masks) if masks is not None else None,
                              masks_include_forearm=True, keypoints_3d=np.where(lifted[:, None], points, np.nan),
-                             keypoint_3d_weights=keypoint_weights)
+                             keypoint_3d_weights=keypoint_weights, points_source="detector")
 
 
 def masks_for(ctx: WorkerContext, session: Session, frame: SampleFrame, rig: Rig

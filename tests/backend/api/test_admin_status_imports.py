@@ -74,7 +74,8 @@ def test_the_status_route_imports_no_detector_runtime(database: dict) -> None:
     assert answer["before"] == [], answer  # the app itself loads none of them
     assert answer["imported"]["/api/admin/preannotation"] == [], answer["imported"]
     assert not any(answer["imported"].values()), f"the admin page's first load imported {answer['imported']}"
-    # It is the same answer as the full check in this process (the files as installed here).
+    # The route answers the cheap check (asked here in this process: the files as installed here); where it
+    # and the workers' check differ is test_a_runtime_that_cannot_load_passes_the_status_but_not_the_workers.
     assert answer["body"]["available"] is (model_files.detector_status() is None)
 
 
@@ -98,3 +99,34 @@ def test_the_runtime_is_looked_for_on_the_import_path(monkeypatch: pytest.Monkey
     monkeypatch.setattr(model_files, "model_files_status", lambda: None)
     monkeypatch.setattr(model_files, "RUNTIME", "handloop_no_such_runtime")
     assert "ai-edge-litert is not installed" in model_files.detector_status()
+
+
+def test_a_runtime_that_cannot_load_passes_the_status_but_not_the_workers(monkeypatch: pytest.MonkeyPatch,
+                                                                         tmp_path: Path) -> None:
+    # Installed (on the import path, with its interpreter module) but its native library does not load.
+    runtime = tmp_path / "handloop_broken_runtime"
+    runtime.mkdir()
+    (runtime / "__init__.py").write_text("")
+    (runtime / "interpreter.py").write_text(
+        "raise ImportError('libLiteRtRuntime.so: cannot open shared object file')\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(model_files, "RUNTIME", "handloop_broken_runtime")
+    monkeypatch.setattr(model_files, "model_files_status", lambda: None)  # the files as if present and verified
+    from backend.services import preannotation  # deferred: after the runtime is swapped for the broken one
+    from workers.detector import detector_status as workers_status  # deferred: the same
+    from workers.nets.configs import CONFIGS  # deferred: the same
+    from workers.nets.detections import detector_backed  # deferred: the same
+
+    try:
+        # The API's status (the admin page's first load) only looks on the import path: available.
+        assert model_files.detector_status() is None
+        assert preannotation.quick_detector_problem() is None
+        # The workers import it (the pre-annotation job's check, MVNet's detector-backed configuration), and so
+        # does a launch: refused, not queued to fail.
+        for status in (workers_status(), preannotation.detector_problem()):
+            assert status is not None and "cannot open shared object file" in status, status
+        config, message = detector_backed(CONFIGS["cpu-small-detector"])
+        assert config.mvnet.heatmap_source != "detector"
+        assert message is not None and "cannot open shared object file" in message, message
+    finally:
+        sys.modules.pop("handloop_broken_runtime", None)

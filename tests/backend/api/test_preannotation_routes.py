@@ -55,6 +55,7 @@ def make_world(tmp_path, capture_cache, monkeypatch):
         fake = FakeDetector(capture)
         monkeypatch.setattr(preannotate, "detect", fake)
         monkeypatch.setattr(preannotation, "detector_problem", lambda: None)
+        monkeypatch.setattr(preannotation, "quick_detector_problem", lambda: None)  # the admin page's status
         return client, headers, queue, build_context(settings, job_queue=queue), capture, fake
 
     yield make
@@ -110,6 +111,7 @@ def test_bad_requests_are_refused_with_what_is_wrong(make_world):
 def test_without_the_detector_the_action_is_refused_with_its_sentence(make_world, monkeypatch):
     client, headers, queue, ctx, _, _ = make_world()
     monkeypatch.setattr(preannotation, "detector_problem", lambda: MISSING)
+    monkeypatch.setattr(preannotation, "quick_detector_problem", lambda: MISSING)
     status = client.get("/api/admin/preannotation", headers=headers["admin"]).json()
     assert (status["available"], status["reason"]) == (False, MISSING)
     refused = client.post("/api/admin/preannotation", json={"project_id": _project_id(ctx)}, headers=headers["admin"])

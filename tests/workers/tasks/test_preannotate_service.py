@@ -343,6 +343,7 @@ def test_observations_keep_the_inlier_detections_inside_the_image_weighted_by_sc
     assert obs.click_weights[0, 3] == 0 and obs.click_weights[1, 7] == 0 and obs.click_weights[0, 7] > 0
     assert not obs.click_weights[2].any()
     assert obs.keypoint_3d_weights[9] == 0 and obs.keypoint_3d_weights[0] == pytest.approx(0.7)
+    assert obs.points_source == "detector" and obs.from_proposal is None  # not points placed by hand
     obs.validate(cameras)  # what the fit engine checks first
     with pytest.raises(preannotate.InputError, match="covers 3 views; the rig has 2"):
         detection_inputs.observations_from_detection(record, cameras[:2], None)
@@ -376,5 +377,10 @@ def test_the_detector_looks_for_each_sequences_hand_unless_the_admin_names_one(t
         with ctx.session_factory() as session:
             fits = session.execute(select(Fit).order_by(Fit.id)).scalars().all()
             assert [f.diagnostics["hand_side"] for f in fits] == ["left", "left"]  # the fit follows the sequence
+            for fit in fits:  # residuals to the detector's keypoints, not to clicks
+                by_origin = fit.diagnostics["residual_2d_by_origin"]
+                assert by_origin["clicked"]["n"] == 0 and by_origin["detector"]["n"] > 0, by_origin
+                assert fit.diagnostics["mean_residual_2d_of"] == "detector"
+                assert fit.diagnostics["mean_residual_2d_px"] == by_origin["detector"]["mean_px"]
     finally:
         ctx.session_factory.kw["bind"].dispose()

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 from sqlalchemy.orm import Session
 
-from backend.services.working_images import ensure_working_copy, ensure_working_mask, project_working_width
+from backend.services.working_images import ensure_working_copy, project_working_width
 from workers.capture.working import (
     is_reduced,
     mask_to_working,
@@ -77,8 +77,9 @@ def working_frame(ctx: WorkerContext, frame: SampleFrame, wrig: WorkingRig) -> S
         images[full.name] = ctx.storage_path(ensure_working_copy(
             ctx.storage, _storage_key(ctx, ref.image_paths[full.name]), full.width, full.height, wrig.width))
         if full.name in ref.mask_paths:
-            masks[full.name] = ctx.storage_path(ensure_working_mask(
-                ctx.storage, _storage_key(ctx, ref.mask_paths[full.name]), full.width, full.height, wrig.width))
+            masks[full.name] = ctx.storage_path(ensure_working_copy(
+                ctx.storage, _storage_key(ctx, ref.mask_paths[full.name]), full.width, full.height, wrig.width,
+                mask=True))
     return dataclasses.replace(frame, frame=dataclasses.replace(ref, image_paths=images, mask_paths=masks))
 
 

@@ -18,6 +18,7 @@ class Storage(Protocol):
     def put_file(self, key: str, source: Path) -> None: ...
     def get_bytes(self, key: str) -> bytes: ...
     def etag(self, key: str) -> str: ...
+    def mtime_ns(self, key: str) -> int: ...
 
 
 def _check_key(key: str) -> PurePosixPath:
@@ -66,3 +67,10 @@ class LocalDiskStorage:
         except FileNotFoundError as exc:
             raise NotFoundError(f"file {key!r} is missing from storage") from exc
         return hashlib.sha1(f"{key}:{stat.st_size}:{stat.st_mtime_ns}".encode()).hexdigest()[:20]
+
+    def mtime_ns(self, key: str) -> int:
+        """When the file behind `key` was last written, ns since the epoch (NotFoundError when missing)."""
+        try:
+            return self._path(key).stat().st_mtime_ns
+        except FileNotFoundError as exc:
+            raise NotFoundError(f"file {key!r} is missing from storage") from exc

@@ -34,48 +34,30 @@ def project_working_width(session: Session, project_id: int) -> int | None:
     return int(width) if width is not None else None
 
 
-def _ensure(storage: Storage, key: str, make: object) -> str:
-    """`key` when it is in storage, else written from `make()` first (concurrent callers may both derive it:
-    the writes are atomic and the bytes the same)."""
+def ensure_working_copy(storage: Storage, key: str, full_width: int, full_height: int, width: int,
+                        mask: bool = False) -> str:
+    """The storage key of the working copy at `width` of the image (a JPEG) or, `mask`, the 8-bit mask (a PNG)
+    at `key` in storage: derived now when missing or older than the original (an original rewritten under
+    the same key, e.g. storage outliving a recreated database). Concurrent callers may both derive it: the
+    writes are atomic and the bytes the same. NotFoundError when the original is missing or undecodable."""
+    # deferred: the core's capture package loads OpenCV and PIL; the API's start-up stays free of them
+    from workers.capture.working import derived_key, working_jpeg, working_mask_png, working_size
+
+    size = working_size(full_width, full_height, width)
+    target = derived_key(key, width, ".png" if mask else ".jpg")
+    original_ns = storage.mtime_ns(key)
     try:
-        storage.etag(key)
-        return key
+        if storage.mtime_ns(target) >= original_ns:
+            return target
     except NotFoundError:
         pass
-    storage.put_bytes(key, make())  # type: ignore[operator]
-    return key
-
-
-def ensure_working_copy(storage: Storage, image_key: str, full_width: int, full_height: int, width: int) -> str:
-    """The storage key of the image's working copy at `width` (derived now when missing)."""
-    # deferred: the core's capture package loads OpenCV and PIL; the API's start-up stays free of them
-    from workers.capture.working import derived_key, working_jpeg, working_size
-
-    size = working_size(full_width, full_height, width)
-
-    def make() -> bytes:
-        try:
-            return working_jpeg(storage.get_bytes(image_key), full_width, size, f"{image_key} in storage")
-        except ValueError as exc:
-            raise NotFoundError(str(exc)) from None
-
-    return _ensure(storage, derived_key(image_key, width), make)
-
-
-def ensure_working_mask(storage: Storage, mask_key: str, full_width: int, full_height: int, width: int) -> str:
-    """The storage key of a mask's working copy at `width` (a PNG, derived now when missing)."""
-    # deferred: as in ensure_working_copy
-    from workers.capture.working import derived_key, working_mask_png, working_size
-
-    size = working_size(full_width, full_height, width)
-
-    def make() -> bytes:
-        try:
-            return working_mask_png(storage.get_bytes(mask_key), size, f"{mask_key} in storage")
-        except ValueError as exc:
-            raise NotFoundError(str(exc)) from None
-
-    return _ensure(storage, derived_key(mask_key, width, ".png"), make)
+    data, what = storage.get_bytes(key), f"{key} in storage"
+    try:
+        copy = working_mask_png(data, size, what) if mask else working_jpeg(data, (full_width, full_height), size, what)
+    except ValueError as exc:
+        raise NotFoundError(str(exc)) from None
+    storage.put_bytes(target, copy)
+    return target
 
 
 def working_image_key(session: Session, storage: Storage, view: View) -> str:

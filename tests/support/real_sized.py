@@ -6,10 +6,25 @@ what a 2048 px rig gives."""
 from __future__ import annotations
 
 import dataclasses
+import shutil
+import tempfile
 from pathlib import Path
 
 import cv2
 import numpy as np
+
+from workers.capture import (
+    Capture,
+    CaptureError,
+    load_frame_images,
+    load_frame_masks,
+    load_ground_truth,
+    read_capture,
+    write_capture_header,
+    write_frame,
+    write_sequence,
+)
+from workers.geometry.projection import project_points
 
 FULL_WIDTH = 2048
 
@@ -19,26 +34,31 @@ def _resized_mask(mask: np.ndarray, width: int, height: int) -> np.ndarray:
 
 
 def upscaled_capture(source: Path, out: Path, *, width: int = FULL_WIDTH, working_width_px: int = 640) -> Path:
-    """`source` (a synthetic capture with ground truth) at `width` px, written to `out` (reused if present)."""
-    from workers.capture import (
-        CaptureError,
-        load_frame_images,
-        load_frame_masks,
-        load_ground_truth,
-        read_capture,
-        write_capture_header,
-        write_frame,
-        write_sequence,
-    )
-    from workers.geometry.projection import project_points
-
+    """`source` (a synthetic capture with ground truth) at `width` px, written to `out` (reused if present and
+    whole). Written into a temporary folder beside `out` and renamed into place, so `out` is never a partial
+    capture; a writer that finds `out` already renamed there by another keeps that one."""
     if out.exists():
         try:
-            read_capture(out, check_images=False)
+            read_capture(out)  # images checked too: a folder left by an interrupted older writer is rebuilt
             return out
         except CaptureError:
-            pass
-    capture = read_capture(source)
+            shutil.rmtree(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(dir=out.parent, prefix=f".{out.name}-"))
+    try:
+        _write_upscaled(read_capture(source), tmp / "capture", width, working_width_px)
+        try:
+            (tmp / "capture").rename(out)
+        except OSError:
+            if not out.exists():
+                raise
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return out
+
+
+def _write_upscaled(capture: Capture, out: Path, width: int, working_width_px: int) -> None:
+    """`capture` upscaled to `width` px, written to `out` (checked whole when written)."""
     cameras = [c.scaled(width) for c in capture.cameras]
     write_capture_header(out, f"{capture.name}-{width}px", cameras, list(capture.subjects.values()),
                          capture.hand_model, synthetic=True, working_width_px=working_width_px)
@@ -60,4 +80,3 @@ def upscaled_capture(source: Path, out: Path, *, width: int = FULL_WIDTH, workin
                         masks={c.name: _resized_mask(masks[c.name], c.width, c.height) for c in cameras}
                         if masks else None, ground_truth=gt)
     read_capture(out)
-    return out

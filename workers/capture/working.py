@@ -2,14 +2,16 @@
 and the UI read instead of the full-resolution originals, and the way back to full-resolution pixels.
 
 Conventions (docs/capture-format.md "Working resolution"):
-- A camera wider than the working width W is read at W px wide, its height round(H W / width) (the aspect
-  ratio kept); its intrinsics are `Camera.scaled(W)` (pixel-centre convention: u' = s (u + 0.5) - 0.5,
-  s = W / width). A camera no wider than W is read as stored.
+- A camera wider than the working width W is read at W px wide, its height h = round(H W / width) (the
+  aspect ratio kept); its intrinsics are `Camera.scaled(W)`, each axis scaled as the resized image is
+  (pixel-centre convention: u' = sx (u + 0.5) - 0.5, v' = sy (v + 0.5) - 0.5, sx = W / width, sy = h / H).
+  A camera no wider than W is read as stored.
 - Pixels leave the working resolution only through `to_full_px`: clicks, keypoints, boxes and masks are
   stored and shown in full-resolution pixels.
 - A working copy is derived from the original: images with area averaging (after libjpeg's reduced-scale
-  decode where that stays at least W wide), masks with area averaging then a 0.5 cut. Copies are kept
-  beside the originals (storage key `derived/w<W>/<original key stem>.jpg|png`), never as the only copy.
+  decode where that stays at least W wide and its factor divides both sides), masks with area averaging
+  then a 0.5 cut. Copies are kept beside the originals (storage key `derived/w<W>/<original key
+  stem>.jpg|png`), never as the only copy.
 """
 
 from __future__ import annotations
@@ -51,8 +53,14 @@ def is_reduced(cameras: Sequence[Camera], width: int | None) -> bool:
     return width is not None and any(c.width > width for c in cameras)
 
 
+def _scale(working: Camera, full: Camera) -> np.ndarray:
+    """(2,) factors (sx, sy) full -> working pixels: each axis its own, as the resized image has them."""
+    return np.array([working.width / full.width, working.height / full.height])
+
+
 def to_full_px(px: np.ndarray, working: Camera, full: Camera) -> np.ndarray:
-    """Pixels of the working copy -> pixels of the full-resolution image (u = (u' + 0.5) / s - 0.5).
+    """Pixels of the working copy -> pixels of the full-resolution image (u = (u' + 0.5) / sx - 0.5,
+    v = (v' + 0.5) / sy - 0.5, sx = w / W and sy = h / H).
 
     Args:
         px: (..., 2) float pixels (x, y) in `working`'s image; NaN stays NaN.
@@ -61,13 +69,12 @@ def to_full_px(px: np.ndarray, working: Camera, full: Camera) -> np.ndarray:
         (..., 2) float64 pixels in `full`'s image; the exact inverse of `Camera.scaled`'s intrinsics, so a
         point projected with `working` maps onto its projection with `full`.
     """
-    s = working.width / full.width
-    return (np.asarray(px, np.float64) + 0.5) / s - 0.5
+    return (np.asarray(px, np.float64) + 0.5) / _scale(working, full) - 0.5
 
 
 def to_full_length_px(length_px: np.ndarray, working: Camera, full: Camera) -> np.ndarray:
-    """A length (a box's width, an error) in working pixels -> full-resolution pixels."""
-    return np.asarray(length_px, np.float64) * (full.width / working.width)
+    """(..., 2) lengths along x and y (a box's width and height) in working pixels -> full-resolution pixels."""
+    return np.asarray(length_px, np.float64) / _scale(working, full)
 
 
 def mask_to_working(mask: np.ndarray, working: Camera) -> np.ndarray:
@@ -94,22 +101,31 @@ def derived_key(original_key: str, width: int, suffix: str = ".jpg") -> str:
     return f"{DERIVED_PREFIX}/w{width}/{stem}{suffix}"
 
 
-def _reduced_flag(full_width: int, width: int, colour: bool) -> int:
+def _reduced_flag(data: bytes, full_size: tuple[int, int], width: int, colour: bool) -> int:
     """libjpeg's DCT scaling (1/2, 1/4, 1/8) as far as the decoded image stays at least `width` wide: a
-    2048 px JPEG decoded at 1/2 for a 640 px copy costs ~2.7x less than in full (PNG ignores the flag)."""
+    2048 px JPEG decoded at 1/2 for a 640 px copy costs ~2.7x less than in full.
+
+    Only for JPEG data and a factor f dividing both sides: libjpeg gives ceil(W / f) x ceil(H / f) pixels, a
+    partial last one included, which the resize would stretch onto the working size. PNG gets the plain
+    flag: OpenCV would decode it fully and subsample with INTER_LINEAR_EXACT (aliasing).
+    """
+    plain = cv2.IMREAD_COLOR if colour else cv2.IMREAD_GRAYSCALE
+    if data[:2] != b"\xff\xd8":
+        return plain
+    full_width, full_height = full_size
     steps = ((8, cv2.IMREAD_REDUCED_COLOR_8, cv2.IMREAD_REDUCED_GRAYSCALE_8),
              (4, cv2.IMREAD_REDUCED_COLOR_4, cv2.IMREAD_REDUCED_GRAYSCALE_4),
              (2, cv2.IMREAD_REDUCED_COLOR_2, cv2.IMREAD_REDUCED_GRAYSCALE_2))
     for factor, reduced_colour, reduced_grey in steps:
-        if full_width // factor >= width:
+        if full_width % factor == 0 and full_height % factor == 0 and full_width // factor >= width:
             return reduced_colour if colour else reduced_grey
-    return cv2.IMREAD_COLOR if colour else cv2.IMREAD_GRAYSCALE
+    return plain
 
 
-def working_image(data: bytes, full_width: int, size: tuple[int, int], what: str) -> np.ndarray:
-    """An encoded image (JPEG/PNG bytes of a full_width-wide original) -> (h, w, 3) uint8 BGR at `size`
-    (width, height). ValueError naming `what` when it cannot be decoded."""
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), _reduced_flag(full_width, size[0], colour=True))
+def working_image(data: bytes, full_size: tuple[int, int], size: tuple[int, int], what: str) -> np.ndarray:
+    """An encoded image (JPEG/PNG bytes of a full_size = (width, height) original) -> (h, w, 3) uint8 BGR at
+    `size` (width, height). ValueError naming `what` when it cannot be decoded."""
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), _reduced_flag(data, full_size, size[0], colour=True))
     if image is None:
         raise ValueError(f"image {what!r} cannot be decoded")
     if (image.shape[1], image.shape[0]) == size:
@@ -117,9 +133,9 @@ def working_image(data: bytes, full_width: int, size: tuple[int, int], what: str
     return cv2.resize(image, size, interpolation=cv2.INTER_AREA)
 
 
-def working_jpeg(data: bytes, full_width: int, size: tuple[int, int], what: str) -> bytes:
+def working_jpeg(data: bytes, full_size: tuple[int, int], size: tuple[int, int], what: str) -> bytes:
     """`working_image` encoded as a JPEG (quality JPEG_QUALITY): the working copy's bytes."""
-    ok, encoded = cv2.imencode(".jpg", working_image(data, full_width, size, what),
+    ok, encoded = cv2.imencode(".jpg", working_image(data, full_size, size, what),
                                [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
     if not ok:
         raise ValueError(f"image {what!r}: its working copy could not be encoded")
@@ -145,6 +161,6 @@ def load_working_images(image_paths: dict[str, Path], full: Sequence[Camera], wo
     out = {}
     for cam, small in zip(full, working, strict=True):
         path = Path(image_paths[cam.name])
-        bgr = working_image(path.read_bytes(), cam.width, (small.width, small.height), str(path))
+        bgr = working_image(path.read_bytes(), (cam.width, cam.height), (small.width, small.height), str(path))
         out[cam.name] = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
     return out

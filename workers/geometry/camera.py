@@ -83,18 +83,22 @@ class Camera:
         return self.K @ np.concatenate([self.R, self.t[:, None]], axis=1)
 
     def scaled(self, width: int) -> Camera:
-        """The same camera at another image width (height keeps the aspect ratio).
+        """The same camera at another image width (height round(height * width / self.width), the aspect
+        ratio kept as nearly as whole pixels allow).
 
-        Pixel-centre convention: u' = s (u + 0.5) - 0.5, so the principal point shifts by (s - 1) / 2.
+        Each axis is scaled by its own factor, the one an image resized to that size has: sx = width /
+        self.width, sy = height / self.height. Pixel-centre convention: u' = sx (u + 0.5) - 0.5,
+        v' = sy (v + 0.5) - 0.5, so the principal point shifts by (s - 1) / 2.
         """
-        s = width / self.width
-        height = round(self.height * s)
+        sx = width / self.width
+        height = max(1, round(self.height * sx))
+        sy = height / self.height
         K = self.K.copy()
-        K[0, 0] *= s
-        K[1, 1] *= s
-        K[0, 1] *= s
-        K[0, 2] = s * (K[0, 2] + 0.5) - 0.5
-        K[1, 2] = s * (K[1, 2] + 0.5) - 0.5
+        K[0, 0] *= sx
+        K[0, 1] *= sx
+        K[1, 1] *= sy
+        K[0, 2] = sx * (K[0, 2] + 0.5) - 0.5
+        K[1, 2] = sy * (K[1, 2] + 0.5) - 0.5
         return replace(self, width=int(width), height=height, K=K)
 
     def to_dict(self) -> dict[str, Any]:

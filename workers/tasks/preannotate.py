@@ -102,7 +102,8 @@ def _detect_sample(ctx: WorkerContext, frame: SampleFrame, rig: Rig, handedness:
         with ctx.session_factory() as session:
             masks, mask_ids = masks_for(ctx, session, frame, rig)
             wrig = working_rig(session, rig)  # the detector reads the working copies; the record is in full pixels
-        images = load_frame_images(working_frame(ctx, frame, wrig).frame, wrig.cameras)
+        # The masks come from masks_for: only the images need working copies.
+        images = load_frame_images(working_frame(ctx, frame, wrig, with_masks=False).frame, wrig.cameras)
         ordered = [images[cam.name] for cam in wrig.cameras]
         lifted = detect(ordered, wrig.cameras, working_masks(masks, wrig) if mask_ids else None, handedness=handedness)
         record = detection_record(lifted_at_full_resolution(lifted, wrig), frame.view_ids)

@@ -3,10 +3,10 @@ back in full-resolution pixels.
 
 A project with a working width W narrower than its cameras has its views read by HandSegNet, MVNet (training
 and prediction) and the detector from working copies in storage (`derived/w<W>/...`, the copies the UI
-shows, derived once: backend.services.working_images), with the cameras scaled alike (`Camera.scaled`).
-What leaves for storage or the fits is mapped back: HandSegNet's masks resized to the views' full size,
-the detector's keypoints, boxes and residuals to full-resolution pixels (workers/capture/working.py). 3D
-outputs (MVNet's keypoints, lifted points) are in metres and need nothing.
+shows, derived once and again when stale: backend.services.working_images), with the cameras scaled alike
+(`Camera.scaled`). What leaves for storage or the fits is mapped back: HandSegNet's masks resized to the
+views' full size, the detector's keypoints and boxes to full-resolution pixels (workers/capture/working.py)
+and its residuals measured again in them. 3D outputs (MVNet's keypoints, lifted points) are in metres and need nothing.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 from sqlalchemy.orm import Session
 
-from backend.services.working_images import ensure_working_copy, ensure_working_mask, project_working_width
+from backend.services.working_images import ensure_working_copy, project_working_width
 from workers.capture.working import (
     is_reduced,
     mask_to_working,
@@ -30,6 +30,7 @@ from workers.capture.working import (
 )
 from workers.detector.types import LiftedKeypoints, ViewKeypoints
 from workers.geometry.camera import Camera
+from workers.geometry.projection import project_points
 from workers.tasks.context import WorkerContext
 from workers.tasks.inputs import Rig, SampleFrame
 
@@ -63,9 +64,9 @@ def _storage_key(ctx: WorkerContext, path: Path) -> str:
     return Path(path).relative_to(ctx.storage.root).as_posix()  # type: ignore[attr-defined]
 
 
-def working_frame(ctx: WorkerContext, frame: SampleFrame, wrig: WorkingRig) -> SampleFrame:
-    """`frame` with its image and chroma-key mask files replaced by their working copies (derived into
-    storage when missing); `frame` itself when the rig is not reduced."""
+def working_frame(ctx: WorkerContext, frame: SampleFrame, wrig: WorkingRig, with_masks: bool = True) -> SampleFrame:
+    """`frame` with its image and (`with_masks`) chroma-key mask files replaced by their working copies (derived
+    into storage when missing or stale); `frame` itself when the rig is not reduced."""
     if not wrig.reduced:
         return frame
     assert wrig.width is not None
@@ -76,9 +77,10 @@ def working_frame(ctx: WorkerContext, frame: SampleFrame, wrig: WorkingRig) -> S
             continue
         images[full.name] = ctx.storage_path(ensure_working_copy(
             ctx.storage, _storage_key(ctx, ref.image_paths[full.name]), full.width, full.height, wrig.width))
-        if full.name in ref.mask_paths:
-            masks[full.name] = ctx.storage_path(ensure_working_mask(
-                ctx.storage, _storage_key(ctx, ref.mask_paths[full.name]), full.width, full.height, wrig.width))
+        if with_masks and full.name in ref.mask_paths:
+            masks[full.name] = ctx.storage_path(ensure_working_copy(
+                ctx.storage, _storage_key(ctx, ref.mask_paths[full.name]), full.width, full.height, wrig.width,
+                mask=True))
     return dataclasses.replace(frame, frame=dataclasses.replace(ref, image_paths=images, mask_paths=masks))
 
 
@@ -122,8 +124,8 @@ def probabilities_at_full_resolution(maps: Sequence[np.ndarray], wrig: WorkingRi
 
 def lifted_at_full_resolution(lifted: LiftedKeypoints, wrig: WorkingRig) -> LiftedKeypoints:
     """The detector's answer on working copies with pixels in full-resolution pixels: per view keypoints and
-    box exactly; the reprojection residual (a median over views) scaled by the first reduced camera's factor,
-    exact when the reduced cameras share one full width, approximate in a rig of mixed widths."""
+    box exactly; the reprojection residual ((21,), the median over each keypoint's inlier views) measured
+    again in each view's full-resolution pixels (a rig of mixed widths scales its views differently)."""
     if not wrig.reduced:
         return lifted
     views: list[ViewKeypoints | None] = []
@@ -136,6 +138,25 @@ def lifted_at_full_resolution(lifted: LiftedKeypoints, wrig: WorkingRig) -> Lift
         size = to_full_length_px(box[2:], small, full)
         views.append(dataclasses.replace(view, keypoints_px=to_full_px(view.keypoints_px, small, full),
                                          box_px=np.concatenate([corner, size])))
-    reduced = next((s, f) for s, f in zip(wrig.cameras, wrig.full, strict=True) if s is not f)
     return dataclasses.replace(lifted, views=tuple(views),
-                               reprojection_px=to_full_length_px(lifted.reprojection_px, *reduced))
+                               reprojection_px=_median_residual_px(lifted, views, wrig.full))
+
+
+def _median_residual_px(lifted: LiftedKeypoints, views: Sequence[ViewKeypoints | None],
+                        cameras: Sequence[Camera]) -> np.ndarray:
+    """(K,) median over each lifted keypoint's inlier views of |projection - detection|, in the pixels of
+    `views` and `cameras` (NaN where the detector lifted none)."""
+    residual = np.full(len(lifted.reprojection_px), np.nan)
+    lifted_rows = np.flatnonzero(np.isfinite(lifted.reprojection_px) & lifted.inliers.any(axis=1))
+    if lifted_rows.size == 0:
+        return residual
+    projected, _ = project_points(lifted.points_world[lifted_rows], list(cameras))  # (C, N, 2)
+    for c, view in enumerate(views):
+        if view is None:
+            projected[c] = np.nan
+        else:
+            projected[c] -= np.asarray(view.keypoints_px, np.float64)[lifted_rows]
+    error = np.linalg.norm(projected, axis=2).T  # (N, C)
+    for row, k in enumerate(lifted_rows):
+        residual[k] = float(np.median(error[row, lifted.inliers[k]]))
+    return residual

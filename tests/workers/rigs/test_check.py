@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import sys
+import types
 from dataclasses import replace
 from pathlib import Path
 
@@ -11,8 +13,19 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+import workers.detector
 from backend.cli.main import app
-from workers.capture import GroundTruth, HandModelInfo, Subject, write_capture_header, write_frame, write_sequence
+from workers.capture import (
+    GroundTruth,
+    HandModelInfo,
+    Subject,
+    load_ground_truth,
+    read_capture,
+    write_capture_header,
+    write_frame,
+    write_sequence,
+)
+from workers.detector.types import LiftedKeypoints, ViewKeypoints
 from workers.geometry.camera import Camera, save_calibration
 from workers.geometry.projection import project_points
 from workers.geometry.rig import default_rig
@@ -153,15 +166,19 @@ def test_pose_chained_to_another_camera_read_as_world_is_flagged(capture: Path) 
     assert "camera 'cam5'" in report.cameras[5].reason
 
 
+def _install_detector(monkeypatch, detect_frame) -> None:
+    """workers.detector.pipeline replaced, for this test, by a module whose `detect_frame` is the one given
+    (the check imports it when it runs) and whose detector is always available."""
+    fake = types.ModuleType("workers.detector.pipeline")
+    fake.detect_frame = detect_frame
+    fake.detector_status = lambda: None
+    monkeypatch.setitem(sys.modules, "workers.detector.pipeline", fake)
+    monkeypatch.setattr(workers.detector, "pipeline", fake, raising=False)
+
+
 def test_detector_keypoints_go_through_the_same_check(capture: Path, monkeypatch) -> None:
     """The detector path, with workers.detector.pipeline replaced by one that returns the ground truth's
     keypoints as its views (the interface of workers/detector/types.py)."""
-    import sys
-    import types
-
-    from workers.capture import load_ground_truth, read_capture
-    from workers.detector.types import LiftedKeypoints, ViewKeypoints
-
     frames = list(read_capture(capture).sequences[0].frames)
     calls = []
 
@@ -172,13 +189,7 @@ def test_detector_keypoints_go_through_the_same_check(capture: Path, monkeypatch
                                     np.zeros(4), 0.0) for c in range(len(cameras)))
         return LiftedKeypoints(gt.keypoints_3d, np.ones(21), np.ones((21, len(cameras)), bool), np.zeros(21), views)
 
-    fake = types.ModuleType("workers.detector.pipeline")
-    fake.detect_frame = detect_frame
-    fake.detector_status = lambda: None
-    monkeypatch.setitem(sys.modules, "workers.detector.pipeline", fake)
-    import workers.detector
-
-    monkeypatch.setattr(workers.detector, "pipeline", fake, raising=False)
+    _install_detector(monkeypatch, detect_frame)
     cameras = default_rig(320)
     cameras[2] = _rotated(cameras[2], 2.0)
     _recalibrate(capture, cameras)
@@ -193,13 +204,6 @@ def test_the_detector_reads_the_working_width_and_its_keypoints_come_back_in_ful
     """A capture with a working width: the detector is given the views at that width with the cameras scaled
     alike (it answers with the truth projected by the true cameras at that width); the check works in full
     pixels and still flags a camera 2 degrees off."""
-    import sys
-    import types
-
-    import workers.detector
-    from workers.capture import load_ground_truth, read_capture
-    from workers.detector.types import LiftedKeypoints, ViewKeypoints
-
     full = default_rig(320)
     _write_capture(tmp_path / "cap", full, working_width_px=128)
     frames = list(read_capture(tmp_path / "cap").sequences[0].frames)
@@ -213,11 +217,7 @@ def test_the_detector_reads_the_working_width_and_its_keypoints_come_back_in_ful
                       for c in range(len(cameras)))
         return LiftedKeypoints(gt.keypoints_3d, np.ones(21), np.ones((21, len(cameras)), bool), np.zeros(21), views)
 
-    fake = types.ModuleType("workers.detector.pipeline")
-    fake.detect_frame = detect_frame
-    fake.detector_status = lambda: None
-    monkeypatch.setitem(sys.modules, "workers.detector.pipeline", fake)
-    monkeypatch.setattr(workers.detector, "pipeline", fake, raising=False)
+    _install_detector(monkeypatch, detect_frame)
     report = check_capture(tmp_path / "cap", source="detector")
     small = [c.scaled(128) for c in full]
     assert len(seen) == FRAMES and all(s == ([(c.height, c.width, 3) for c in small],

@@ -28,11 +28,19 @@ from workers.capture import load_frame_images, load_frame_masks, load_ground_tru
 from workers.capture.assemble import assemble_capture
 from workers.detector.types import LiftedKeypoints, ViewKeypoints
 from workers.geometry.projection import project_points
+from workers.geometry.rig import default_rig
 from workers.geometry.triangulation import triangulate
 from workers.tasks import inference, preannotate
 from workers.tasks.context import build_context
 from workers.tasks.inputs import load_frames, rig_of
-from workers.tasks.working_inputs import working_frames, working_mask_dicts, working_rig, working_rig_record
+from workers.tasks.working_inputs import (
+    WorkingRig,
+    lifted_at_full_resolution,
+    working_frames,
+    working_mask_dicts,
+    working_rig,
+    working_rig_record,
+)
 
 FULL_WIDTH, WORKING_WIDTH = 2048, 512
 
@@ -121,6 +129,8 @@ def test_detector_reads_working_copies_and_its_keypoints_come_back_in_full_pixel
         assert mask_shapes == [(c.height, c.width) for c in small]
     derived = sorted((world.ctx.settings.storage_dir / "derived" / f"w{WORKING_WIDTH}").rglob("*.jpg"))
     assert len(derived) == 2 * 8  # derived once per view, beside the originals
+    # The detector's masks come from masks_for: no working copies of the chroma-key masks are made for it.
+    assert not list((world.ctx.settings.storage_dir / "derived").rglob("*.png"))
     with world.ctx.session_factory() as session:
         fits = session.execute(select(Fit).order_by(Fit.sample_id)).scalars().all()
         assert len(fits) == 2
@@ -129,6 +139,8 @@ def test_detector_reads_working_copies_and_its_keypoints_come_back_in_full_pixel
             expected, _ = project_points(truth, list(rig.cameras))  # full-resolution pixels of the 2048 px views
             stored = np.array([v["keypoints_px"] for v in fit.inputs["detection"]["views"]], float)
             np.testing.assert_allclose(stored, expected, atol=0.011)  # records keep 0.01 px
+            residual = np.asarray(fit.inputs["detection"]["reprojection_px"], float)
+            assert np.isfinite(residual).all() and residual.max() < 0.05  # exact pixels: no residual
             assert np.abs(stored - expected / 4).max() > 100  # not working pixels
             # The fit made from them lands on the hand in the full-resolution rig.
             assert 1000 * np.linalg.norm(np.asarray(fit.keypoints_m) - truth, axis=1).mean() < 10.0
@@ -198,3 +210,28 @@ def test_training_inputs_are_scaled_alike(world: World) -> None:
         assert masks[cam.name].shape == (cam.height, cam.width) and masks[cam.name].dtype == bool
     unreduced = replace(wrig, width=None, cameras=wrig.full)
     assert working_frames(ctx, frames, unreduced) == frames and working_rig_record(rig, unreduced) is rig
+
+
+def test_residuals_are_full_resolution_pixels_in_a_rig_of_mixed_widths() -> None:
+    """Cameras of 2048 and 1024 px read at 512 px: the detector's residual, a median over views, comes back in
+    each view's own full-resolution pixels (the factor is 4 in one and 2 in the other)."""
+    full = tuple(c.scaled(2048 if i % 2 else 1024) for i, c in enumerate(default_rig(None)))
+    wrig = WorkingRig(512, full, tuple(c.scaled(512) for c in full))
+    truth = np.random.default_rng(5).normal(0.0, 0.05, (21, 3))
+    pixels, _ = project_points(truth, list(wrig.cameras))
+    pixels += np.random.default_rng(6).normal(0.0, 1.0, pixels.shape)  # working pixels, 1 px noise
+    views = tuple(ViewKeypoints(px, np.full(21, 0.9), 0.95, "right", np.array([0.0, 0.0, 50.0, 40.0]), 0.0)
+                  for px in pixels)
+    tri = triangulate(pixels, list(wrig.cameras), outlier_px=100.0)
+    lifted = LiftedKeypoints(tri.points_world, np.full(21, 0.9), tri.inliers.T.copy(), tri.median_reprojection_px,
+                             views)
+    out = lifted_at_full_resolution(lifted, wrig)
+    reprojected, _ = project_points(tri.points_world, list(full))
+    detected = np.stack([v.keypoints_px for v in out.views])
+    expected = np.median(np.linalg.norm(reprojected - detected, axis=2), axis=0)  # every view an inlier
+    assert tri.inliers.all()
+    np.testing.assert_allclose(out.reprojection_px, expected, rtol=1e-9)
+    assert not np.allclose(out.reprojection_px, 4 * lifted.reprojection_px, rtol=0.05)
+    for view, small, big in zip(out.views, wrig.cameras, full, strict=True):  # boxes: each axis its own factor
+        factor = np.array([big.width / small.width, big.height / small.height])
+        np.testing.assert_allclose(view.box_px, [*(0.5 * factor - 0.5), *([50.0, 40.0] * factor)], rtol=1e-12)

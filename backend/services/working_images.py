@@ -4,7 +4,7 @@ issue 18; the derivation and its conventions: workers/capture/working.py).
 Images stay in storage at the cameras' full resolution (the stored copy, what exports and fits read).
 A project imported with a working width narrower than a view gets that view shown at the working width,
 and its networks and detector fed at it: a copy derived on first request, resized with area averaging and
-kept in storage beside the original under `derived/w<width>/`, so a 2048 px capture loads in the browser
+kept in storage beside the original under `derived-v2/w<width>/`, so a 2048 px capture loads in the browser
 at, say, 640 px. Clicks and masks stay in full-resolution pixels: the page draws the copy scaled up to the
 view's size; the job layer maps the networks' pixels back (workers/tasks/working_inputs.py).
 """

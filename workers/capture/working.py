@@ -10,7 +10,7 @@ Conventions (docs/capture-format.md "Working resolution"):
   stored and shown in full-resolution pixels.
 - A working copy is derived from the original: images with area averaging (after libjpeg's reduced-scale
   decode where that stays at least W wide and its factor divides both sides), masks with area averaging
-  then a 0.5 cut. Copies are kept beside the originals (storage key `derived/w<W>/<original key
+  then a 0.5 cut. Copies are kept beside the originals (storage key `derived-v2/w<W>/<original key
   stem>.jpg|png`), never as the only copy.
 """
 
@@ -24,7 +24,10 @@ import numpy as np
 
 from workers.geometry.camera import Camera
 
-DERIVED_PREFIX = "derived"
+# The version in the prefix changes when copies made by earlier code are wrong: v2 (2026-12-03) because the
+# reduced decode used a factor not dividing both sides and Camera.scaled one factor for both axes; those copies
+# are newer than their originals, so only a new prefix derives them again.
+DERIVED_PREFIX = "derived-v2"
 JPEG_QUALITY = 92
 
 
@@ -96,7 +99,7 @@ def probabilities_to_full(probabilities: np.ndarray, full: Camera) -> np.ndarray
 
 
 def derived_key(original_key: str, width: int, suffix: str = ".jpg") -> str:
-    """The storage key of an original's working copy (`derived/w<width>/<stem><suffix>`)."""
+    """The storage key of an original's working copy (`derived-v2/w<width>/<stem><suffix>`)."""
     stem = original_key.rsplit(".", 1)[0]
     return f"{DERIVED_PREFIX}/w{width}/{stem}{suffix}"
 

@@ -2,7 +2,7 @@
 back in full-resolution pixels.
 
 A project with a working width W narrower than its cameras has its views read by HandSegNet, MVNet (training
-and prediction) and the detector from working copies in storage (`derived/w<W>/...`, the copies the UI
+and prediction) and the detector from working copies in storage (`derived-v2/w<W>/...`, the copies the UI
 shows, derived once and again when stale: backend.services.working_images), with the cameras scaled alike
 (`Camera.scaled`). What leaves for storage or the fits is mapped back: HandSegNet's masks resized to the
 views' full size, the detector's keypoints and boxes to full-resolution pixels (workers/capture/working.py)

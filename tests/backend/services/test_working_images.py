@@ -30,7 +30,7 @@ def test_a_copy_is_derived_again_when_its_original_is_rewritten(tmp_path, mask) 
     storage = LocalDiskStorage(tmp_path)
     storage.put_bytes("images/p1/cam0/000000.png", _png(0))
     key = ensure_working_copy(storage, "images/p1/cam0/000000.png", 128, 96, 64, mask=mask)
-    assert key == ("derived/w64/images/p1/cam0/000000" + (".png" if mask else ".jpg"))
+    assert key == ("derived-v2/w64/images/p1/cam0/000000" + (".png" if mask else ".jpg"))
     first = cv2.imdecode(np.frombuffer(storage.get_bytes(key), np.uint8), cv2.IMREAD_GRAYSCALE)
     assert first.shape == (48, 64) and first.max() <= 2
     storage.put_bytes("images/p1/cam0/000000.png", _png(255))

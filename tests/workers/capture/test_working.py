@@ -59,8 +59,8 @@ def test_sizes_follow_camera_scaled_and_narrow_cameras_stay() -> None:
     assert working_camera(narrow, 640) is narrow and working_camera(narrow, None) is narrow
     with pytest.raises(ValueError, match="sizes must be positive"):
         working_size(0, 10, 5)
-    assert derived_key("images/p1/seq000/cam0/000003.png", 512) == "derived/w512/images/p1/seq000/cam0/000003.jpg"
-    assert derived_key("masks/chroma/7.png", 512, ".png") == "derived/w512/masks/chroma/7.png"
+    assert derived_key("images/p1/seq000/cam0/000003.png", 512) == "derived-v2/w512/images/p1/seq000/cam0/000003.jpg"
+    assert derived_key("masks/chroma/7.png", 512, ".png") == "derived-v2/w512/masks/chroma/7.png"
 
 
 def test_copies_are_area_averaged_and_masks_come_back_to_full_size(tmp_path) -> None:

@@ -12,6 +12,7 @@ from sqlalchemy import select
 from tests.support.live_stack import tiny_capture
 from tests.support.real_sized import FULL_WIDTH, upscaled_capture
 from tests.workers.tasks.test_round_live import check_round, run_round
+from workers.capture.working import DERIVED_PREFIX
 
 pytestmark = pytest.mark.slow
 
@@ -34,11 +35,11 @@ def test_a_round_on_real_sized_views_reads_the_working_copies(live_stack, captur
             views = session.execute(select(View.image_key, View.width, View.height)).all()
             predicted = session.execute(select(Mask.storage_key).where(Mask.kind == MaskKind.predicted)).scalars().all()
         storage = stack.settings.storage_dir
-        derived = {p.relative_to(storage / "derived" / f"w{WORKING_WIDTH}").with_suffix("").as_posix()
-                   for p in (storage / "derived" / f"w{WORKING_WIDTH}").rglob("*.jpg")}
+        derived = {p.relative_to(storage / DERIVED_PREFIX / f"w{WORKING_WIDTH}").with_suffix("").as_posix()
+                   for p in (storage / DERIVED_PREFIX / f"w{WORKING_WIDTH}").rglob("*.jpg")}
         assert derived == {key.rsplit(".", 1)[0] for key, _, _ in views}  # every view, once
         for key in list(derived)[:4]:
-            copy = cv2.imread(str(storage / "derived" / f"w{WORKING_WIDTH}" / f"{key}.jpg"))
+            copy = cv2.imread(str(storage / DERIVED_PREFIX / f"w{WORKING_WIDTH}" / f"{key}.jpg"))
             assert copy.shape[1] == WORKING_WIDTH
         assert predicted, "no HandSegNet mask was recorded"
         sizes = {(w, h) for _, w, h in views}

@@ -26,6 +26,7 @@ from backend.settings import Settings
 from tests.support.live_stack import TEST_SETTINGS, prepare_database, tiny_capture
 from workers.capture import load_frame_images, load_frame_masks, load_ground_truth, read_capture
 from workers.capture.assemble import assemble_capture
+from workers.capture.working import DERIVED_PREFIX
 from workers.detector.types import LiftedKeypoints, ViewKeypoints
 from workers.geometry.projection import project_points
 from workers.geometry.rig import default_rig
@@ -127,10 +128,10 @@ def test_detector_reads_working_copies_and_its_keypoints_come_back_in_full_pixel
         assert shapes == [(c.height, c.width, 3) for c in small]  # the detector's input: the working copies
         assert sizes == [(c.width, c.height) for c in small]  # with the cameras scaled alike
         assert mask_shapes == [(c.height, c.width) for c in small]
-    derived = sorted((world.ctx.settings.storage_dir / "derived" / f"w{WORKING_WIDTH}").rglob("*.jpg"))
+    derived = sorted((world.ctx.settings.storage_dir / DERIVED_PREFIX / f"w{WORKING_WIDTH}").rglob("*.jpg"))
     assert len(derived) == 2 * 8  # derived once per view, beside the originals
     # The detector's masks come from masks_for: no working copies of the chroma-key masks are made for it.
-    assert not list((world.ctx.settings.storage_dir / "derived").rglob("*.png"))
+    assert not list((world.ctx.settings.storage_dir / DERIVED_PREFIX).rglob("*.png"))
     with world.ctx.session_factory() as session:
         fits = session.execute(select(Fit).order_by(Fit.sample_id)).scalars().all()
         assert len(fits) == 2

@@ -82,6 +82,10 @@ class Settings(BaseSettings):
     heuristic_max_low_iou_views: int = Field(default=2, ge=0, le=1000, description="At most this many low views.")
     heuristic_max_mean_distance_m: float = Field(default=0.005, ge=0, le=1, description="Mean 3D distance.")
     heuristic_max_keypoint_distance_m: float = Field(default=0.010, ge=0, le=1, description="Each 3D distance.")
+    heuristic_iou_reference: Literal["chroma_key", "handsegnet"] = Field(
+        default="chroma_key", description="What a prediction's fit is compared with (its silhouette term and the "
+        "heuristic's IoU) per view: 'chroma_key' = on views with a chroma-key mask, that mask cut at MVNet's "
+        "predicted wrist (HandSegNet's mask elsewhere); 'handsegnet' = HandSegNet's masks (the paper).")
 
     # Reviewer queue policy (paper, "Manual Verification and Annotation").
     review_min_confidence_percentile: float = Field(default=50.0, ge=0, le=100)

@@ -26,6 +26,7 @@ quantities and of the fits' true vertex error.
 from __future__ import annotations
 
 import os
+import re
 import sys
 import time
 from collections.abc import Sequence
@@ -34,6 +35,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from scipy.stats import spearmanr
 
 from backend.bench.common import emit
 from backend.services.verification import HeuristicThresholds, heuristic_verdict
@@ -44,7 +46,7 @@ from workers.fitting.config import FitConfig, LossWeights
 from workers.fitting.engine import FittingEngine
 from workers.fitting.inputs import FrameObservations
 from workers.handmodel.loading import load_hand_model
-from workers.nets.configs import CONFIGS, get_config
+from workers.nets.configs import CONFIGS, MVNetConfig, NetsConfig, get_config
 from workers.nets.data import MVNetDataset, build_mvnet_dataset
 from workers.nets.detections import DetectionCache, FrameDetections, detect_frames
 from workers.nets.keypoint_maps import image_to_crop_px
@@ -99,7 +101,34 @@ def mvnet_stats(model: MVNet, data: MVNetDataset, detections: Sequence[FrameDete
     """keypoint_stats of `model`'s errors on the dataset, with its mean confidence (eq. 8)."""
     pred = predict(model, data, detections)
     errors = 1000 * np.linalg.norm(pred.keypoints_3d - data.keypoints_3d, axis=-1)
-    return {**keypoint_stats(errors), "mean_confidence": round(float(pred.sample_confidence.mean()), 3)}
+    return {**keypoint_stats(errors), "mean_confidence": round(float(pred.sample_confidence.mean()), 3),
+            **confidence_ranking(np.asarray(pred.confidence, np.float64), errors)}
+
+
+def confidence_ranking(confidence: np.ndarray, errors_mm: np.ndarray) -> dict[str, float | int | None]:
+    """Whether eq. 8's confidence ranks predictions by their error. confidence, errors_mm: (M, K).
+
+    Keys: Spearman correlation of keypoint confidence vs keypoint error (`spearman_keypoint`) and of a frame's
+    mean confidence vs its largest keypoint error (`spearman_frame`; both should be negative); the mean of the
+    frames' mean confidences where the largest keypoint error is <= 10 mm (`confidence_max_le_10mm`, the
+    heuristic's per-keypoint distance) and where it is above (`confidence_max_gt_10mm`), with their counts.
+    """
+    ok = np.isfinite(errors_mm) & np.isfinite(confidence)
+    frame_ok = ok.all(axis=1)
+    frame_conf, frame_max = confidence[frame_ok].mean(axis=1), errors_mm[frame_ok].max(axis=1)
+    good = frame_max <= 10.0
+
+    def rho(a: np.ndarray, b: np.ndarray) -> float | None:
+        if a.size < 3 or np.ptp(a) == 0 or np.ptp(b) == 0:
+            return None
+        return round(float(spearmanr(a, b).statistic), 3)
+
+    def mean(values: np.ndarray) -> float | None:
+        return round(float(values.mean()), 3) if values.size else None
+
+    return {"spearman_keypoint": rho(confidence[ok], errors_mm[ok]), "spearman_frame": rho(frame_conf, frame_max),
+            "confidence_max_le_10mm": mean(frame_conf[good]), "frames_max_le_10mm": int(good.sum()),
+            "confidence_max_gt_10mm": mean(frame_conf[~good]), "frames_max_gt_10mm": int((~good).sum())}
 
 
 CRITERIA = ("mean confidence", "min keypoint confidence", "mean IoU", "views have IoU", "mean 3D distance",
@@ -157,14 +186,34 @@ def heuristic_on_fits(engine: FittingEngine, model: MVNet, data: MVNetDataset, d
     return out
 
 
+def parse_config(spec: str) -> NetsConfig:
+    """A configuration name, optionally with MVNet fields replaced for an experiment:
+    "cpu-small-detector:detector_residual=likelihood,sigma_voxels=2" (values parsed as int, float or str)."""
+    name, _, overrides = spec.partition(":")
+    if name not in CONFIGS:
+        raise ValueError(f"unknown configuration {name!r}; choose from {sorted(CONFIGS)}")
+    fields: dict[str, Any] = {}
+    for item in filter(None, overrides.split(",")):
+        key, sep, value = item.partition("=")
+        if not sep or key not in MVNetConfig.__dataclass_fields__:
+            raise ValueError(f"{spec!r}: {item!r} is not FIELD=VALUE of an MVNet configuration field")
+        for kind in (int, float):
+            try:
+                fields[key] = kind(value)
+                break
+            except ValueError:
+                continue
+        else:
+            fields[key] = value
+    return get_config(name, **fields)
+
+
 def run(*, data_dir: Path | None = None, width: int = 640, sequences: int = 8, frames: int = 12, seed: int = 1515,
         configs: Sequence[str] = DEFAULT_CONFIGS, steps: Sequence[int] = DEFAULT_STEPS, threads: int = 1,
         heuristic: bool = True, emit_json: bool = True) -> dict[str, Any]:
     """Measure and return the record (printed as the last stdout line when `emit_json`)."""
-    unknown = [c for c in configs if c not in CONFIGS]
-    if unknown:
-        raise ValueError(f"unknown configuration(s) {unknown}; choose from {sorted(CONFIGS)}")
-    not_detector = [c for c in configs if CONFIGS[c].mvnet.heatmap_source != "detector"]
+    parsed = {c: parse_config(c) for c in configs}
+    not_detector = [c for c, cfg in parsed.items() if cfg.mvnet.heatmap_source != "detector"]
     if not_detector:
         raise ValueError(f"configuration(s) {not_detector} are not detector-backed")
     if not steps or any(int(n) < 1 for n in steps):
@@ -195,7 +244,7 @@ def run(*, data_dir: Path | None = None, width: int = 640, sequences: int = 8, f
     engine = FittingEngine(load_hand_model(get_settings().mano_path, side), cameras,
                            FitConfig(weights=LossWeights.later_rounds())) if heuristic else None
     for name in configs:
-        config = get_config(name)
+        config = parsed[name]
         sets = {"train": build_mvnet_dataset(capture, train, config.mvnet, detections=detections["train"])}
         sets.update({k: build_mvnet_dataset(capture, v, config.mvnet, detections=detections[k])
                      for k, v in held.items()})
@@ -209,7 +258,7 @@ def run(*, data_dir: Path | None = None, width: int = 640, sequences: int = 8, f
         for n in steps:
             load_before = os.getloadavg()[0]
             t1 = time.perf_counter()
-            out = data_dir / "checkpoints" / f"{name}-steps{n}"
+            out = data_dir / "checkpoints" / (re.sub(r"[^A-Za-z0-9_.-]", "_", name) + f"-steps{n}")
             trained = train_mvnet(sets["train"], config, float("inf"), out, resume=False, max_steps=int(n),
                                   seed=seed).model
             seconds = time.perf_counter() - t1

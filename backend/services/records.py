@@ -129,7 +129,8 @@ def record_fit(session: Session, sample_id: int, *, params: Sequence[float], key
     if prediction is not None and ious:
         verdict = heuristic_verdict(prediction.confidences, ious.values(), prediction.keypoints_m, fit.keypoints_m,
                                     thresholds)
-        fit.heuristic = {"accepted": verdict.accepted, "failed": list(verdict.failed), **verdict.metrics}
+        fit.heuristic = {"accepted": verdict.accepted, "failed": list(verdict.failed), **verdict.metrics,
+                         "iou_reference": iou_reference(inputs)}
         if verdict.accepted:
             transition(session, sample, SampleState.accepted, None, reason="heuristic")
             round_ = rounds.open_round(session, None)
@@ -140,6 +141,16 @@ def record_fit(session: Session, sample_id: int, *, params: Sequence[float], key
         transition(session, sample, SampleState.in_review, None, reason="fitted from annotations")
     audit.record(session, None, "fit.create", "sample", sample_id, fit_id=fit.id, state=sample.state)
     return fit
+
+
+def iou_reference(inputs: dict[str, Any]) -> str:
+    """What the heuristic's IoU compared the fit with, from the fit's inputs: "chroma_key_cut" (chroma-key
+    masks cut at the predicted wrist), "handsegnet", "chroma_key" (cut at the fit's wrist, when HandSegNet
+    found no hand), or "mixed" (per view in inputs["iou_reference"])."""
+    per_view = set((inputs.get("iou_reference") or {}).values())
+    if len(per_view) == 1:
+        return str(per_view.pop())
+    return "mixed" if per_view else str(inputs.get("mask_source", "handsegnet"))
 
 
 def record_fit_failure(session: Session, sample_id: int, job_id: int | None, error: str) -> None:

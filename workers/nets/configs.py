@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Literal
 
@@ -228,15 +229,20 @@ def detector_backed_variant(config: NetsConfig, grid_size: int = 24, grid_side_m
     Sized for the detector's precision (docs/networks.md, "Detector-backed MVNet"): a grid of `grid_side_m` (the
     crop's side: a hand spans ~0.2 m, the grid is centred on its lifted keypoints) at `grid_size` voxels (0.28 m /
     24 = 11.7 mm; 32 voxels were as precise per step and 2.3x slower per step on this CPU), Gaussian targets of the
-    detector maps' width (1.5 voxels = 17.5 mm = 1 pixel of the 16 x 16 map over 0.28 m), the residual normalised
-    to the views' agreement (peak 1 where they agree, as the targets), and the 3D U-Net on the detector's maps
-    alone: no 2D CNN, no 2D head, no 2D-only warm-up."""
+    detector maps' width (1.5 voxels = 17.5 mm = 1 pixel of the 16 x 16 map over 0.28 m), the likelihood residual
+    (peak 1 where the views agree, as the targets; its maps sqrt(2/3) as wide, so that it has the targets' width;
+    the agreement residual before 2026-12-03 09:10), and the 3D U-Net on the detector's maps alone: no 2D CNN, no
+    2D head, no 2D-only warm-up."""
     sigma_map_px = 1.0
     # the maps' width in metres at the hand (one map pixel spans 2 crop_radius_m / feature_px) in voxels
     sigma_voxels = sigma_map_px * (2 * config.mvnet.crop_radius_m / config.mvnet.feature_px) / (grid_side_m / grid_size)
-    mvnet = replace(config.mvnet, warmup_2d_fraction=0.0, heatmap_source="detector", detector_sigma_px=sigma_map_px,
+    # The likelihood residual of Gaussians of width s is ~s sqrt(3/2) wide about the triangulated point (views
+    # spread around it): s = sqrt(2/3) of the targets' width makes it the targets' shape where the views agree,
+    # so training need not narrow it (which lowered the peaks, eq. 8: docs/benchmarks.md, "MVNet confidence").
+    mvnet = replace(config.mvnet, warmup_2d_fraction=0.0, heatmap_source="detector",
+                    detector_sigma_px=round(sigma_map_px * math.sqrt(2 / 3), 4),
                     grid_size=grid_size, grid_side_m=grid_side_m, sigma_voxels=round(sigma_voxels, 3),
-                    detector_residual="agreement", unet_image_features=False, aux_2d_weight=0.0)
+                    detector_residual="likelihood", unet_image_features=False, aux_2d_weight=0.0)
     return replace(config, name=f"{config.name}-detector", mvnet=mvnet)
 
 

@@ -28,7 +28,8 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         frames: int = typer.Option(12, min=4, max=200, help="Frames per sequence."),
         seed: int = typer.Option(1515, min=0, help="Seed of the capture, initialisation and batches."),
         config: list[str] = typer.Option(["cpu-small-detector"], "--config",
-                                         help="Detector-backed configuration(s); repeat to compare."),
+                                         help="Detector-backed configuration(s), NAME or NAME:FIELD=VALUE,... "
+                                         "(MVNet fields replaced); repeat to compare."),
         steps: str = typer.Option("100,300", "--steps", help="Training step counts, each from scratch."),
         threads: int = typer.Option(1, min=1, max=256, help="torch CPU threads."),
         heuristic: bool = typer.Option(True, "--heuristic/--no-heuristic",
@@ -36,15 +37,15 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
                                             "apply the paper's heuristic (ground-truth hand masks, chroma key)."),
     ) -> None:
         """Lift vs untrained vs trained detector-backed MVNet against ground truth, green-screen frames."""
-        from backend.bench.mvnet_precision import run
-        from workers.nets.configs import CONFIGS
+        from backend.bench.mvnet_precision import parse_config, run
 
         counts = _steps(steps)
         for name in config:
-            if name not in CONFIGS:
-                raise typer.BadParameter(f"unknown configuration {name!r}; choose from {sorted(CONFIGS)}",
-                                         param_hint="--config")
-            if CONFIGS[name].mvnet.heatmap_source != "detector":
+            try:
+                parsed = parse_config(name)
+            except (ValueError, TypeError) as exc:
+                raise typer.BadParameter(str(exc), param_hint="--config") from exc
+            if parsed.mvnet.heatmap_source != "detector":
                 raise typer.BadParameter(f"{name!r} is not detector-backed", param_hint="--config")
         record = run(data_dir=data, width=width, sequences=sequences, frames=frames, seed=seed, configs=config,
                      steps=counts, threads=threads, heuristic=heuristic, emit_json=json_out)

@@ -50,6 +50,8 @@ def test_mvnet_steps_must_be_positive(tmp_path):
     (["--config", "nope"], "unknown configuration 'nope'"),
     (["--config", "cpu-small"], "is not detector-backed"),
     (["--sequences", "3"], "--sequences"),
+    (["--config", "cpu-small-detector:nofield=1"], "nofield=1"),
+    (["--config", "cpu-small-detector:detector_residual=bogus"], "detector_residual must be"),
 ])
 def test_mvnet_precision_refuses_bad_input(args, says, tmp_path):
     result = runner.invoke(app, ["bench", "mvnet-precision", "--data", str(tmp_path), *args])
@@ -66,3 +68,19 @@ def test_mvnet_precision_run_refuses_bad_input(tmp_path):
         with pytest.raises(ValueError, match=says):
             run(data_dir=tmp_path, **kwargs)
     assert not any(tmp_path.iterdir())
+
+
+def test_mvnet_precision_overrides_and_confidence_ranking():
+    import numpy as np
+
+    from backend.bench.mvnet_precision import confidence_ranking, parse_config
+
+    config = parse_config("cpu-small-detector:detector_residual=likelihood,detector_sigma_px=0.8")
+    assert config.mvnet.detector_residual == "likelihood" and config.mvnet.detector_sigma_px == 0.8
+    errors = np.array([[2.0] * 21, [5.0] * 21, [20.0] * 21, [30.0] * 21])
+    ranked = confidence_ranking(np.array([[0.9] * 21, [0.8] * 21, [0.5] * 21, [0.4] * 21]), errors)
+    assert ranked["spearman_frame"] == -1.0 and ranked["spearman_keypoint"] < -0.9
+    assert ranked["confidence_max_le_10mm"] == 0.85 and ranked["frames_max_le_10mm"] == 2
+    assert ranked["confidence_max_gt_10mm"] == 0.45 and ranked["frames_max_gt_10mm"] == 2
+    inverted = confidence_ranking(np.array([[0.4] * 21, [0.5] * 21, [0.8] * 21, [0.9] * 21]), errors)
+    assert inverted["spearman_frame"] == 1.0

@@ -4,7 +4,6 @@ on both backends."""
 from __future__ import annotations
 
 import json
-import threading
 import uuid
 
 from sqlalchemy import text
@@ -18,6 +17,7 @@ from backend.services.jobs import InMemoryJobQueue
 from backend.services.seed import seed_samples
 from backend.services.storage import LocalDiskStorage
 from backend.services.users import create_user
+from tests.support.concurrency import all_at_once
 
 N_THREADS = 8
 
@@ -39,27 +39,15 @@ def test_concurrent_duplicates_write_once(db_url, engine_factory, tmp_path):
         lease = queues.acquire(s, s.get(User, uid), LeaseKind.annotate, 60)
         body = _body(s, sid, lease.token, "twin-" + uuid.uuid4().hex[:12])
     queue, storage = InMemoryJobQueue(), LocalDiskStorage(tmp_path)
-    barrier = threading.Barrier(N_THREADS)
-    results: list[submissions.SubmitResult] = []
-    errors: list[BaseException] = []
+    def submit(release) -> submissions.SubmitResult:
+        with factory() as s:
+            user = s.get(User, uid)
+            s.commit()
+            release()
+            with s.begin():
+                return submissions.submit(s, queue, storage, user, sid, body, 100)
 
-    def worker() -> None:
-        try:
-            with factory() as s:
-                user = s.get(User, uid)
-                s.commit()
-                barrier.wait()
-                with s.begin():
-                    results.append(submissions.submit(s, queue, storage, user, sid, body, 100))
-        except BaseException as exc:
-            errors.append(exc)
-
-    threads = [threading.Thread(target=worker) for _ in range(N_THREADS)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join(60)
-    assert not errors, errors
+    results = all_at_once(N_THREADS, submit)
     assert sorted(r.duplicate for r in results) == [False] + [True] * (N_THREADS - 1)
     assert len({r.submission.id for r in results}) == 1
     with factory() as s:

@@ -34,6 +34,7 @@ from backend.services.storage import LocalDiskStorage
 from backend.services.submit_statement import SUBMIT, SUBMIT_ALONE
 from backend.services.transactions import run_after_commit
 from backend.services.users import create_user
+from tests.support.concurrency import all_at_once
 
 TABLES = ("submissions", "clicks", "jobs", "audit_events", "drafts")
 N_THREADS = 8
@@ -219,23 +220,11 @@ def test_a_client_id_used_for_another_sample_is_refused(world):
 def test_concurrent_retries_write_once(world):
     w = world
     body = _body(w, "twin-" + uuid.uuid4().hex[:12])
-    barrier = threading.Barrier(N_THREADS)
-    results: list[submissions.SubmitResult] = []
-    errors: list[BaseException] = []
+    def submit(release) -> submissions.SubmitResult:
+        release()
+        return _submit(w, body)
 
-    def worker() -> None:
-        try:
-            barrier.wait()
-            results.append(_submit(w, body))
-        except BaseException as exc:
-            errors.append(exc)
-
-    threads = [threading.Thread(target=worker) for _ in range(N_THREADS)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join(60)
-    assert not errors, errors
+    results = all_at_once(N_THREADS, submit)
     assert sorted(r.duplicate for r in results) == [False] + [True] * (N_THREADS - 1)
     assert len({r.submission.id for r in results}) == 1
     counts = _counts(w)

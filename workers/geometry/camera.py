@@ -82,17 +82,19 @@ class Camera:
         """(3, 4) projection matrix K [R | t] (ignores distortion)."""
         return self.K @ np.concatenate([self.R, self.t[:, None]], axis=1)
 
-    def scaled(self, width: int) -> Camera:
+    def scaled(self, width: int, *, square_pixels: bool = False) -> Camera:
         """The same camera at another image width (height round(height * width / self.width), the aspect
         ratio kept as nearly as whole pixels allow).
 
         Each axis is scaled by its own factor, the one an image resized to that size has: sx = width /
         self.width, sy = height / self.height. Pixel-centre convention: u' = sx (u + 0.5) - 0.5,
-        v' = sy (v + 0.5) - 0.5, so the principal point shifts by (s - 1) / 2.
+        v' = sy (v + 0.5) - 0.5, so the principal point shifts by (s - 1) / 2. `square_pixels`: one factor,
+        sx, for both axes: a sensor read out (or a renderer drawing) at the new size with the same field of
+        view, nothing resized; fx = fy stays so.
         """
         sx = width / self.width
         height = max(1, round(self.height * sx))
-        sy = height / self.height
+        sy = sx if square_pixels else height / self.height
         K = self.K.copy()
         K[0, 0] *= sx
         K[0, 1] *= sx

@@ -65,5 +65,5 @@ def default_rig(width_px: int | None = DEFAULT_WIDTH_PX, seed: int = 0,
         K = np.array([[f_px, 0, principal[0]], [0, f_px, principal[1]], [0, 0, 1.0]])
         dist = np.array([k1, k2, 0.0, 0.0, 0.0])
         cam = Camera(f"cam{i}", width, height, K, dist, R, -R @ center)
-        cameras.append(cam.scaled(width_px) if width_px else cam)
+        cameras.append(cam.scaled(width_px, square_pixels=True) if width_px else cam)  # rendered at that size
     return cameras

@@ -256,7 +256,9 @@ def test_the_detector_run_is_refused_before_anything_is_imported_where_it_cannot
 
     env = env_with(sqlite_url, tmp_path / "data")
     sim, admin = _detector_sim(env, capture_dir, monkeypatch)
-    monkeypatch.setattr(preannotation, "detector_problem", lambda: "the palm detection model file is corrupt")
+    # Both checks: the status route answers the quick one (files and runtime found), a launch the loaded one.
+    for check in ("detector_problem", "quick_detector_problem"):
+        monkeypatch.setattr(preannotation, check, lambda: "the palm detection model file is corrupt")
     with pytest.raises(ValueError, match="needs it on the server: the palm detection model file is corrupt"):
         sim.run(capture_dir, initial_every=3)
     assert admin.sample_index()["count"] == 0

@@ -69,6 +69,19 @@ def test_scaling_keeps_rays():
     assert np.allclose(ray_full, ray_small)
 
 
+def test_a_resize_scales_each_axis_and_a_rendered_size_keeps_square_pixels():
+    """Where the height rounds (1280x1024 at 100 px: 80.0; at 90 px: 72.0; at 97 px: 77.6 -> 78), a resized
+    image stretches y by 78 / 1024, so the resized camera's fy does too; a synthetic rig rendered at that
+    size keeps fx = fy (the export's FreiHAND K assumes the renderer's camera)."""
+    cam = default_rig(width_px=None)[3]
+    resized, rendered = cam.scaled(97), cam.scaled(97, square_pixels=True)
+    assert resized.height == rendered.height == 78
+    assert resized.K[1, 1] == pytest.approx(cam.K[1, 1] * 78 / 1024)
+    assert resized.K[1, 2] == pytest.approx(78 / 1024 * (cam.K[1, 2] + 0.5) - 0.5)
+    assert rendered.K[1, 1] == pytest.approx(rendered.K[0, 0]) and rendered.K[0, 0] == pytest.approx(resized.K[0, 0])
+    assert all(c.K[0, 0] == pytest.approx(c.K[1, 1]) for c in default_rig(width_px=97))
+
+
 def test_default_rig_matches_the_paper():
     rig = default_rig(width_px=None)
     assert len(rig) == 8

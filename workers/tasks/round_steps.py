@@ -160,13 +160,16 @@ def plan_inference(ctx: WorkerContext, round_job_id: int) -> InferencePlan | Non
 
 
 class _HeuristicCounts:
-    """Evaluated, accepted and failures by criterion over fits' heuristic records."""
+    """Fits, those evaluated (a fit without view IoUs is not), accepted, and failures by criterion."""
 
     def __init__(self) -> None:
-        self.evaluated = self.accepted = 0
+        self.fits = self.evaluated = self.accepted = 0
         self.reasons: dict[str, int] = {}
 
-    def add(self, record: dict[str, Any]) -> None:
+    def add(self, record: dict[str, Any] | None) -> None:
+        self.fits += 1
+        if record is None:
+            return
         self.evaluated += 1
         self.accepted += bool(record.get("accepted"))
         for reason in record.get("failed", []):
@@ -174,14 +177,14 @@ class _HeuristicCounts:
             self.reasons[key] = self.reasons.get(key, 0) + 1
 
     def summary(self) -> dict[str, Any]:
-        return {"evaluated": self.evaluated, "accepted": self.accepted,
+        return {"fits": self.fits, "evaluated": self.evaluated, "accepted": self.accepted,
                 "failures": dict(sorted(self.reasons.items(), key=lambda kv: -kv[1])[:8])}
 
 
 def run_heuristic(ctx: WorkerContext, round_job_id: int) -> dict[str, Any] | None:
     """The paper's heuristic over the round's fits from predictions: applies it to any fit not evaluated yet
-    (record_fit evaluates each new one) and summarises: evaluated, accepted (D^h), most common failures; the
-    same per sequence kind in "by_kind" ("green_screen": chroma-keyed sequences, "cluttered": the others)."""
+    (record_fit evaluates each new one) and summarises: fits, evaluated, accepted (D^h), most common failures;
+    the same per sequence kind in "by_kind" ("green_screen": chroma-keyed sequences, "cluttered": the others)."""
     thresholds = HeuristicThresholds.from_settings(ctx.settings)
     with ctx.session_factory.begin() as session:
         job = session.get(Job, round_job_id)
@@ -201,8 +204,6 @@ def run_heuristic(ctx: WorkerContext, round_job_id: int) -> dict[str, Any] | Non
                 fit.heuristic = {"accepted": False, "late": True, "would_accept": verdict.accepted,
                                  "failed": list(verdict.failed), **verdict.metrics,
                                  "iou_reference": iou_reference(fit.inputs or {})}
-            if fit.heuristic is None:
-                continue
             total.add(fit.heuristic)
             by_kind["green_screen" if green_screen else "cluttered"].add(fit.heuristic)
         summary = {**total.summary(), "by_kind": {kind: c.summary() for kind, c in by_kind.items()}}

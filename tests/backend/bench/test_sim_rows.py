@@ -15,16 +15,17 @@ def _round(index: int, heuristic: dict | None) -> dict:
 
 
 def test_rows_carry_mvnet_and_the_heuristic_by_sequence_kind():
-    by_kind = {"green_screen": {"evaluated": 12, "accepted": 3, "failures": {"mean confidence": 7}},
-               "cluttered": {"evaluated": 4, "accepted": 0, "failures": {"mean IoU": 4, "max 3D distance": 2}}}
+    by_kind = {"green_screen": {"fits": 12, "evaluated": 12, "accepted": 3, "failures": {"mean confidence": 7}},
+               "cluttered": {"fits": 6, "evaluated": 4, "accepted": 0,
+                             "failures": {"mean IoU": 4, "max 3D distance": 2}}}
     row = side_by_side_rows({"rounds": [_round(1, {"evaluated": 16, "accepted": 3, "by_kind": by_kind})]})[0]
     assert row["heuristic_by_kind"] == by_kind and row["mvnet_by_kind"]["cluttered"]["keypoint_mm"] == 41.0
     assert (row["mvnet_keypoint_mm"], row["mvnet_keypoint_mm_median"], row["mvnet_auc"]) == (17.2, 12.0, 0.66)
     line = by_kind_line(row)
-    assert ("green-screen: MVNet 9.2 mm mean, 8.5 mm median, AUC 0.81 over 12; heuristic 3 of 12 accepted "
-            "(failed: mean confidence 7)") in line
-    assert ("cluttered: MVNet 41.0 mm mean, 39.5 mm median, AUC 0.22 over 4; heuristic 0 of 4 accepted "
-            "(failed: mean IoU 4, max 3D distance 2)") in line
+    assert ("green-screen: MVNet 9.2 mm mean, 8.5 mm median, AUC 0.81 over 12; heuristic 3 of 12 evaluated "
+            "accepted (12 fits; failed: mean confidence 7)") in line
+    assert ("cluttered: MVNet 41.0 mm mean, 39.5 mm median, AUC 0.22 over 4; heuristic 0 of 4 evaluated accepted "
+            "(6 fits; failed: mean IoU 4, max 3D distance 2)") in line
 
 
 def test_a_round_without_a_heuristic_summary_prints_mvnet_alone():

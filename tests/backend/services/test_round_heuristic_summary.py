@@ -15,8 +15,9 @@ def test_the_late_heuristic_records_its_iou_reference_and_the_summary_splits_by_
     from workers.tasks.context import build_context
     from workers.tasks.round_steps import run_heuristic
 
-    ids = h.seed(env, frames=4, cameras=1, state="fitting")
-    # Two green-screen samples the heuristic accepts; two cluttered ones whose IoU fails it.
+    ids = h.seed(env, frames=5, cameras=1, state="fitting")
+    # Two green-screen samples the heuristic accepts; two cluttered ones whose IoU fails it, and one without
+    # view IoUs, which it cannot evaluate.
     for sample_id in ids[:2]:
         h.record_fit(env, sample_id, prediction={"confidences": [0.95] * 21})
     for sample_id in ids[2:]:
@@ -33,15 +34,16 @@ def test_the_late_heuristic_records_its_iou_reference_and_the_summary_splits_by_
         late.heuristic = None
         late.inputs = {**(late.inputs or {}), "iou_reference": {"1": "chroma_key_cut"}}
         late_id = late.id
+        fits[4].heuristic, fits[4].view_ious = None, {}
     ctx = build_context(env.settings, job_queue=env.queue)
     try:
         summary = run_heuristic(ctx, launched.json()["job_id"])
     finally:
         ctx.session_factory.kw["bind"].dispose()
-    assert (summary["evaluated"], summary["accepted"]) == (4, 2)
+    assert (summary["fits"], summary["evaluated"], summary["accepted"]) == (5, 4, 2)
     green, cluttered = summary["by_kind"]["green_screen"], summary["by_kind"]["cluttered"]
-    assert (green["evaluated"], green["accepted"], green["failures"]) == (2, 2, {})
-    assert (cluttered["evaluated"], cluttered["accepted"]) == (2, 0)
+    assert (green["fits"], green["evaluated"], green["accepted"], green["failures"]) == (2, 2, 2, {})
+    assert (cluttered["fits"], cluttered["evaluated"], cluttered["accepted"]) == (3, 2, 0)
     assert cluttered["failures"]["mean IoU"] == 2
     with env.session() as session:
         record = session.get(Fit, late_id).heuristic

@@ -87,7 +87,7 @@ def by_kind_line(row: dict[str, Any]) -> str:
         h = (row.get("heuristic_by_kind") or {}).get(kind)
         if h:
             failures = ", ".join(f"{k} {v}" for k, v in h["failures"].items()) or "none"
-            text += (f"; heuristic {h['accepted']} of {h['evaluated']} evaluated accepted ({h.get('fits', '?')} fits; "
+            text += (f"; heuristic accepted {h['accepted']} of {h['evaluated']} evaluated ({h.get('fits', '?')} fits; "
                      f"failed: {failures})")
         parts.append(text)
     return " | ".join(parts)

@@ -22,9 +22,9 @@ def test_rows_carry_mvnet_and_the_heuristic_by_sequence_kind():
     assert row["heuristic_by_kind"] == by_kind and row["mvnet_by_kind"]["cluttered"]["keypoint_mm"] == 41.0
     assert (row["mvnet_keypoint_mm"], row["mvnet_keypoint_mm_median"], row["mvnet_auc"]) == (17.2, 12.0, 0.66)
     line = by_kind_line(row)
-    assert ("green-screen: MVNet 9.2 mm mean, 8.5 mm median, AUC 0.81 over 12; heuristic 3 of 12 evaluated "
-            "accepted (12 fits; failed: mean confidence 7)") in line
-    assert ("cluttered: MVNet 41.0 mm mean, 39.5 mm median, AUC 0.22 over 4; heuristic 0 of 4 evaluated accepted "
+    assert ("green-screen: MVNet 9.2 mm mean, 8.5 mm median, AUC 0.81 over 12; heuristic accepted 3 of 12 "
+            "evaluated (12 fits; failed: mean confidence 7)") in line
+    assert ("cluttered: MVNet 41.0 mm mean, 39.5 mm median, AUC 0.22 over 4; heuristic accepted 0 of 4 evaluated "
             "(6 fits; failed: mean IoU 4, max 3D distance 2)") in line
 
 

@@ -18,7 +18,8 @@ it (workers/tasks/inputs.from_prediction: its 3D keypoints weighted by their con
 weights) with two kinds of masks, and the paper's heuristic (services/verification.heuristic_verdict, paper
 thresholds) judges the fit against the prediction: `gt_hand_masks`, the ground-truth hand masks (what a perfect
 HandSegNet would give: the IoU criterion as the paper presumes it), and `chroma_key`, the capture's chroma-key
-foreground cut at the fit's wrist (what a green-screen capture has without HandSegNet). Reported: frames
+foreground cut at MVNet's predicted wrist, the loop's reference (`heuristic_iou_reference=chroma_key`, the same
+function: workers.fitting.reference_masks.prediction_reference_masks). Reported: frames
 accepted, their precision (true mean vertex error <= 10 mm), the failed criteria, medians of the criteria's
 quantities and of the fits' true vertex error.
 """
@@ -45,6 +46,8 @@ from workers.capture.schema import FrameRef
 from workers.fitting.config import FitConfig, LossWeights
 from workers.fitting.engine import FittingEngine
 from workers.fitting.inputs import FrameObservations
+from workers.fitting.reference_masks import prediction_reference_masks
+from workers.geometry.camera import Camera
 from workers.handmodel.loading import load_hand_model
 from workers.nets.configs import CONFIGS, MVNetConfig, NetsConfig, get_config
 from workers.nets.data import MVNetDataset, build_mvnet_dataset
@@ -140,6 +143,20 @@ def criterion(message: str) -> str:
     return next((c for c in CRITERIA if c in message), message)
 
 
+def prediction_masks(kind: str, hand_masks: dict[str, np.ndarray], chroma: dict[str, np.ndarray],
+                     cameras: Sequence[Camera], keypoints_m: np.ndarray) -> tuple[tuple[np.ndarray | None, ...], bool]:
+    """The masks a fit from a prediction ((21, 3) keypoints, metres, world frame) is made against, per camera, and
+    whether they include the forearm. kind "gt_hand_masks": the true hand masks (camera name -> (H, W) bool);
+    "chroma_key": the chroma-key foreground cut at the predicted wrist, as the loop cuts it."""
+    if kind == "gt_hand_masks":
+        return tuple(hand_masks[c.name] for c in cameras), False
+    if kind != "chroma_key":
+        raise ValueError(f"mask kind must be gt_hand_masks or chroma_key, not {kind!r}")
+    masks, _, include_forearm = prediction_reference_masks([None] * len(cameras), [chroma.get(c.name) for c in cameras],
+                                                           cameras, keypoints_m, "chroma_key")
+    return tuple(masks), include_forearm
+
+
 def heuristic_on_fits(engine: FittingEngine, model: MVNet, data: MVNetDataset, detections: Sequence[FrameDetections],
                       frames: Sequence[FrameRef]) -> dict[str, Any]:
     """Fits from `model`'s predictions (as a round makes them) with the ground-truth hand masks and with the chroma
@@ -151,8 +168,8 @@ def heuristic_on_fits(engine: FittingEngine, model: MVNet, data: MVNetDataset, d
     for m, frame in enumerate(frames):
         gt = load_ground_truth(frame)
         chroma = load_frame_masks(frame)
-        for kind, masks, forearm in (("gt_hand_masks", tuple(gt.hand_masks[c.name] for c in cameras), False),
-                                     ("chroma_key", tuple(chroma.get(c.name) for c in cameras), True)):
+        for kind in ("gt_hand_masks", "chroma_key"):
+            masks, forearm = prediction_masks(kind, gt.hand_masks, chroma, cameras, pred.keypoints_3d[m])
             obs = FrameObservations.empty(len(cameras))
             obs = FrameObservations(obs.clicks_px, obs.click_weights, masks=masks, masks_include_forearm=forearm,
                                     keypoints_3d=pred.keypoints_3d[m],

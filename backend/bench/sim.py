@@ -46,7 +46,8 @@ DETECTOR_TARGETS = {"d0_verified_share_min": 0.5, "heuristic_share_by_round_2_mi
                     "auto_accept_precision_min": 0.95}
 DETECTOR_MODES = ("on", "off", "both")
 ROUND_KEYS = ("auto_accepted", "auto_accept_precision", "labels_per_human_hour", "accepted_vertex_mm",
-              "verified_share", "human_hours", "dataset_size")
+              "verified_share", "human_hours", "dataset_size", "mvnet_keypoint_mm", "mvnet_keypoint_mm_median",
+              "mvnet_auc", "mvnet_by_kind")
 
 
 def detector_default() -> tuple[str, str | None]:
@@ -63,10 +64,33 @@ def heuristic_share(report: dict[str, Any]) -> float | None:
 
 
 def side_by_side_rows(summary: dict[str, Any]) -> list[dict[str, Any]]:
-    """Per round: D^h count, share and auto-accept precision, D^m, D^l, labels per human hour, accepted error."""
+    """Per round: D^h count, share and auto-accept precision, D^m, D^l, labels per human hour, accepted error,
+    MVNet's keypoint error (over all predictions and by sequence kind) and the heuristic's counts by kind."""
     return [{"index": r["index"], "heuristic": r["added"]["heuristic"], "manual": r["added"]["manual"],
              "annotated": r["added"]["annotated"], "heuristic_share": heuristic_share(r),
+             "heuristic_by_kind": ((r.get("round_job") or {}).get("heuristic") or {}).get("by_kind"),
              **{k: r.get(k) for k in ROUND_KEYS}} for r in summary["rounds"]]
+
+
+def _mm(value: float | None) -> str:
+    return "-" if value is None else f"{value:.1f} mm"
+
+
+def by_kind_line(row: dict[str, Any]) -> str:
+    """One `side_by_side` row's MVNet error and heuristic counts per sequence kind, for people."""
+    parts = []
+    for kind, name in (("green_screen", "green-screen"), ("cluttered", "cluttered")):
+        m = (row.get("mvnet_by_kind") or {}).get(kind) or {}
+        auc = "-" if m.get("auc") is None else f"{m['auc']:.2f}"
+        text = (f"{name}: MVNet {_mm(m.get('keypoint_mm'))} mean, {_mm(m.get('keypoint_mm_median'))} median, "
+                f"AUC {auc} over {m.get('predictions', 0)}")
+        h = (row.get("heuristic_by_kind") or {}).get(kind)
+        if h:
+            failures = ", ".join(f"{k} {v}" for k, v in h["failures"].items()) or "none"
+            text += (f"; heuristic accepted {h['accepted']} of {h['evaluated']} evaluated ({h.get('fits', '?')} fits; "
+                     f"failed: {failures})")
+        parts.append(text)
+    return " | ".join(parts)
 
 
 def _capture(root: Path, sequences: int, frames: int, width: int) -> Path:

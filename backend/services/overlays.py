@@ -22,6 +22,8 @@ from backend.models.fits import Fit, Prediction
 from backend.models.labels import Click, Submission
 from backend.models.review import Decision
 from backend.services import queues, scene_tickets
+from backend.services.detection_points import SOURCE as DETECTOR_SOURCE
+from backend.services.detection_points import fitted_detections
 from backend.services.errors import ConflictError, NotFoundError
 from backend.services.samples import get_sample
 from backend.services.users import Actor
@@ -219,7 +221,11 @@ def review_overlay(session: Session, user: Actor, sample_id: int, *, secret_key:
     fit_px = _projections(fit.keypoints_m, cameras)
     pred_px = _projections(prediction.keypoints_m, cameras) if prediction is not None else {}
     residuals = _residuals(fit_px, clicks)
-    if not clicks and prediction is not None:  # fitted from MVNet: measure against its keypoints instead
+    detections = fitted_detections(fit.inputs, cameras) if not clicks else None
+    if detections is not None:  # fitted from the detector's keypoints: measure against those it used
+        residuals = _residuals(fit_px, [ClickRow(view_id, k, x, y, "visible") for view_id, points in detections.items()
+                                        for k, (x, y) in points.items()])
+    elif not clicks and prediction is not None:  # fitted from MVNet: measure against its keypoints instead
         residuals = {v: {k: round(float(np.hypot(*(fit_px[v][k] - pred_px[v][k]))), 2) for k in SPARSE_KEYPOINTS
                          if np.isfinite(fit_px[v][k]).all() and np.isfinite(pred_px[v][k]).all()}
                      for v in fit_px}
@@ -247,11 +253,13 @@ def review_overlay(session: Session, user: Actor, sample_id: int, *, secret_key:
         "hand_model": {"model_file": fit.model_file, "stand_in": is_stand_in(fit.model_file),
                        "label": hand_model_label(fit.model_file), "side": fit_side(fit.diagnostics)},
         "fit": {"keypoints_m": keypoints.round(6).tolist(), "source": "annotations" if submission_ids else
-                "prediction", "heuristic": fit.heuristic, "pose_distance": round(float(fit.pose_distance), 4),
+                DETECTOR_SOURCE if (fit.inputs or {}).get("source") == DETECTOR_SOURCE else "prediction",
+                "heuristic": fit.heuristic, "pose_distance": round(float(fit.pose_distance), 4),
                 "mean_iou": round(float(np.mean(list(ious.values()))), 4) if ious else None,
                 "mean_residual_px": round(float(np.mean(all_res)), 2) if all_res else None,
                 "max_residual_px": round(float(np.max(all_res)), 2) if all_res else None,
-                "residual_reference": "clicks" if clicks else ("mvnet" if prediction is not None else None),
+                "residual_reference": "clicks" if clicks else DETECTOR_SOURCE if detections is not None
+                else "mvnet" if prediction is not None else None,
                 "residual_by_origin": by_origin,
                 "mesh_keypoint_offset_mm": offset_mm, "created_at": fit.created_at.isoformat()},
         "prediction": None if prediction is None else {

@@ -31,7 +31,7 @@ from backend.simulation.client import ApiClient, ApiError
 from backend.simulation.costs import PAPER_FULL_ANNOTATION_S, HumanLedger, UnitCosts
 from backend.simulation.reviewer import ReviewerConfig, SimulatedReviewer
 from backend.simulation.team import SimulationTimeoutError, Team, TeamWork, wait_for_job, wait_until_idle
-from backend.simulation.truth import GroundTruthIndex
+from backend.simulation.truth import SEQUENCE_KINDS, GroundTruthIndex
 from workers.capture import read_capture
 from workers.evaluation import summarise_errors
 
@@ -105,7 +105,11 @@ class RoundReport:
     reviewed_after_annotation_median_mm: float | None
     mvnet_predictions: int
     mvnet_keypoint_mm: float | None
+    mvnet_keypoint_mm_median: float | None
     mvnet_auc: float | None
+    # The same split by sequence kind ("green_screen", "cluttered"): each {predictions, keypoint_mm,
+    # keypoint_mm_median, auc}; the cluttered evaluation sequences have no chroma key to lift from.
+    mvnet_by_kind: dict[str, dict[str, Any]]
     round_job: dict[str, Any] | None
     minutes: float
     bookkeeping_ok: bool
@@ -118,6 +122,15 @@ def _mean(values: list[float]) -> float | None:
 
 def _median(values: list[float]) -> float | None:
     return float(np.median(values)) if values else None
+
+
+def mvnet_errors_summary(errors_m: np.ndarray | None) -> dict[str, Any]:
+    """MVNet's keypoint errors (S, 21) metres -> {predictions, keypoint_mm (mean), keypoint_mm_median (over all
+    keypoints), auc (3D PCK 0-50 mm)}; None figures without predictions."""
+    if errors_m is None or len(errors_m) == 0:
+        return {"predictions": 0, "keypoint_mm": None, "keypoint_mm_median": None, "auc": None}
+    return {"predictions": len(errors_m), "keypoint_mm": float(errors_m.mean() * 1000),
+            "keypoint_mm_median": float(np.median(errors_m) * 1000), "auc": summarise_errors(errors_m).auc}
 
 
 class BootstrapSimulation:
@@ -290,6 +303,8 @@ class BootstrapSimulation:
         mvnet_errors = np.array([np.linalg.norm(np.asarray(p["keypoints_m"])
                                                 - self.truth.truth(p["sample_id"]).keypoints_3d, axis=1)
                                  for p in predictions]) if predictions else None
+        kinds = np.array([self.truth.sequence_kind(p["sample_id"]) for p in predictions])
+        mvnet = mvnet_errors_summary(mvnet_errors)
         size = int(row["dataset_size_after"])
         # D_{i+1} = D_i + D^h + D^m + D^l: the server's cumulative count, its per-stream additions and the
         # dataset export must agree.
@@ -320,9 +335,10 @@ class BootstrapSimulation:
             reviewed_vertex_mm_median=_median(reviewed_mm), reviewed_from_predictions=len(from_predictions),
             reviewed_from_predictions_median_mm=_median(from_predictions),
             reviewed_after_annotation_median_mm=_median(after_annotation),
-            mvnet_predictions=len(predictions),
-            mvnet_keypoint_mm=float(mvnet_errors.mean() * 1000) if mvnet_errors is not None else None,
-            mvnet_auc=summarise_errors(mvnet_errors).auc if mvnet_errors is not None else None,
+            mvnet_predictions=len(predictions), mvnet_keypoint_mm=mvnet["keypoint_mm"],
+            mvnet_keypoint_mm_median=mvnet["keypoint_mm_median"], mvnet_auc=mvnet["auc"],
+            mvnet_by_kind={kind: mvnet_errors_summary(mvnet_errors[kinds == kind] if predictions else None)
+                           for kind in SEQUENCE_KINDS},
             round_job=job, minutes=(time.perf_counter() - started) / 60, bookkeeping_ok=bookkeeping_ok,
             preannotation=self.preannotation if index == 0 else None)
 

@@ -13,6 +13,11 @@ import numpy as np
 
 from workers.capture import Capture, FrameRef, GroundTruth, load_ground_truth
 
+# Sequence kinds the report splits by (the capture's `green_screen` flag): the paper's green-screen training
+# sequences, and the evaluation sequences on cluttered backgrounds.
+KIND_GREEN_SCREEN, KIND_CLUTTERED = "green_screen", "cluttered"
+SEQUENCE_KINDS = (KIND_GREEN_SCREEN, KIND_CLUTTERED)
+
 
 class TruthError(LookupError):
     """A sample has no ground truth here (unknown project, sequence or frame)."""
@@ -70,6 +75,12 @@ class GroundTruthIndex:
             return self._frames[sample_id]
         except KeyError:
             raise TruthError(f"sample {sample_id} is not from the simulated captures") from None
+
+    def sequence_kind(self, sample_id: int) -> str:
+        """KIND_GREEN_SCREEN (a training sequence, chroma-keyed) or KIND_CLUTTERED (an evaluation sequence on a
+        real background, no chroma key), from the capture's sequence metadata (`green_screen`)."""
+        capture, frame = self.frame(sample_id)
+        return KIND_GREEN_SCREEN if capture.sequence(frame.sequence_id).green_screen else KIND_CLUTTERED
 
     def truth(self, sample_id: int) -> GroundTruth:
         """The frame's ground truth (cached, most recently used kept)."""

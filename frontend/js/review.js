@@ -647,7 +647,8 @@ class ReviewPage {
           this.renderViews();
         } }), ` ${label} (${key})`))),
       pred ? null : h("div", { class: "muted mvnet-note" },
-        "MVNet layer (P) empty: no MVNet prediction exists for this sample (this fit was made from clicks)."),
+        "MVNet layer (P) empty: no MVNet prediction exists for this sample (this fit was made from " +
+        (fit.source === "detector" ? "the detector's keypoints)." : "clicks).")),
       h("div", { class: "muted" }, `1-8 enlarge a view, Esc back · Z ${this.cropToHand ? "whole images" : "zoom to the hand"} · V 3D view`),
       this.render3d(),
       h("details", { class: "help", open: this.helpOpen }, h("summary", {}, "Keys (?)"),
@@ -702,8 +703,9 @@ function handCrop(projected, info, margin = 0.35, minFraction = 0.2) {
 function residualFacts(fit) {
   const split = fit.residual_by_origin;
   if (!split || !split.accepted.n) {
+    const against = fit.residual_reference ? ` vs ${fit.residual_reference}` : "";
     return [h("dt", {}, "residual"), h("dd", { class: "residual-clicked" },
-      `${fmt(fit.mean_residual_px, 1)} px mean, ${fmt(fit.max_residual_px, 1)} max`)];
+      `${fmt(fit.mean_residual_px, 1)} px mean, ${fmt(fit.max_residual_px, 1)} max${against}`)];
   }
   const line = (g, what) => `${fmt(g.mean_px, 1)} px mean, ${fmt(g.max_px, 1)} max over ${g.n} ${what}`;
   return [

@@ -41,3 +41,56 @@ def test_the_review_page_shows_residuals_to_clicks_apart_from_accepted_proposals
     assert "vs clicks" in banner and "vs accepted proposals" in banner, banner
     t.shot("review-residuals-by-origin")
     assert not t.errors, t.errors
+
+
+def test_the_review_page_measures_a_detector_fit_against_the_detector(live_stack, tab):
+    # A pre-annotation fit (source "detector", no clicks) whose detections lie 3 px right of its keypoints in
+    # every view: the page says how far the fit is from the detector, and that it is the detector.
+    import numpy as np
+    from sqlalchemy import select
+
+    from backend.models.capture import Sample
+    from backend.models.enums import SampleState
+    from backend.services import records
+    from backend.services.state_machine import transition
+    from backend.services.verification import HeuristicThresholds
+    from backend.services.view_geometry import project, view_cameras
+    from workers.capture import read_capture
+    from workers.capture.reader import load_ground_truth
+
+    stack = live_stack(frames=2, worker=False, queue_for_annotation=False)
+    capture = read_capture(stack.capture_dir, check_images=False)
+    gt = load_ground_truth(capture.sequences[0].frames[0])
+    factory = stack.session_factory()
+    try:
+        with factory.begin() as session:
+            sample = session.execute(select(Sample).where(Sample.frame_index == 0)).scalar_one()
+            sample.state = SampleState.fitting  # as the pre-annotation job leaves it for its fit job
+            cameras = view_cameras(session, sample.id)
+            right = np.array([3.0, 0.0])
+            views = [{"view_id": cam.view_id, "keypoints_px": (project(gt.keypoints_3d, cam) + right).tolist(),
+                      "scores": [0.9] * 21, "presence": 0.95} for cam in cameras]
+            detection = {"view_ids": [cam.view_id for cam in cameras], "views": views,
+                         "inliers": np.ones((21, len(cameras)), dtype=bool).tolist(),
+                         "points_world": gt.keypoints_3d.tolist(), "confidence": [0.9] * 21, "frame_confidence": 0.9}
+            params = np.concatenate([gt.betas, gt.pose, gt.global_orient, gt.transl])
+            records.record_fit(session, sample.id, params=params.tolist(), keypoints_m=gt.keypoints_3d.tolist(),
+                               view_ious={cam.view_id: 0.9 for cam in cameras}, diagnostics={},
+                               inputs={"source": "detector", "detection": detection},
+                               model_file="handloop-builtin v1", thresholds=HeuristicThresholds())
+            transition(session, sample, SampleState.in_review, None, reason="test")
+            sample_id = sample.id
+    finally:
+        factory.kw["bind"].dispose()
+    t = tab()
+    user = stack.users["reviewer"]
+    sign_in(t, stack.base_url, user.email, user.password, "review")
+    page = t.page
+    assert page.get_attribute("body", "data-sample") == str(sample_id)
+    banner = page.inner_text(".fit-banner")
+    assert "mean residual 3.0 px (vs detector)" in banner, banner
+    facts = page.inner_text(".review-side .residual-clicked")
+    assert facts == "3.0 px mean, 3.0 max vs detector", facts
+    assert "made from the detector's keypoints" in page.inner_text(".review-side .mvnet-note")
+    t.shot("review-residuals-vs-detector")
+    assert not t.errors, t.errors

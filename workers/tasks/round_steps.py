@@ -29,6 +29,7 @@ from backend.models.fits import Fit, Prediction
 from backend.models.jobs import Job
 from backend.models.review import Round, RoundMember
 from backend.services import jobs, review
+from backend.services.records import iou_reference
 from backend.services.verification import HeuristicThresholds, ReviewPolicy, heuristic_verdict
 from workers.tasks import round_progress
 from workers.tasks.context import WorkerContext
@@ -158,35 +159,54 @@ def plan_inference(ctx: WorkerContext, round_job_id: int) -> InferencePlan | Non
         return InferencePlan(pending, batches)
 
 
+class _HeuristicCounts:
+    """Fits, those evaluated (a fit without view IoUs is not), accepted, and failures by criterion."""
+
+    def __init__(self) -> None:
+        self.fits = self.evaluated = self.accepted = 0
+        self.reasons: dict[str, int] = {}
+
+    def add(self, record: dict[str, Any] | None) -> None:
+        self.fits += 1
+        if record is None:
+            return
+        self.evaluated += 1
+        self.accepted += bool(record.get("accepted"))
+        for reason in record.get("failed", []):
+            key = _criterion(reason)
+            self.reasons[key] = self.reasons.get(key, 0) + 1
+
+    def summary(self) -> dict[str, Any]:
+        return {"fits": self.fits, "evaluated": self.evaluated, "accepted": self.accepted,
+                "failures": dict(sorted(self.reasons.items(), key=lambda kv: -kv[1])[:8])}
+
+
 def run_heuristic(ctx: WorkerContext, round_job_id: int) -> dict[str, Any] | None:
     """The paper's heuristic over the round's fits from predictions: applies it to any fit not evaluated yet
-    (record_fit evaluates each new one) and summarises: evaluated, accepted (D^h), most common failures."""
+    (record_fit evaluates each new one) and summarises: fits, evaluated, accepted (D^h), most common failures;
+    the same per sequence kind in "by_kind" ("green_screen": chroma-keyed sequences, "cluttered": the others)."""
     thresholds = HeuristicThresholds.from_settings(ctx.settings)
     with ctx.session_factory.begin() as session:
         job = session.get(Job, round_job_id)
         if job is None or JobState(job.state) in jobs.FINAL_STATES:
             return None
-        fits = session.execute(select(Fit).where(Fit.round_id == job.round_id, Fit.prediction_id.is_not(None))
-                               ).scalars().all()
-        reasons: dict[str, int] = {}
-        evaluated = accepted = 0
-        for fit in fits:
+        rows = session.execute(select(Fit, Sample.green_screen).join(Sample, Sample.id == Fit.sample_id)
+                               .where(Fit.round_id == job.round_id, Fit.prediction_id.is_not(None))
+                               .order_by(Fit.id)).all()
+        total = _HeuristicCounts()
+        by_kind = {kind: _HeuristicCounts() for kind in ("green_screen", "cluttered")}
+        for fit, green_screen in rows:
             if fit.heuristic is None and fit.view_ious:
                 prediction = session.get(Prediction, fit.prediction_id)
                 verdict = heuristic_verdict(prediction.confidences, fit.view_ious.values(), prediction.keypoints_m,
                                             fit.keypoints_m, thresholds)
                 # Evaluated late (no acceptance here: only record_fit routes samples, in its transaction).
                 fit.heuristic = {"accepted": False, "late": True, "would_accept": verdict.accepted,
-                                 "failed": list(verdict.failed), **verdict.metrics}
-            if fit.heuristic is None:
-                continue
-            evaluated += 1
-            accepted += bool(fit.heuristic.get("accepted"))
-            for reason in fit.heuristic.get("failed", []):
-                key = _criterion(reason)
-                reasons[key] = reasons.get(key, 0) + 1
-        summary = {"evaluated": evaluated, "accepted": accepted,
-                   "failures": dict(sorted(reasons.items(), key=lambda kv: -kv[1])[:8])}
+                                 "failed": list(verdict.failed), **verdict.metrics,
+                                 "iou_reference": iou_reference(fit.inputs or {})}
+            total.add(fit.heuristic)
+            by_kind["green_screen" if green_screen else "cluttered"].add(fit.heuristic)
+        summary = {**total.summary(), "by_kind": {kind: c.summary() for kind, c in by_kind.items()}}
         _merge_result(job, heuristic=summary)
         round_progress.refresh(session, round_job_id, ctx.settings)
         return summary

@@ -25,7 +25,7 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         minutes, accepted labels' vertex error, auto-accept precision, labels per human hour; with the
         detector on and off side by side."""
 
-        from backend.bench.sim import DETECTOR_MODES, run
+        from backend.bench.sim import DETECTOR_MODES, by_kind_line, run
 
         if detector is not None and detector not in DETECTOR_MODES:
             typer.echo(f"error: --detector must be one of {', '.join(DETECTOR_MODES)}, not {detector!r}", err=True)
@@ -43,6 +43,8 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
                     typer.echo(f"detector {mode} D_{r['index']}: +{r['heuristic']} Dh (precision "
                                f"{r['auto_accept_precision']}) +{r['manual']} Dm +{r['annotated']} Dl, "
                                f"{r['labels_per_human_hour']} labels/h, accepted {r['accepted_vertex_mm']} mm")
+                    if r["index"] > 0:
+                        typer.echo(f"  {by_kind_line(r)}")
             for r in record["rounds"]:
                 typer.echo(f"D_{r['index']}: {r['dataset_size']} samples, {r['human_hours']:.2f} h")
             typer.echo(f"minutes {record['minutes']:.1f}  accepted {record['accepted_vertex_mm']} mm  "

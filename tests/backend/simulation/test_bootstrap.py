@@ -52,6 +52,7 @@ class FakeWorkers:
     def __init__(self, env, sim: BootstrapSimulation) -> None:
         self.env, self.sim, self.done = env, sim, set()
         self.shifted: dict[int, float] = {}  # sample id -> how far its round fit is from the truth, m
+        self.predicted_mm: list[dict[int, float]] = []  # per round job: sample id -> its prediction's error, mm
 
     def _fit(self, session, sample_id: int, shift_m: float, job_id: int, prediction_id: int | None = None) -> None:
         gt = self.sim.truth.truth(sample_id)
@@ -80,10 +81,12 @@ class FakeWorkers:
             todo = s.execute(text("SELECT s.id FROM samples s JOIN sequences q ON q.id = s.sequence_id "
                                   "JOIN projects p ON p.id = q.project_id WHERE p.name = 'sim' "
                                   "AND s.state IN ('unlabeled', 'fitted') ORDER BY s.id")).scalars().all()
+        self.predicted_mm.append({})
         for n, sample_id in enumerate(todo):
             gt = self.sim.truth.truth(sample_id)
             wrong = 0.015 if n % 4 == 0 else 0.0
             self.shifted[sample_id] = 0.003 + wrong
+            self.predicted_mm[-1][sample_id] = (0.001 + wrong) * 1000  # every keypoint moved as far
             confidences = [0.95 if n % 3 else 0.7] * 21
             with env.session() as s, s.begin():
                 prediction = records.record_prediction(
@@ -138,6 +141,17 @@ def test_bootstrap_books_add_up_round_by_round(env_with, sqlite_url, capture_dir
     members = admin.dataset()["samples"]
     assert len(members) == summary["dataset_size"] == rounds[-1]["dataset_size"]
     assert rounds[1]["mvnet_predictions"] == 14 and rounds[1]["mvnet_keypoint_mm"] > 1.0
+    # MVNet's error split by sequence kind: seq000-001 green-screen training, seq002 cluttered evaluation.
+    split = {row["sample_id"]: row["split"] for row in admin.sample_index(project="sim")["samples"]}
+    for kind, split_name in (("green_screen", "train"), ("cluttered", "evaluation")):
+        expected = [mm for sample_id, mm in workers.predicted_mm[0].items() if split[sample_id] == split_name]
+        got = rounds[1]["mvnet_by_kind"][kind]
+        assert got["predictions"] == len(expected) > 0
+        assert got["keypoint_mm"] == pytest.approx(np.mean(expected))
+        assert got["keypoint_mm_median"] == pytest.approx(np.median(expected)) and 0 < got["auc"] <= 1
+    assert rounds[1]["mvnet_keypoint_mm_median"] == pytest.approx(np.median(list(workers.predicted_mm[0].values())))
+    assert rounds[0]["mvnet_by_kind"]["cluttered"] == {"predictions": 0, "keypoint_mm": None,
+                                                       "keypoint_mm_median": None, "auc": None}
     # Human time: the unit costs of what the ledger counted, which the server's records confirm.
     with env.session() as s:
         clicked = s.execute(text("SELECT count(*) FROM clicks WHERE visibility != 'not_annotated'")).scalar_one()

@@ -112,3 +112,74 @@ def test_proposals_need_the_annotation_lease(sqlite_env, ui, ui_capture):
     assert response.status_code == 403 and "lease" in response.json()["detail"]
     mine = env.client.get(f"/api/annotate/samples/{task['sample_id']}/proposals", headers=env.headers(Role.annotator))
     assert mine.status_code == 200 and mine.json()["sources"] == [] and mine.json()["review_note"] is None
+
+
+def _detector_fit_in_review(env, ui, capture, detection_of) -> dict:
+    """A sample fitted (the truth's parameters) from a detection record `detection_of(task, gt)` as pre-annotation
+    records it (no clicks), put in review; the reviewer's task."""
+    from backend.models.capture import Sample
+    from backend.models.enums import SampleState
+    from backend.services import records
+    from backend.services.samples import views_of
+    from backend.services.state_machine import transition
+    from backend.services.verification import HeuristicThresholds
+
+    ui.import_capture(env, capture)
+    task = env.client.post("/api/annotate/next", headers=env.headers(Role.annotator)).json()
+    ui.submit(env, task, capture)  # 'fitting': the clicks stay out of the fit's inputs
+    _, gt = ui.ground_truth(capture, task["frame_index"])
+    params = np.concatenate([gt.betas, gt.pose, gt.global_orient, gt.transl])
+    with env.session() as session, session.begin():
+        views = views_of(session, task["sample_id"], with_masks=False)
+        records.record_fit(session, task["sample_id"], params=params.tolist(), keypoints_m=gt.keypoints_3d.tolist(),
+                           view_ious={v.id: 0.9 for v in views}, diagnostics={}, model_file="handloop-builtin v1",
+                           inputs={"source": "detector", "detection": detection_of(task, gt)},
+                           thresholds=HeuristicThresholds())
+        transition(session, session.get(Sample, task["sample_id"]), SampleState.in_review, None, reason="test")
+    review = env.client.post("/api/review/next", headers=env.headers(Role.reviewer))
+    assert review.status_code == 200, review.text
+    return review.json()
+
+
+def test_review_overlay_measures_a_detector_fit_against_the_detections_it_was_made_from(sqlite_env, ui, ui_capture):
+    # Every detection 2 px right of the truth; view 0's wrist 40 px off but no inlier and view 1 undetected, so
+    # the fit did not use them: the residual is 2 px wherever the fit used a detection, and only there.
+    env = sqlite_env
+    used: dict[int, set[int]] = {}
+
+    def detection_of(task: dict, gt) -> dict:
+        by_camera = {name: c for c, name in enumerate(gt.camera_names)}
+        views, inliers = [], np.ones((21, len(task["views"])), dtype=bool)
+        for c, view in enumerate(task["views"]):
+            xy = gt.keypoints_2d[by_camera[view["camera"]]] + np.array([2.0, 0.0])
+            if c == 0:
+                xy[0, 0] += 38.0
+                inliers[0, c] = False
+            inside = ((xy[:, 0] >= -0.5) & (xy[:, 0] <= view["width"] - 0.5) & (xy[:, 1] >= -0.5)
+                      & (xy[:, 1] <= view["height"] - 0.5))
+            if c != 1:
+                used[view["id"]] = {k for k in range(21) if inside[k] and inliers[k, c]}
+            views.append(None if c == 1 else {"view_id": view["id"], "keypoints_px": xy.tolist(),
+                                              "scores": [0.9] * 21, "presence": 0.95})
+        return {"view_ids": [v["id"] for v in task["views"]], "views": views, "inliers": inliers.tolist(),
+                "points_world": gt.keypoints_3d.tolist(), "confidence": [0.9] * 21, "frame_confidence": 0.9}
+
+    task = _detector_fit_in_review(env, ui, ui_capture, detection_of)
+    data = env.client.get(f"/api/review/samples/{task['sample_id']}/overlay?mesh=false",
+                          headers=env.headers(Role.reviewer)).json()
+    fit = data["fit"]
+    assert (fit["source"], fit["residual_reference"], fit["residual_by_origin"]) == ("detector", "detector", None)
+    assert abs(fit["mean_residual_px"] - 2.0) < 0.05 and abs(fit["max_residual_px"] - 2.0) < 0.05
+    for view in data["views"]:
+        assert {int(k) for k in view["residual_px"]} == used.get(view["view_id"], set())
+        assert view["clicks"] == []  # the detections are not clicks
+
+
+def test_an_unreadable_detection_record_leaves_the_overlay_without_residuals(sqlite_env, ui, ui_capture):
+    env = sqlite_env
+    task = _detector_fit_in_review(env, ui, ui_capture, lambda task, gt: {"view_ids": "garbage"})
+    data = env.client.get(f"/api/review/samples/{task['sample_id']}/overlay?mesh=false",
+                          headers=env.headers(Role.reviewer))
+    assert data.status_code == 200, data.text
+    fit = data.json()["fit"]
+    assert fit["source"] == "detector" and fit["residual_reference"] is None and fit["mean_residual_px"] is None

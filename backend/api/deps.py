@@ -79,9 +79,16 @@ def state_session(state: Any) -> Iterator[Session]:
     run_after_commit(session)
 
 
-def _load_principal(factory: Callable[[], Session], user_id: int) -> Principal | None:
-    with factory() as session:
-        return load_principal(session, user_id)
+def read_principal(state: Any, user_id: int) -> Principal | None:
+    """The user's row, read in a transaction of its own (its connection back in the pool on return) and kept in
+    the process's cache; None when there is no such user. Blocking: call it from a thread."""
+    cache: AuthCache = state.auth_cache
+    generation = cache.generation(user_id)
+    with state.read_session_factory() as session:
+        user = load_principal(session, user_id)
+    if user is not None:
+        cache.put(user, generation)
+    return user
 
 
 def _commit(session: Session) -> None:
@@ -129,13 +136,10 @@ async def get_current_user(
     if credentials is None:
         raise AuthError("not authenticated: send 'Authorization: Bearer <token>'")
     user_id, version = parse_token(settings.signing_key, credentials.credentials)
-    cache: AuthCache = request.app.state.auth_cache
-    user = cache.get(user_id)
+    state = request.app.state
+    user = state.auth_cache.get(user_id)
     if user is None or user.token_version < version:
-        generation = cache.generation(user_id)
-        user = await run_in_threadpool(_load_principal, request.app.state.read_session_factory, user_id)
-        if user is not None:
-            cache.put(user, generation)
+        user = await run_in_threadpool(read_principal, state, user_id)
     if user is None or user.token_version != version:
         raise AuthError("access token revoked; log in again")
     if not user.is_active:
@@ -146,20 +150,27 @@ async def get_current_user(
 CurrentUser = Annotated[Principal, Depends(get_current_user, scope="function")]
 
 
-def cached_principal(state: Any, authorization: bytes | None) -> Principal | None:
-    """The caller from an `Authorization` header's value with no I/O: its bearer token valid and its user in the
-    process's cache, current and active; None in every other case, including every error (then
-    `get_current_user` decides and says what is wrong). For backend.api.hot_path."""
+def bearer_claims(state: Any, authorization: bytes | None) -> tuple[int, int] | None:
+    """(user id, token version) of an `Authorization` header's valid bearer token, with no I/O; None in every
+    other case, including every error (then `get_current_user` decides and says what is wrong). For
+    backend.api.hot_path."""
     if authorization is None:
         return None
     scheme, _, token = authorization.decode("latin-1").partition(" ")
     if scheme.lower() != "bearer" or not token:
         return None
     try:
-        user_id, version = parse_token(state.settings.signing_key, token)
+        return parse_token(state.settings.signing_key, token)
     except AuthError:
         return None
+
+
+def current_principal(state: Any, user_id: int, version: int) -> Principal | None:
+    """The user a valid token names, as `get_current_user` finds it (the cache, else the row, read here:
+    blocking), if it is current and active; None otherwise."""
     user = state.auth_cache.get(user_id)
+    if user is None or user.token_version < version:
+        user = read_principal(state, user_id)
     if user is None or user.token_version != version or not user.is_active:
         return None
     return user

@@ -6,15 +6,16 @@ request and solves its dependency tree (settings, bearer scheme, user, role, que
 and wraps the call in exception and exit-stack layers; that per-request work was a large share of the server's
 CPU per cycle (docs/benchmarks.md, issue 17). This middleware answers such a request itself, calling the same
 functions the routes call (`next_response`, `submit_response`) in the thread pool, when:
-- the caller's bearer token is valid and its user is in the process's auth cache, active, annotator or above;
+- the caller's bearer token is valid and names a current, active user, annotator or above (from the process's
+  auth cache, else read in the route's thread: one thread-pool hop per request either way);
 - the path's sample id is a plain integer in range, the query string empty, the body JSON that
   `SubmissionCreate` accepts;
 - the route's work succeeds.
-Anything else (no cached user, a body that does not validate, any error the work raises) goes on to FastAPI's
-route, with the body replayed: it answers exactly as it would have. A failed attempt wrote nothing (the work's
-transaction rolled back; PostgreSQL's one-statement submit writes all or nothing) and both routes are idempotent
-(a held lease is renewed, a submission id already stored is answered as a duplicate), so running the route again
-is safe.
+Anything else (a token or user that does not pass, a body that does not validate, any error the work raises) goes on
+to FastAPI's route, with the body replayed: it answers exactly as it would have. A failed attempt wrote nothing (the
+work's transaction rolled back; PostgreSQL's one-statement submit writes all or nothing) and both routes are
+idempotent (a held lease is renewed, a submission id already stored is answered as a duplicate), so running the
+route again is safe.
 
 It sits inside the security-header and body-size middlewares (app.py), so their headers and limits apply.
 """
@@ -28,12 +29,11 @@ from typing import Any
 from starlette.concurrency import run_in_threadpool
 from starlette.responses import Response
 
-from backend.api.deps import cached_principal
+from backend.api.deps import bearer_claims, current_principal
 from backend.api.routes.annotate import next_response, submit_response
 from backend.models.enums import Role
 from backend.schemas.base import MAX_ID
 from backend.schemas.tasks import SubmissionCreate
-from backend.services.users import Principal
 
 NEXT_PATH = "/api/annotate/next"
 SUBMIT_PREFIX, SUBMIT_SUFFIX = "/api/annotate/samples/", "/submissions"
@@ -74,33 +74,41 @@ class AnnotatorHotPath:
                 return
         headers = dict(scope["headers"])  # the last of repeated names: only a client's mistake, then FastAPI decides
         state = scope["app"].state
-        user = cached_principal(state, headers.get(b"authorization"))
-        if user is None or Role(user.role).rank < Role.annotator.rank:
+        claims = bearer_claims(state, headers.get(b"authorization"))
+        if claims is None:
             await self.app(scope, receive, send)
             return
         body, more = await _read_body(receive)
         response = None
         if not more:  # a disconnect before the whole body: FastAPI's route sees it as it would have
-            response = await self._answer(state, user, sample_id, body, headers.get(b"content-type"))
+            response = await self._answer(state, claims, sample_id, body, headers.get(b"content-type"))
         if response is None:
             await self.app(scope, _replay(body, more, receive), send)
             return
         await response(scope, receive, send)
 
     @staticmethod
-    async def _answer(state: Any, user: Principal, sample_id: int | None, body: bytes,
+    async def _answer(state: Any, claims: tuple[int, int], sample_id: int | None, body: bytes,
                       content_type: bytes | None) -> Response | None:
         """The route's response, or None where FastAPI's route must answer."""
         try:
             if sample_id is None:
-                return await run_in_threadpool(next_response, state, user)
+                return await run_in_threadpool(_as_annotator, state, claims, next_response)
             if content_type is None or content_type.lower() not in _JSON_TYPES:
                 return None
             # As FastAPI does: json.loads, then the model in Python mode (Strict's rules are written for that mode).
             submission = SubmissionCreate.model_validate(json.loads(body))
-            return await run_in_threadpool(submit_response, state, user, sample_id, submission)
+            return await run_in_threadpool(_as_annotator, state, claims, submit_response, sample_id, submission)
         except Exception:  # a bad body, a domain error, anything: the route answers it again
             return None
+
+
+def _as_annotator(state: Any, claims: tuple[int, int], work: Callable[..., Response], *args: Any) -> Response | None:
+    """`work(state, user, *args)` for the token's user if it passes the route's checks (else None), in one thread."""
+    user = current_principal(state, *claims)
+    if user is None or Role(user.role).rank < Role.annotator.rank:
+        return None
+    return work(state, user, *args)
 
 
 async def _read_body(receive: Receive) -> tuple[bytes, bool]:

@@ -40,10 +40,10 @@ def _without_hot_path(app):
 def test_plain_requests_are_answered_by_the_hot_path(env, h, answered):
     ids = h.seed(env, frames=2, cameras=2)
     headers = env.headers(Role.annotator)
-    first = env.client.post("/api/annotate/next", headers=headers)  # the user is not cached yet: FastAPI's route
-    assert first.status_code == 200 and answered == {"next": 0, "submit": 0}
-    again = env.client.post("/api/annotate/next", headers=headers)  # cached now
-    assert again.status_code == 200 and answered["next"] == 1
+    first = env.client.post("/api/annotate/next", headers=headers)  # the user read in the route's thread
+    assert first.status_code == 200 and answered == {"next": 1, "submit": 0}
+    again = env.client.post("/api/annotate/next", headers=headers)  # from the cache
+    assert again.status_code == 200 and answered["next"] == 2
     assert again.json()["sample_id"] == first.json()["sample_id"] == ids[0]
     assert again.json()["lease_token"] == first.json()["lease_token"]
     assert again.headers["content-security-policy"] == first.headers["content-security-policy"]
@@ -58,7 +58,6 @@ def test_plain_requests_are_answered_by_the_hot_path(env, h, answered):
 def test_the_hot_path_is_not_used_by_other_roles_routes_or_queries(env, h, answered):
     h.seed(env, frames=2, cameras=1)
     headers = env.headers(Role.annotator)
-    env.client.post("/api/annotate/next", headers=headers)
     assert env.client.post("/api/annotate/next?x=1", headers=headers).status_code == 200
     assert env.client.post("/api/review/next", headers=env.headers(Role.reviewer)).status_code in (200, 204)
     assert answered == {"next": 0, "submit": 0}
@@ -144,7 +143,17 @@ def test_a_revoked_token_is_refused_even_when_cached(env, h, answered):
                   {"i": env.user_ids[Role.annotator]})
     env.app_cache().invalidate(env.user_ids[Role.annotator])  # as the process that revoked it does
     response = env.client.post("/api/annotate/next", headers=env.headers(Role.annotator))
-    assert response.status_code == 401 and answered["next"] == 0
+    assert response.status_code == 401 and answered["next"] == 1  # only the first request's work ran
+
+
+def test_a_deactivated_user_in_another_process_is_refused_once_the_cache_lapses(env, h, answered):
+    h.seed(env, frames=1, cameras=1)
+    h.next_task(env)
+    with env.session() as s, s.begin():  # another process's change: this process's cache keeps the row a while
+        s.execute(text("UPDATE users SET is_active = false WHERE id = :i"), {"i": env.user_ids[Role.annotator]})
+    env.app_cache().clock = lambda: float("inf")  # the entry has lapsed
+    response = env.client.post("/api/annotate/next", headers=env.headers(Role.annotator))
+    assert response.status_code == 401 and "deactivated" in response.json()["detail"] and answered["next"] == 1
 
 
 @pytest.mark.parametrize(("path", "expected"), [

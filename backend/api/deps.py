@@ -85,6 +85,8 @@ def read_principal(state: Any, user_id: int) -> Principal | None:
     cache: AuthCache = state.auth_cache
     generation = cache.generation(user_id)
     with state.read_session_factory() as session:
+        if session.get_bind().dialect.name == "postgresql":  # one round trip: no BEGIN before it, no ROLLBACK after
+            session.connection(execution_options={"isolation_level": "AUTOCOMMIT"})
         user = load_principal(session, user_id)
     if user is not None:
         cache.put(user, generation)

@@ -187,3 +187,21 @@ def test_it_sits_inside_the_body_limit_and_the_security_headers(sqlite_env):
 
     outermost_first = [m.cls for m in sqlite_env.client.app.user_middleware]
     assert outermost_first == [SecurityHeaders, BodySizeLimit, AnnotatorHotPath]
+
+
+def test_the_users_row_is_read_without_a_transaction_on_postgresql(env, h, monkeypatch):
+    """One round trip for a crowd annotator's lapsed cache entry: no BEGIN before the SELECT, no ROLLBACK after."""
+    from backend.api import deps
+
+    levels = []
+    real = deps.load_principal
+
+    def spy(session, user_id):
+        levels.append(session.connection().get_isolation_level())
+        return real(session, user_id)
+
+    monkeypatch.setattr(deps, "load_principal", spy)
+    h.seed(env, frames=1, cameras=1)
+    h.next_task(env)
+    postgres = env.settings.resolved_database_url.startswith("postgresql")
+    assert levels and all((level == "AUTOCOMMIT") == postgres for level in levels)

@@ -197,7 +197,7 @@ def test_the_users_row_is_read_without_a_transaction_on_postgresql(env, h, monke
     real = deps.load_principal
 
     def spy(session, user_id):
-        levels.append(session.connection().get_isolation_level())
+        levels.append(session.connection().get_execution_options().get("isolation_level"))
         return real(session, user_id)
 
     monkeypatch.setattr(deps, "load_principal", spy)

@@ -9,6 +9,7 @@ from contextlib import asynccontextmanager
 from fastapi import FastAPI
 
 from backend.api import docs, errors, frontend, openapi
+from backend.api.hot_path import AnnotatorHotPath
 from backend.api.limits import BodySizeLimit
 from backend.api.main import api_router
 from backend.api.security_headers import SecurityHeaders
@@ -52,6 +53,7 @@ def create_app(settings: Settings | None = None, *, job_queue: JobQueue | None =
     app.include_router(api_router)
     docs.mount(app)
     frontend.mount(app)  # the UI at / and viser's client at /viewer/, after the API routes
+    app.add_middleware(AnnotatorHotPath)  # innermost: inside the body limit and the security headers
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes)
     app.add_middleware(SecurityHeaders)  # outermost: the body limit's 413 gets the headers too
     return app

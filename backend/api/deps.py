@@ -62,12 +62,13 @@ async def get_session(request: Request) -> AsyncIterator[Session]:
 
 
 @contextmanager
-def route_session(request: Request) -> Iterator[Session]:
-    """get_session's transaction, opened and ended by a (sync) route in its own thread: committed when the block
-    ends (a failed commit raises, the request writes nothing), rolled back on any error, closed either way, then
-    the after-commit work (the fit hand-off). For the annotators' two hot routes: the generator dependency cost
-    the event loop an exit stack and a shielded exit per request (~0.4 ms of server CPU per cycle, measured)."""
-    session: Session = request.app.state.session_factory()
+def state_session(state: Any) -> Iterator[Session]:
+    """get_session's transaction, opened and ended by a (sync) route in its own thread, on the app's `state`:
+    committed when the block ends (a failed commit raises, the request writes nothing), rolled back on any error,
+    closed either way, then the after-commit work (the fit hand-off). For the annotators' two hot routes: the
+    generator dependency cost the event loop an exit stack and a shielded exit per request (~0.4 ms of server CPU
+    per cycle, measured)."""
+    session: Session = state.session_factory()
     try:
         yield session
         session.commit()
@@ -78,9 +79,18 @@ def route_session(request: Request) -> Iterator[Session]:
     run_after_commit(session)
 
 
-def _load_principal(factory: Callable[[], Session], user_id: int) -> Principal | None:
-    with factory() as session:
-        return load_principal(session, user_id)
+def read_principal(state: Any, user_id: int) -> Principal | None:
+    """The user's row, read in a transaction of its own (its connection back in the pool on return) and kept in
+    the process's cache; None when there is no such user. Blocking: call it from a thread."""
+    cache: AuthCache = state.auth_cache
+    generation = cache.generation(user_id)
+    with state.read_session_factory() as session:
+        if session.get_bind().dialect.name == "postgresql":  # one round trip: no BEGIN before it, no ROLLBACK after
+            session.connection(execution_options={"isolation_level": "AUTOCOMMIT"})
+        user = load_principal(session, user_id)
+    if user is not None:
+        cache.put(user, generation)
+    return user
 
 
 def _commit(session: Session) -> None:
@@ -128,13 +138,10 @@ async def get_current_user(
     if credentials is None:
         raise AuthError("not authenticated: send 'Authorization: Bearer <token>'")
     user_id, version = parse_token(settings.signing_key, credentials.credentials)
-    cache: AuthCache = request.app.state.auth_cache
-    user = cache.get(user_id)
+    state = request.app.state
+    user = state.auth_cache.get(user_id)
     if user is None or user.token_version < version:
-        generation = cache.generation(user_id)
-        user = await run_in_threadpool(_load_principal, request.app.state.read_session_factory, user_id)
-        if user is not None:
-            cache.put(user, generation)
+        user = await run_in_threadpool(read_principal, state, user_id)
     if user is None or user.token_version != version:
         raise AuthError("access token revoked; log in again")
     if not user.is_active:
@@ -143,6 +150,32 @@ async def get_current_user(
 
 
 CurrentUser = Annotated[Principal, Depends(get_current_user, scope="function")]
+
+
+def bearer_claims(state: Any, authorization: bytes | None) -> tuple[int, int] | None:
+    """(user id, token version) of an `Authorization` header's valid bearer token, with no I/O; None in every
+    other case, including every error (then `get_current_user` decides and says what is wrong). For
+    backend.api.hot_path."""
+    if authorization is None:
+        return None
+    scheme, _, token = authorization.decode("latin-1").partition(" ")
+    if scheme.lower() != "bearer" or not token:
+        return None
+    try:
+        return parse_token(state.settings.signing_key, token)
+    except AuthError:
+        return None
+
+
+def current_principal(state: Any, user_id: int, version: int) -> Principal | None:
+    """The user a valid token names, as `get_current_user` finds it (the cache, else the row, read here:
+    blocking), if it is current and active; None otherwise."""
+    user = state.auth_cache.get(user_id)
+    if user is None or user.token_version < version:
+        user = read_principal(state, user_id)
+    if user is None or user.token_version != version or not user.is_active:
+        return None
+    return user
 
 
 def depends_on(dependant: Any, call: Callable[..., Any]) -> bool:

@@ -215,7 +215,7 @@ def run(annotators: int = 50, seconds: float = 30.0, *, rate: float = 200.0, sam
                     time.perf_counter() - t0)
         port = _free_port()
         # Enough connections for the requests in flight, bounded: PostgreSQL's max_connections is shared.
-        pool = min(20, max(5, annotators // server_workers + 5))
+        pool = min(27, max(5, annotators // server_workers + 2))
         env = {**os.environ, "HANDLOOP_DATABASE_URL": url, "HANDLOOP_SECRET_KEY": SECRET,
                "HANDLOOP_ENVIRONMENT": "production", "HANDLOOP_DB_POOL_SIZE": str(pool),
                "HANDLOOP_DB_MAX_OVERFLOW": "5", "HANDLOOP_DATA_DIR": str(data_dir)}

@@ -93,6 +93,7 @@ def test_preannotation_fits_every_sample_and_routes_them_by_the_review_policy(da
         assert len(fits) == 4
         for fit in fits:
             assert fit.inputs["source"] == "detector" and fit.inputs["preannotate_job_id"] == job_id
+            assert fit.inputs["residual_reweighted"] is True  # fitted again, reweighted by the first fit's residuals
             assert fit.prediction_id is None and fit.heuristic is None  # round 0: reviewers first, no heuristic
             assert len(fit.inputs["detection"]["views"]) == 8 and fit.inputs["keypoints_2d"] > 8 * 21 // 2
         samples = session.execute(select(Sample).order_by(Sample.id)).scalars().all()

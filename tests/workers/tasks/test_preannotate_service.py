@@ -135,7 +135,7 @@ def test_annotators_see_each_views_chroma_key_cut_at_the_detector_fits_wrist(wor
     from backend.services.samples import views_of
     from backend.simulation.annotator import iou
     from workers.capture import load_ground_truth, read_capture
-    from workers.tasks.detector_masks import mask_key, record_hand_masks
+    from workers.tasks.detector_masks import NEAR_SILHOUETTE_PX, mask_key, near, record_hand_masks
     from workers.tasks.inputs import read_mask
 
     ctx, queue, project_id, fake = world
@@ -158,6 +158,8 @@ def test_annotators_see_each_views_chroma_key_cut_at_the_detector_fits_wrist(wor
                 cut = read_mask(ctx, shown.storage_key, shape, "cut")
                 key = read_mask(ctx, chroma.storage_key, shape, "chroma key")
                 assert not (cut & ~key).any()  # only removes pixels
+                silhouette = read_mask(ctx, fit.diagnostics["model_mask_keys"][str(view.id)], shape, "fit")
+                assert not (cut & ~near(silhouette, round(NEAR_SILHOUETTE_PX * view.width / 640) or 1)).any()
                 hand = truth[sample.frame_index].hand_masks[view.camera]
                 cut_iou.append(iou(cut, hand))
                 chroma_iou.append(iou(key, hand))

@@ -153,8 +153,8 @@ def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = 
             raise ValueError(f"width must be in {MIN_WIDTH_PX}..{MAX_WIDTH_PX} px, not {width}")
         plan["width"] = width
     if rounds is not None:
-        if not 1 <= rounds <= MAX_ROUNDS:
-            raise ValueError(f"rounds must be in 1..{MAX_ROUNDS}, not {rounds}")
+        if not 0 <= rounds <= MAX_ROUNDS:  # 0: D_0 alone (round 0's cost without training a network)
+            raise ValueError(f"rounds must be in 0..{MAX_ROUNDS}, not {rounds}")
         plan["rounds"] = rounds
     default_mode, why_not = detector_default()
     mode = detector or default_mode

@@ -92,8 +92,9 @@ def _projections(points_m: Any, cameras: list[ViewCamera]) -> dict[int, np.ndarr
 
 
 def annotate_proposals(session: Session, user: Actor, sample_id: int) -> dict[str, Any]:
-    """Calibrations (the browser triangulates from the annotator's own clicks), the detector's keypoints
-    behind a pre-annotation fit, MVNet's prediction and the current fit projected into every view, the
+    """Calibrations (the browser triangulates from the annotator's own clicks), proposal sources in the order the
+    page offers them (the first one holding a point wins): for a pre-annotation fit its keypoints, then the
+    detector's behind it; else MVNet's prediction, then the current fit; each projected into every view. Also the
     previous clicks and the reviewer's note when the sample came back from review."""
 
     sample = _held(session, user, sample_id, LeaseKind.annotate)
@@ -106,18 +107,23 @@ def annotate_proposals(session: Session, user: Actor, sample_id: int) -> dict[st
     previous = clicks_of(session, sample_id)
     end_reads(session)
     sources = []
+    fitted = None
+    if fit is not None:
+        projected = _projections(fit.keypoints_m, cameras)
+        fitted = {"kind": "fit", "label": f"fit {fit.id} ({hand_model_label(fit.model_file)})",
+                  "confidences": None, "views": {str(v): pixels_or_none(p) for v, p in projected.items()}}
     detection = detector_proposal(fit, cameras) if fit is not None else None
-    if detection is not None:  # the image's own evidence comes before the model fitted to it (sent back as wrong)
-        sources.append(detection)
+    if detection is not None:
+        # The fit of the detector's keypoints first: one hand agreeing with all views and the hand's anatomy lies
+        # nearer the truth than a view's own detection, even where a reviewer sent the fit back (docs/detector.md).
+        sources += [fitted, detection]
     if prediction is not None:
         projected = _projections(prediction.keypoints_m, cameras)
         sources.append({"kind": "mvnet", "label": f"MVNet {prediction.mvnet_version}",
                         "confidences": [round(float(c), 4) for c in prediction.confidences],
                         "views": {str(v): pixels_or_none(p) for v, p in projected.items()}})
-    if fit is not None:
-        projected = _projections(fit.keypoints_m, cameras)
-        sources.append({"kind": "fit", "label": f"fit {fit.id} ({hand_model_label(fit.model_file)})",
-                        "confidences": None, "views": {str(v): pixels_or_none(p) for v, p in projected.items()}})
+    if fitted is not None and detection is None:
+        sources.append(fitted)
     return {"sample_id": sample_id, "cameras": [c.to_public() for c in cameras],
             "keypoints_to_click": list(SPARSE_KEYPOINTS), "sources": sources,
             "previous_clicks": [c.to_public() for c in previous], "review_note": note}

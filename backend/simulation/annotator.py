@@ -12,7 +12,8 @@ fingertips where the ground truth projects them, with the mistakes people make.
   (at most `max_mask_corrections` per sample, worst first) to the true hand mask with a boundary displaced
   by smooth noise of `boundary_noise_px`.
 - proposals (`accept_proposals_within_px`, off by default): the annotator accepts the page's proposal of a
-  keypoint (the detector's, MVNet's or the current fit's, in the page's order; MVNet's from confidence 0.3)
+  keypoint (the page's first source holding it, in the server's order; a source with per-keypoint confidences,
+  MVNet's or the detector's, from confidence 0.3, as annotation.js)
   where it lies within that distance of the true point, instead of clicking it; one key per view
   (`UnitCosts.proposal_view_s`). Points the annotator would skip stay skipped.
 Time is counted with the unit costs (clicks, mask corrections, accepted views) and sent as `time_spent_s`.
@@ -35,7 +36,7 @@ from backend.simulation.truth import GroundTruthIndex
 log = logging.getLogger(__name__)
 
 FINGERTIPS = (4, 8, 12, 16, 20)
-MIN_MVNET_CONFIDENCE = 0.3  # the annotate page offers MVNet's proposals from this confidence (annotation.js)
+MIN_PROPOSAL_CONFIDENCE = 0.3  # a scored source's proposals are offered from this confidence (annotation.js)
 
 
 def offered_proposals(proposals: dict) -> dict[tuple[int, int], tuple[float, float]]:
@@ -47,7 +48,8 @@ def offered_proposals(proposals: dict) -> dict[tuple[int, int], tuple[float, flo
             for k, point in enumerate(points):
                 if point is None or (int(view_id), k) in out:
                     continue
-                if source.get("kind") == "mvnet" and confidences and confidences[k] < MIN_MVNET_CONFIDENCE:
+                # as annotation.js: any source with per-keypoint confidences (MVNet, the detector) from the minimum
+                if confidences and confidences[k] is not None and confidences[k] < MIN_PROPOSAL_CONFIDENCE:
                     continue
                 out[(int(view_id), k)] = (float(point[0]), float(point[1]))
     return out

@@ -87,8 +87,9 @@ export function triangulateClicked(annotation, cameras, keypoint) {
 }
 
 // Proposals for the keypoints not set in a view, best source first: a point triangulated from the
-// annotator's own clicks in the other views, then the current fit, then the networks' sources (MVNet,
-// a detector: any source with per-keypoint confidences, those >= minConf). A fit has no confidence (null).
+// annotator's own clicks in the other views, then the API's sources in the server's order (for a detector
+// fit: the fit, then the detector; else MVNet, then the current fit). A source with per-keypoint confidences
+// (MVNet, the detector) offers only those >= minConf; a fit has no confidence (null).
 // cameras: view id -> camera; sources: the API's proposal sources.
 // Returns view id -> keypoint -> {x, y, source, confidence (0..1 or null)}.
 export function proposals(annotation, cameras, sources, { minConf = 0.3 } = {}) {

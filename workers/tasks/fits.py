@@ -9,6 +9,7 @@ recorded in its own transaction, so a redelivered task neither fits twice nor re
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from collections import defaultdict
@@ -33,6 +34,7 @@ from workers.capture.schema import CaptureError
 from workers.fitting.config import FitConfig, LossWeights
 from workers.fitting.inputs import FitInputError
 from workers.tasks.context import WorkerContext
+from workers.tasks.detection_inputs import SOURCE as DETECTOR_SOURCE
 from workers.tasks.fit_sources import fit_input
 from workers.tasks.inference import touch_round
 from workers.tasks.inputs import FitInput, InputError, load_frames
@@ -196,7 +198,10 @@ def _fit_group(ctx: WorkerContext, engine: Any, group: list[FitInput], tick: Any
         return
     try:
         started = time.perf_counter()
-        results = engine.fit([fi.observations for fi in valid], progress=tick)
+        if valid[0].source == DETECTOR_SOURCE:  # groups hold one source
+            results, valid = _fit_detector_twice(engine, valid, tick)
+        else:
+            results = engine.fit([fi.observations for fi in valid], progress=tick)
         summary.fit_seconds += time.perf_counter() - started
     except (SoftTimeLimitExceeded, JobCancelledError):
         raise
@@ -209,6 +214,20 @@ def _fit_group(ctx: WorkerContext, engine: Any, group: list[FitInput], tick: Any
             _fit_group(ctx, engine, [fi], tick, summary)
         return
     _record_all(ctx, list(zip(valid, results, strict=True)), engine.config, summary)
+
+
+def _fit_detector_twice(engine: Any, group: list[FitInput], tick: Any) -> tuple[list[Any], list[FitInput]]:
+    """Fits from a detector's keypoints: a first fit, then one more with each keypoint reweighted by its residual to
+    the first (workers.fitting.reweight: a detection far from the hand all views agree on pulls less). Returns the
+    second fits and the inputs marked `residual_reweighted`."""
+    from workers.fitting.reweight import residual_reweighted  # deferred: torch with the first fit
+
+    first = engine.fit([fi.observations for fi in group], progress=lambda f, m: tick(0.5 * f, m))
+    second = [residual_reweighted(fi.observations, r.keypoints, list(engine.cameras)) for fi, r in zip(group, first,
+                                                                                                       strict=True)]
+    results = engine.fit(second, progress=lambda f, m: tick(0.5 + 0.5 * f, m))
+    marked = [dataclasses.replace(fi, inputs={**fi.inputs, "residual_reweighted": True}) for fi in group]
+    return results, marked
 
 
 def _record_all(ctx: WorkerContext, fitted: list[tuple[FitInput, Any]], config: FitConfig, summary: FitSummary

@@ -7,7 +7,8 @@ detections as 2D keypoints weighted by their confidence, plus the masks the anno
 (services.verification.select_for_review), the detector's frame confidence standing in for MVNet's. The
 samples the policy does not pick, those where no hand was found and those whose fit failed go to the
 annotators (payload "rest": "annotate"; failed fits always do, as for every fit) or stay 'unlabeled' /
-'fitted' ("keep"); annotators then see the detector's keypoints as "D" proposals.
+'fitted' ("keep"); annotators then see the fit's and the detector's keypoints as proposals ("F", "D") and, per
+view, the chroma-key mask cut at the fit's wrist (workers.tasks.detector_masks) instead of hand and forearm.
 
 The detector core is reached only through `detect` here and `services.preannotation.detector_problem`
 (tests swap in fakes). A job is
@@ -40,6 +41,7 @@ from workers.detector.types import DetectorInputError, DetectorUnavailableError,
 from workers.geometry.camera import Camera
 from workers.tasks.context import WorkerContext
 from workers.tasks.detection_inputs import SOURCE, detection_record, lifted_count, masks_for
+from workers.tasks.detector_masks import record_hand_masks
 from workers.tasks.fits import run_fit_jobs
 from workers.tasks.inputs import NUM_KEYPOINTS, InputError, Rig, SampleFrame, load_frames, rig_of
 from workers.tasks.progress import JobCancelledError, ProgressReporter
@@ -266,6 +268,11 @@ def run_preannotation_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
         with ctx.session_factory.begin() as session:
             jobs.finish(session, job_id, JobState.failed, error=message[:2000], result=_jsonable(summary))
         return {"job_id": job_id, "failed": message, **summary}
+    try:  # before routing: the annotate page shows a view's newest mask
+        summary["hand_masks"] = record_hand_masks(ctx, sample_ids)
+    except Exception as exc:  # the page then shows the chroma key, as before: no reason to fail the job
+        log.exception("preannotate job %s: hand masks not recorded", job_id)
+        summary["errors"]["hand masks"] = f"{exc.__class__.__name__}: {exc}"[:300]
     summary.update(_settle(ctx, job_id, sample_ids, rest, cancel_fits=False))
     summary["seconds"] = round(time.perf_counter() - started, 3)
     result = _jsonable(summary)

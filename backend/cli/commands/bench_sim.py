@@ -19,7 +19,8 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
             None, help="Simulated annotators accept a shown proposal within this many pixels of the true point "
             "(one key per view) instead of clicking it; default: they click every point."),
         width: int | None = typer.Option(None, "--width", help="View width in pixels (default 320; --quick 128)."),
-        rounds: int | None = typer.Option(None, "--rounds", help="Bootstrap rounds after D_0 (default 4; --quick 1)."),
+        rounds: int | None = typer.Option(None, "--rounds",
+                                          help="Bootstrap rounds after D_0 (default 4; --quick 1; 0: D_0 alone)."),
     ) -> None:
         """200-frame synthetic capture, cpu-small networks, 4 rounds through the real server and workers:
         minutes, accepted labels' vertex error, auto-accept precision, labels per human hour; with the

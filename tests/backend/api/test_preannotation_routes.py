@@ -18,6 +18,7 @@ from backend.models.fits import Fit
 from backend.models.jobs import Job
 from backend.services import preannotation
 from backend.services.jobs import InMemoryJobQueue
+from backend.services.view_geometry import project, view_cameras
 from backend.settings import Settings
 from tests.support.detector_fake import FakeDetector
 from tests.support.live_stack import TEST_SETTINGS, USERS, prepare_database, tiny_capture
@@ -165,11 +166,17 @@ def test_sent_back_detector_fits_reach_annotators_with_d_proposals_and_accepted_
     assert work["sample_id"] == task["sample_id"]
     proposals = client.get(f"/api/annotate/samples/{work['sample_id']}/proposals", headers=annotator).json()
     kinds = [s["kind"] for s in proposals["sources"]]
-    assert kinds == ["detector", "fit"] and proposals["review_note"] == "thumb on the wrong side"
-    detector = proposals["sources"][0]
+    # The fit of the detector's keypoints is offered first (nearer the truth than one view's detection), then
+    # the detections themselves.
+    assert kinds == ["fit", "detector"] and proposals["review_note"] == "thumb on the wrong side"
+    fitted, detector = proposals["sources"]
     with ctx.session_factory() as session:
         fit = session.get(Fit, session.get(Sample, work["sample_id"]).current_fit_id)
         detection = fit.inputs["detection"]
+        cameras = {c.view_id: c for c in view_cameras(session, work["sample_id"])}
+    for view_id, cam in cameras.items():
+        expected = project(np.asarray(fit.keypoints_m, float), cam)
+        assert np.array(fitted["views"][str(view_id)], float) == pytest.approx(expected, abs=0.01)
     assert detector["label"].startswith("detector (confidence")
     assert detector["confidences"] == pytest.approx(np.nan_to_num(np.array(detection["confidence"], float)), abs=1e-4)
     for c, view_id in enumerate(detection["view_ids"]):

@@ -227,3 +227,23 @@ def test_configs_and_client_refuse_bad_values(world):
     square[10:30, 10:30] = True
     assert noisy_mask(square, 0.0, rng).sum() == square.sum()
     assert 0.7 < iou(noisy_mask(square, 2.0, rng), square) < 1.0
+
+
+def test_the_offered_proposal_is_the_first_source_holding_a_confident_point_as_in_the_browser():
+    """annotation.js offers, per view and keypoint, the first source's point, skipping a scored source's points
+    under 0.3 (MVNet's and the detector's alike); the simulated annotator sees the same."""
+    from backend.simulation.annotator import offered_proposals
+
+    sources = {"sources": [
+        {"kind": "fit", "confidences": None, "views": {"1": [[10.0, 10.0], None, [12.0, 12.0]]}},
+        {"kind": "detector", "confidences": [0.9, 0.2, 0.9], "views": {"1": [[20.0, 20.0], [21.0, 21.0], [22.0, 22.0]],
+                                                                        "2": [[30.0, 30.0], [31.0, 31.0], None]}},
+        {"kind": "mvnet", "confidences": [0.9, 0.5, 0.1], "views": {"2": [[40.0, 40.0], [41.0, 41.0], [42.0, 42.0]]}},
+    ]}
+    assert offered_proposals(sources) == {
+        (1, 0): (10.0, 10.0), (1, 2): (12.0, 12.0),  # the fit first where it has the point
+        # (1, 1): the fit has none, the detector's is under 0.3 and MVNet has no view 1: nothing offered
+        (2, 0): (30.0, 30.0),  # the detector before MVNet
+        (2, 1): (41.0, 41.0),  # the detector's under 0.3: MVNet's
+        # (2, 2): the detector has none, MVNet's is under 0.3
+    }

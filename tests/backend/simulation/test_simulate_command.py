@@ -107,10 +107,32 @@ def test_the_detector_runs_are_refused_where_the_detector_cannot_run(capture_dir
 
 def test_bench_sim_refuses_a_width_or_round_count_out_of_range():
     for args, message in ((["--width", "10"], "width must be in 64..4096 px, not 10"),
-                          (["--rounds", "0"], "rounds must be in 1..10, not 0"),
-                          (["--rounds", "11"], "rounds must be in 1..10, not 11")):
+                          (["--rounds", "-1"], "rounds must be in 0..10, not -1"),
+                          (["--rounds", "11"], "rounds must be in 0..10, not 11")):
         result = runner.invoke(app, ["bench", "sim", "--quick", "--detector", "off", *args])
         assert result.exit_code == 2 and message in result.output, result.output
+
+
+def test_bench_sim_runs_d0_alone_with_zero_rounds(monkeypatch, tmp_path):
+    """--rounds 0 measures round 0 (the detector's pre-annotation, clicks, reviews) without training a network."""
+    from backend.bench import sim
+
+    seen = {}
+
+    def fake_simulate(capture, work, plan, detector, accept_proposals_px):
+        seen.update(rounds=plan["rounds"], detector=detector, px=accept_proposals_px)
+        return {"minutes": 1.0, "accepted_vertex_mm": 4.0, "auto_accept_precision": None, "rounds_completed": 0,
+                "d0_verified_share": 0.25, "labels_per_human_hour": 50.0,
+                "rounds": [{"index": 0, "added": {"heuristic": 0, "manual": 6, "annotated": 18}}]}
+
+    monkeypatch.setattr(sim, "_capture", lambda root, *a: tmp_path)
+    monkeypatch.setattr(sim, "_simulate", fake_simulate)
+    monkeypatch.setattr(sim, "detector_default", lambda: ("both", None))
+    record = sim.run(detector="on", rounds=0, accept_proposals_px=4.0, emit_json=False, work_dir=tmp_path)
+    assert seen == {"rounds": 0, "detector": True, "px": 4.0}
+    assert record["targets_met"]["rounds"] is True
+    assert record["detector_targets_met"]["d0_verified_share"] is False
+    assert record["detector_targets_met"]["heuristic_share_by_round_2"] is False  # no round 1 or 2 to accept in
 
 
 def test_the_detector_off_run_trains_the_paper_only_mvnet():

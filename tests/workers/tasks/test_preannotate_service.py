@@ -93,6 +93,7 @@ def test_preannotation_fits_every_sample_and_routes_them_by_the_review_policy(da
         assert len(fits) == 4
         for fit in fits:
             assert fit.inputs["source"] == "detector" and fit.inputs["preannotate_job_id"] == job_id
+            assert fit.inputs["residual_reweighted"] is True  # fitted again, reweighted by the first fit's residuals
             assert fit.prediction_id is None and fit.heuristic is None  # round 0: reviewers first, no heuristic
             assert len(fit.inputs["detection"]["views"]) == 8 and fit.inputs["keypoints_2d"] > 8 * 21 // 2
         samples = session.execute(select(Sample).order_by(Sample.id)).scalars().all()
@@ -124,6 +125,48 @@ def test_detector_fits_are_close_to_the_truth(world):
                                ).all()
     errors_mm = [1000 * np.linalg.norm(np.asarray(kp) - truth[i].keypoints_3d, axis=1).mean() for kp, i in rows]
     assert max(errors_mm) < 15.0, errors_mm
+
+
+def test_annotators_see_each_views_chroma_key_cut_at_the_detector_fits_wrist(world):
+    """The page shows a view's newest mask: after pre-annotation that is the chroma key cut at the detector fit's
+    wrist (kind "model"), nearer the true hand mask than hand and forearm; the fits still read the chroma key."""
+    from backend.models.enums import MaskKind
+    from backend.models.labels import Mask
+    from backend.services.samples import views_of
+    from backend.simulation.annotator import iou
+    from workers.capture import load_ground_truth, read_capture
+    from workers.tasks.detector_masks import NEAR_SILHOUETTE_PX, mask_key, near, record_hand_masks
+    from workers.tasks.inputs import read_mask
+
+    ctx, queue, project_id, fake = world
+    result = preannotate.run_preannotation_job(ctx, _launch(ctx, queue, project_id))
+    assert result["hand_masks"] == 4 * 8, result
+    capture = read_capture(fake.capture_dir, check_images=False)
+    truth = {f.index: load_ground_truth(f) for f in capture.sequences[0].frames}
+    cut_iou, chroma_iou = [], []
+    with ctx.session_factory() as session:
+        for sample in session.execute(select(Sample)).scalars():
+            fit = session.get(Fit, sample.current_fit_id)
+            chroma_ids = set(fit.inputs["mask_ids"])
+            for view in views_of(session, sample.id):
+                shown = session.get(Mask, view.mask_id)
+                assert shown.kind == MaskKind.model and shown.storage_key == mask_key(view.id, fit.id)
+                chroma = session.execute(select(Mask).where(Mask.view_id == view.id,
+                                                            Mask.kind == MaskKind.chroma_key)).scalar_one()
+                assert chroma.id in chroma_ids  # the fit was made with the chroma key
+                shape = (view.height, view.width)
+                cut = read_mask(ctx, shown.storage_key, shape, "cut")
+                key = read_mask(ctx, chroma.storage_key, shape, "chroma key")
+                assert not (cut & ~key).any()  # only removes pixels
+                silhouette = read_mask(ctx, fit.diagnostics["model_mask_keys"][str(view.id)], shape, "fit")
+                assert not (cut & ~near(silhouette, round(NEAR_SILHOUETTE_PX * view.width / 640) or 1)).any()
+                hand = truth[sample.frame_index].hand_masks[view.camera]
+                cut_iou.append(iou(cut, hand))
+                chroma_iou.append(iou(key, hand))
+    assert np.median(cut_iou) > 0.5 > np.median(chroma_iou), (np.median(cut_iou), np.median(chroma_iou))
+    with ctx.session_factory() as session:
+        ids = list(session.execute(select(Sample.id)).scalars())
+    assert record_hand_masks(ctx, ids) == 0  # a redelivery writes nothing twice
 
 
 def test_samples_without_a_hand_go_to_the_annotators_and_the_reason_is_recorded(world):

@@ -189,7 +189,7 @@ class SimulatedAnnotator:
         payload = self.client.proposals(task["sample_id"]) if tolerance is not None else {}
         offered = offered_proposals(payload)
         page_cams = {c["view_id"]: c for c in payload.get("cameras", [])}
-        skipped, swapped, accepted, proposal_views = 0, 0, 0, 0
+        skipped, swapped, accepted, proposal_views, triangulated = 0, 0, 0, 0, 0
         keypoints = list(task["keypoints_to_click"])
         if cfg.reannotate_all_keypoints and task["sample_id"] in annotated_before:
             keypoints = list(range(gt.keypoints_2d.shape[1]))
@@ -210,11 +210,13 @@ class SimulatedAnnotator:
                 # As annotation.js: first the point triangulated from this pass's hand-placed clicks, else the
                 # server's first source.
                 proposal = triangulated_proposal(hand[k], cam) if cam is not None else None
+                from_triangulation = proposal is not None
                 if proposal is None:
                     proposal = offered.get((view["id"], k))
                 if proposal is not None and math.hypot(proposal[0] - x, proposal[1] - y) <= tolerance:
                     points[k] = (*proposal, "visible" if gt.visibility[c, k] else "occluded")
                     taken.add(k)
+                    triangulated += from_triangulation
                     continue
                 x, y = np.array([x, y]) + self.rng.normal(0, cfg.click_sigma_px, 2)
                 x = float(np.clip(x, -0.5, view["width"] - 0.5))
@@ -265,7 +267,7 @@ class SimulatedAnnotator:
         result = self.client.submit(task["sample_id"], body)
         self.ledger.add(round_index, clicks=n_clicks, skipped_points=skipped, swapped_views=swapped,
                         mask_corrections=len(masks), submissions=1, accepted_proposals=accepted,
-                        proposal_views=proposal_views)
+                        proposal_views=proposal_views, accepted_triangulated=triangulated)
         return AnnotationOutcome(sample_id=task["sample_id"], clicks=n_clicks, skipped_points=skipped,
                                  swapped_views=swapped, mask_corrections=len(masks), seconds=seconds,
                                  fit_job_id=result.get("fit_job_id"))

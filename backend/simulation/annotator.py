@@ -12,10 +12,14 @@ fingertips where the ground truth projects them, with the mistakes people make.
   (at most `max_mask_corrections` per sample, worst first) to the true hand mask with a boundary displaced
   by smooth noise of `boundary_noise_px`.
 - proposals (`accept_proposals_within_px`, off by default): the annotator accepts the page's proposal of a
-  keypoint (the page's first source holding it, in the server's order; a source with per-keypoint confidences,
-  MVNet's or the detector's, from confidence 0.3, as annotation.js)
-  where it lies within that distance of the true point, instead of clicking it; one key per view
-  (`UnitCosts.proposal_view_s`). Points the annotator would skip stay skipped.
+  keypoint where it lies within that distance of the true point, instead of clicking it; one key per view
+  (`UnitCosts.proposal_view_s`). The proposal is the page's first (annotation.js `proposals()`): the point
+  triangulated from this pass's hand-placed clicks in the views done before (once placed by hand in 2 views,
+  swapped clicks included; never from accepted points; projected inside the image: page_triangulation.py),
+  else the first server source holding it inside the image, in the server's order (a source with per-keypoint
+  confidences, MVNet's or the detector's, from confidence 0.3). As annotate.js, a point placed by hand moves
+  the points accepted for that keypoint in the earlier views to the new triangulation. Points the annotator
+  would skip stay skipped.
 Time is counted with the unit costs (clicks, mask corrections, accepted views) and sent as `time_spent_s`.
 """
 
@@ -31,6 +35,7 @@ import numpy as np
 from backend.services.masks import encode_rle as encode
 from backend.simulation.client import ApiClient
 from backend.simulation.costs import HumanLedger
+from backend.simulation.page_triangulation import inside, project_point, triangulate_clicked, triangulated_proposal
 from backend.simulation.truth import GroundTruthIndex
 
 log = logging.getLogger(__name__)
@@ -42,11 +47,15 @@ MIN_PROPOSAL_CONFIDENCE = 0.3  # a scored source's proposals are offered from th
 def offered_proposals(proposals: dict) -> dict[tuple[int, int], tuple[float, float]]:
     """(view id, keypoint) -> the proposal the annotate page shows first, from the server's sources in order."""
     out: dict[tuple[int, int], tuple[float, float]] = {}
+    cameras = {c["view_id"]: c for c in proposals.get("cameras", [])}
     for source in proposals.get("sources", []):
         confidences = source.get("confidences")
         for view_id, points in source.get("views", {}).items():
+            cam = cameras.get(int(view_id))
             for k, point in enumerate(points):
                 if point is None or (int(view_id), k) in out:
+                    continue
+                if cam is not None and not inside(point, cam):  # the page passes such a point over
                     continue
                 # as annotation.js: any source with per-keypoint confidences (MVNet, the detector) from the minimum
                 if confidences and confidences[k] is not None and confidences[k] < MIN_PROPOSAL_CONFIDENCE:
@@ -144,6 +153,23 @@ class SimulatedAnnotator:
             raise ValueError(f"view {view['id']}: the served mask is unreadable or of the wrong size")
         return mask >= 128
 
+    @staticmethod
+    def _reproject_accepted(keypoint: int, clicked: list[tuple[dict, tuple[float, float]]], view_id: int,
+                            placed: dict[int, dict[int, tuple[float, float, str]]], accepted_in: dict[int, set[int]],
+                            page_cams: dict[int, dict]) -> None:
+        """As annotate.js `reprojections`: a point placed by hand moves the proposals accepted for this keypoint
+        in the other views to the new triangulation's projection (where it lies inside the image)."""
+        tri = triangulate_clicked(clicked)
+        if tri is None:
+            return
+        for other, taken in accepted_in.items():
+            cam = page_cams.get(other)
+            if other == view_id or keypoint not in taken or cam is None:
+                continue
+            p = project_point(tri.point, cam)
+            if inside(p, cam):
+                placed[other][keypoint] = (float(p[0]), float(p[1]), placed[other][keypoint][2])
+
     def annotate_next(self, round_index: int, give_up_on: frozenset[int] = frozenset(),
                       annotated_before: frozenset[int] = frozenset()) -> AnnotationOutcome | None:
         """Take the next annotation task and submit clicks (and mask corrections); None when the queue is
@@ -160,25 +186,37 @@ class SimulatedAnnotator:
         gt = self.truth.truth(task["sample_id"])
         cameras = list(gt.camera_names)
         tolerance = cfg.accept_proposals_within_px
-        offered = offered_proposals(self.client.proposals(task["sample_id"])) if tolerance is not None else {}
-        clicks, skipped, swapped, accepted, proposal_views = [], 0, 0, 0, 0
+        payload = self.client.proposals(task["sample_id"]) if tolerance is not None else {}
+        offered = offered_proposals(payload)
+        page_cams = {c["view_id"]: c for c in payload.get("cameras", [])}
+        skipped, swapped, accepted, proposal_views, triangulated = 0, 0, 0, 0, 0
         keypoints = list(task["keypoints_to_click"])
         if cfg.reannotate_all_keypoints and task["sample_id"] in annotated_before:
             keypoints = list(range(gt.keypoints_2d.shape[1]))
+        placed: dict[int, dict[int, tuple[float, float, str]]] = {}  # view id -> keypoint -> (x, y, visibility)
+        accepted_in: dict[int, set[int]] = {}  # view id -> keypoints set from a proposal
+        hand: dict[int, list[tuple[dict, tuple[float, float]]]] = {k: [] for k in keypoints}  # placed by hand
         for view in task["views"]:
             c = cameras.index(view["camera"])
+            cam = page_cams.get(view["id"])
             points: dict[int, tuple[float, float, str]] = {}
             taken: set[int] = set()  # keypoints set from a proposal in this view
             for k in keypoints:
                 x, y = gt.keypoints_2d[c, k]
-                inside = -0.5 <= x <= view["width"] - 0.5 and -0.5 <= y <= view["height"] - 0.5
-                if not inside or (not gt.visibility[c, k] and cfg.skip_occluded):
+                inside_image = -0.5 <= x <= view["width"] - 0.5 and -0.5 <= y <= view["height"] - 0.5
+                if not inside_image or (not gt.visibility[c, k] and cfg.skip_occluded):
                     skipped += 1
                     continue
-                proposal = offered.get((view["id"], k))
+                # As annotation.js: first the point triangulated from this pass's hand-placed clicks, else the
+                # server's first source.
+                proposal = triangulated_proposal(hand[k], cam) if cam is not None else None
+                from_triangulation = proposal is not None
+                if proposal is None:
+                    proposal = offered.get((view["id"], k))
                 if proposal is not None and math.hypot(proposal[0] - x, proposal[1] - y) <= tolerance:
                     points[k] = (*proposal, "visible" if gt.visibility[c, k] else "occluded")
                     taken.add(k)
+                    triangulated += from_triangulation
                     continue
                 x, y = np.array([x, y]) + self.rng.normal(0, cfg.click_sigma_px, 2)
                 x = float(np.clip(x, -0.5, view["width"] - 0.5))
@@ -192,6 +230,14 @@ class SimulatedAnnotator:
                 (xa, ya, va), (xb, yb, vb) = points[a], points[b]
                 points[a], points[b] = (xb, yb, va), (xa, ya, vb)
                 swapped += 1
+            placed[view["id"]], accepted_in[view["id"]] = points, taken
+            if cam is not None:
+                for k in points.keys() - taken:  # what was placed by hand (swaps included) triangulates later
+                    hand[k].append((cam, points[k][:2]))
+                    self._reproject_accepted(k, hand[k], view["id"], placed, accepted_in, page_cams)
+        clicks = []
+        for view in task["views"]:
+            points, taken = placed[view["id"]], accepted_in[view["id"]]
             for k in keypoints:
                 if k in points:
                     x, y, visibility = points[k]
@@ -221,7 +267,7 @@ class SimulatedAnnotator:
         result = self.client.submit(task["sample_id"], body)
         self.ledger.add(round_index, clicks=n_clicks, skipped_points=skipped, swapped_views=swapped,
                         mask_corrections=len(masks), submissions=1, accepted_proposals=accepted,
-                        proposal_views=proposal_views)
+                        proposal_views=proposal_views, accepted_triangulated=triangulated)
         return AnnotationOutcome(sample_id=task["sample_id"], clicks=n_clicks, skipped_points=skipped,
                                  swapped_views=swapped, mask_corrections=len(masks), seconds=seconds,
                                  fit_job_id=result.get("fit_job_id"))

@@ -45,6 +45,7 @@ class RoundEffort:
     reviewer_mistakes: int = 0
     accepted_proposals: int = 0  # keypoints set by accepting a proposal instead of a click
     proposal_views: int = 0  # views where proposals were accepted (one key each)
+    accepted_triangulated: int = 0  # of accepted_proposals, the page's triangulation of the annotator's own clicks
 
     def seconds(self, costs: UnitCosts) -> float:
         return (self.clicks * costs.click_s + self.mask_corrections * costs.mask_correction_s

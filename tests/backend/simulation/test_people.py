@@ -247,3 +247,51 @@ def test_the_offered_proposal_is_the_first_source_holding_a_confident_point_as_i
         (2, 1): (41.0, 41.0),  # the detector's under 0.3: MVNet's
         # (2, 2): the detector has none, MVNet's is under 0.3
     }
+
+
+def test_annotator_accepts_the_triangulation_of_its_own_clicks_after_two_hand_placed_views(world):
+    """No fit or MVNet yet, so the page's only proposal is the point triangulated from the annotator's own
+    clicks: offered once a keypoint was placed by hand in two views, accepted within 4 px of the truth; the
+    accepted points never feed a triangulation (each ends where the hand-placed clicks alone put it)."""
+    from backend.simulation.page_triangulation import project_point, triangulate_clicked
+
+    env, _, truth = world
+    client = ApiClient(env.client, token_of(env, Role.annotator))
+    seen: dict[str, dict] = {}
+    next_task, proposals = client.next_annotation, client.proposals
+    client.next_annotation = lambda: seen.setdefault("task", next_task())
+    client.proposals = lambda sample_id: seen.setdefault("proposals", proposals(sample_id))
+    config = AnnotatorConfig(click_sigma_px=2.0, swap_probability=0.0, max_mask_corrections=0,
+                             accept_proposals_within_px=4.0, seed=2)
+    ledger = HumanLedger()
+    outcome = SimulatedAnnotator("ann", client, truth, ledger, config).annotate_next(round_index=0)
+    task, payload = seen["task"], seen["proposals"]
+    assert outcome.sample_id == task["sample_id"] and not payload["sources"]  # nothing but triangulation
+    cams = {c["view_id"]: c for c in payload["cameras"]}
+    order = [v["id"] for v in task["views"]]  # the order the annotator worked in
+    gt = truth.truth(task["sample_id"])
+    names = list(gt.camera_names)
+    with env.session() as s:
+        rows = s.execute(text("SELECT view_id, keypoint, x_px, y_px, from_proposal FROM clicks "
+                              "WHERE sample_id = :s AND x_px IS NOT NULL"), {"s": task["sample_id"]}).all()
+    by_key: dict[int, list] = {}
+    for view_id, k, x, y, from_proposal in sorted(rows, key=lambda r: order.index(r[0])):
+        by_key.setdefault(k, []).append((view_id, (x, y), from_proposal))
+    accepted = 0
+    for k, placed in by_key.items():
+        hand = [(cams[v], xy) for v, xy, from_proposal in placed if not from_proposal]
+        for i, (view_id, xy, from_proposal) in enumerate(placed):
+            if not from_proposal:
+                continue
+            accepted += 1
+            assert sum(not p for _, _, p in placed[:i]) >= 2  # offered only after two hand-placed views
+            # Where all of the keypoint's hand-placed clicks (and no accepted point) triangulate it.
+            expected = project_point(triangulate_clicked(hand).point, cams[view_id])
+            np.testing.assert_allclose(xy, expected, atol=1e-6)
+            view = next(v for v in task["views"] if v["id"] == view_id)
+            true_xy = gt.keypoints_2d[names.index(view["camera"]), k]
+            assert np.hypot(*(np.asarray(xy) - true_xy)) < 6.0  # accepted within 4 px, then moved by later clicks
+    views_with_accepted = len({v for p in by_key.values() for v, _, f in p if f})
+    assert accepted == ledger.effort(0).accepted_proposals == ledger.effort(0).accepted_triangulated > 5
+    assert outcome.clicks == len(rows) - accepted
+    assert outcome.seconds == pytest.approx(outcome.clicks * 2 + views_with_accepted * 1)

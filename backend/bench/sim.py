@@ -20,7 +20,7 @@ from typing import Any
 from tqdm import tqdm
 
 from backend.bench.common import emit
-from backend.services.preannotation import detector_problem
+from backend.services import preannotation
 from backend.settings import get_settings
 from backend.simulation.annotator import AnnotatorConfig
 from backend.simulation.bootstrap import BootstrapConfig
@@ -53,7 +53,7 @@ ROUND_KEYS = ("auto_accepted", "auto_accept_precision", "labels_per_human_hour",
 def detector_default() -> tuple[str, str | None]:
     """("both", None) where the detector can run here (the started stack shares this install), else ("off", why)."""
 
-    problem = detector_problem()
+    problem = preannotation.detector_problem()  # looked up when called: the check is swappable in tests
     return ("both", None) if problem is None else ("off", problem)
 
 

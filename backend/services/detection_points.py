@@ -2,9 +2,9 @@
 fit's inputs (`inputs["detection"]`, workers.tasks.detection_inputs.detection_record), for the review page to
 measure the fit against them as it measures a fit from clicks against the clicks.
 
-The rule is the fit input's (`observations_from_detection`): per view and keypoint the view's own detection
-where that view is an inlier of the keypoint's triangulation, inside the image, with a positive score and
-presence. Mirrored here because the web side does not import the workers' task modules.
+The rule is the fit input's (`workers.detector.usable.used_detections`, shared with
+`observations_from_detection`): per view and keypoint the view's own detection where that view is an inlier of
+the keypoint's triangulation, inside the image, with a positive score and presence.
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from backend.services.view_geometry import ViewCamera
+from workers.detector.usable import used_detections
 
 logger = logging.getLogger(__name__)
 
@@ -46,9 +47,7 @@ def fitted_detections(inputs: dict[str, Any] | None, cameras: Sequence[ViewCamer
             xy = np.array(view["keypoints_px"], dtype=np.float64).reshape(NUM_KEYPOINTS, 2)  # None -> nan
             scores = np.nan_to_num(np.array(view["scores"], dtype=np.float64).reshape(NUM_KEYPOINTS), nan=0.0)
             presence = float(np.nan_to_num(float(view.get("presence") or 0.0)))
-            inside = (np.isfinite(xy).all(1) & (xy[:, 0] >= -0.5) & (xy[:, 0] <= cam.width - 0.5)
-                      & (xy[:, 1] >= -0.5) & (xy[:, 1] <= cam.height - 0.5))
-            use = inliers[:, c] & inside & (scores > 0) & (presence > 0)
+            use = used_detections(xy, scores, presence, inliers[:, c], cam.width, cam.height)
             if use.any():
                 out[view_id] = {int(k): (float(xy[k, 0]), float(xy[k, 1])) for k in np.flatnonzero(use)}
         return out

@@ -16,6 +16,7 @@ from sqlalchemy.orm import Session
 from backend.models.enums import MaskKind
 from backend.models.jobs import Job
 from workers.detector.types import DetectorInputError, LiftedKeypoints
+from workers.detector.usable import used_detections
 from workers.fitting.inputs import FrameObservations
 from workers.geometry.camera import Camera
 from workers.tasks.context import WorkerContext
@@ -94,9 +95,7 @@ def observations_from_detection(record: dict[str, Any], cameras: Sequence[Camera
         xy = _floats(view.get("keypoints_px"), (NUM_KEYPOINTS, 2))
         scores = np.nan_to_num(_floats(view.get("scores"), (NUM_KEYPOINTS,)), nan=0.0)
         presence = float(np.clip(np.nan_to_num(float(view.get("presence") or 0.0)), 0.0, 1.0))
-        inside = (np.isfinite(xy).all(1) & (xy[:, 0] >= -0.5) & (xy[:, 0] <= cam.width - 0.5)
-                  & (xy[:, 1] >= -0.5) & (xy[:, 1] <= cam.height - 0.5))
-        use = inliers[:, c] & inside & (scores > 0) & (presence > 0)
+        use = used_detections(xy, scores, presence, inliers[:, c], cam.width, cam.height)
         clicks[c, use] = xy[use]
         weights[c, use] = np.clip(scores[use], 0.0, 1.0) * presence
     points = _floats(record.get("points_world"), (NUM_KEYPOINTS, 3))

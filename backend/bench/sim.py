@@ -21,6 +21,7 @@ from tqdm import tqdm
 
 from backend.bench.common import emit
 from backend.services import preannotation
+from backend.services.preannotation import RESTS
 from backend.settings import get_settings
 from backend.simulation.annotator import AnnotatorConfig
 from backend.simulation.bootstrap import BootstrapConfig
@@ -112,7 +113,7 @@ def _capture(root: Path, sequences: int, frames: int, width: int) -> Path:
 
 def _simulate(capture: Path, work: Path, plan: dict[str, Any], detector: bool,
               accept_proposals_px: float | None) -> dict[str, Any]:
-    config = BootstrapConfig(rounds=plan["rounds"], detector=detector,
+    config = BootstrapConfig(rounds=plan["rounds"], detector=detector, round0_rest=plan["round0_rest"],
                              annotator=AnnotatorConfig(accept_proposals_within_px=accept_proposals_px))
     label = f"bootstrap, detector {'on' if detector else 'off'}"
     with tqdm(total=plan["rounds"] + 1, unit="round", desc=label, file=sys.stderr) as bar:
@@ -141,10 +142,12 @@ def _detector_met(summary: dict[str, Any]) -> dict[str, bool]:
 
 def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = None,
         detector: str | None = None, accept_proposals_px: float | None = None, width: int | None = None,
-        rounds: int | None = None) -> dict[str, Any]:
+        rounds: int | None = None, initial_every: int | None = None, round0_rest: str = "annotate") -> dict[str, Any]:
     """One run (`detector` "on" or "off") or both on the same capture and seed ("both"); None: both where the
     detector can run, else off. The record's top level is the run with the detector when it ran, else without.
-    `width` (view width, pixels) and `rounds` replace the plan's (the detector's targets are set at 640 px)."""
+    `width` (view width, pixels), `rounds` and `initial_every` (D_0's plan: every k-th training frame) replace the
+    plan's (the detector's targets are set at 640 px); `round0_rest` is what the pre-annotation does with the
+    initial set's samples the review policy does not pick ("annotate" or "keep": see BootstrapConfig)."""
 
     started = time.perf_counter()
     plan = dict(QUICK if quick else FULL)
@@ -156,6 +159,13 @@ def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = 
         if not 0 <= rounds <= MAX_ROUNDS:  # 0: D_0 alone (round 0's cost without training a network)
             raise ValueError(f"rounds must be in 0..{MAX_ROUNDS}, not {rounds}")
         plan["rounds"] = rounds
+    if initial_every is not None:
+        if initial_every < 2:  # every frame in D_0 leaves nothing to bootstrap
+            raise ValueError(f"initial_every must be at least 2, not {initial_every}")
+        plan["initial_every"] = initial_every
+    if round0_rest not in RESTS:
+        raise ValueError(f"round0_rest must be one of {list(RESTS)}, not {round0_rest!r}")
+    plan["round0_rest"] = round0_rest
     default_mode, why_not = detector_default()
     mode = detector or default_mode
     if mode not in DETECTOR_MODES:

@@ -26,6 +26,7 @@ from typing import Any
 import httpx
 import numpy as np
 
+from backend.services.preannotation import RESTS
 from backend.simulation.annotator import AnnotatorConfig, SimulatedAnnotator
 from backend.simulation.client import ApiClient, ApiError
 from backend.simulation.costs import PAPER_FULL_ANNOTATION_S, HumanLedger, UnitCosts
@@ -55,6 +56,9 @@ class BootstrapConfig:
         project: name of the project the capture is imported as.
         detector: round 0 pre-annotated by the pretrained detector (the server must have its model files);
             None: when the server can run it.
+        round0_rest: with the detector, what happens to the initial set's samples the review policy does not
+            pick: "annotate" (annotators click them in round 0) or "keep" (they stay for round 1's MVNet, as
+            the paper leaves the unpicked samples of every round; only fits sent back are annotated).
     """
 
     rounds: int = 4
@@ -68,8 +72,11 @@ class BootstrapConfig:
     poll_s: float = 1.0
     project: str = "sim"
     detector: bool | None = False
+    round0_rest: str = "annotate"
 
     def __post_init__(self) -> None:
+        if self.round0_rest not in RESTS:
+            raise ValueError(f"round0_rest must be one of {list(RESTS)}, not {self.round0_rest!r}")
         if not 0 <= self.rounds <= 50:
             raise ValueError(f"rounds must be in 0..50, not {self.rounds}")
         if not (1 <= self.annotators <= 100 and 1 <= self.reviewers <= 100):
@@ -218,7 +225,7 @@ class BootstrapSimulation:
 
     def preannotate(self) -> dict[str, Any]:
         """Round 0 with the detector: pre-annotate the initial set (the rest to the annotators); the final job."""
-        launched = self.admin.preannotate(int(self.project_id), self.initial_set, rest="annotate")
+        launched = self.admin.preannotate(int(self.project_id), self.initial_set, rest=self.config.round0_rest)
         job = self.run_job(launched["job_id"])
         self.preannotation = {k: job.get(k) for k in ("id", "state", "message", "error", "result")}
         return job

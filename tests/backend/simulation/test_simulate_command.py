@@ -108,7 +108,10 @@ def test_the_detector_runs_are_refused_where_the_detector_cannot_run(capture_dir
 def test_bench_sim_refuses_a_width_or_round_count_out_of_range():
     for args, message in ((["--width", "10"], "width must be in 64..4096 px, not 10"),
                           (["--rounds", "-1"], "rounds must be in 0..10, not -1"),
-                          (["--rounds", "11"], "rounds must be in 0..10, not 11")):
+                          (["--rounds", "11"], "rounds must be in 0..10, not 11"),
+                          (["--round0-rest", "discard"],
+                           "round0_rest must be one of ['annotate', 'keep'], not 'discard'"),
+                          (["--initial-every", "1"], "--initial-every")):
         result = runner.invoke(app, ["bench", "sim", "--quick", "--detector", "off", *args])
         assert result.exit_code == 2 and message in result.output, result.output
 
@@ -133,6 +136,30 @@ def test_bench_sim_runs_d0_alone_with_zero_rounds(monkeypatch, tmp_path):
     assert record["targets_met"]["rounds"] is True
     assert record["detector_targets_met"]["d0_verified_share"] is False
     assert record["detector_targets_met"]["heuristic_share_by_round_2"] is False  # no round 1 or 2 to accept in
+
+
+def test_bench_sim_passes_the_round_0_plan_to_the_simulation(monkeypatch, tmp_path):
+    """--initial-every and --round0-rest reach the bootstrap's config and the record's plan."""
+    from backend.bench import sim
+    from backend.simulation.bootstrap import BootstrapConfig
+
+    seen = {}
+
+    def fake_run_simulation(capture, work, config, *, initial_every, server, on_round):
+        seen.update(rest=config.round0_rest, every=initial_every)
+        return {"minutes": 1.0, "accepted_vertex_mm": 4.0, "auto_accept_precision": None, "rounds_completed": 0,
+                "d0_verified_share": 0.6, "labels_per_human_hour": 150.0,
+                "rounds": [{"index": 0, "added": {"heuristic": 0, "manual": 6, "annotated": 4}}]}
+
+    monkeypatch.setattr(sim, "_capture", lambda root, *a: tmp_path)
+    monkeypatch.setattr(sim, "run_simulation", fake_run_simulation)
+    monkeypatch.setattr(sim, "detector_default", lambda: ("both", None))
+    record = sim.run(detector="on", rounds=0, initial_every=4, round0_rest="keep", emit_json=False,
+                     work_dir=tmp_path)
+    assert seen == {"rest": "keep", "every": 4}
+    assert record["detector_targets_met"]["d0_verified_share"] is True
+    with pytest.raises(ValueError, match="round0_rest must be one of"):
+        BootstrapConfig(round0_rest="discard")
 
 
 def test_the_detector_off_run_trains_the_paper_only_mvnet():

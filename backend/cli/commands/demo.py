@@ -68,7 +68,10 @@ def _serve(settings: Settings, host: str, port: int) -> None:
     typer.echo(f"  starting: API and worker ({mode}; logs in {settings.data_dir.resolve() / 'logs'}) ...")
     stack = start_stack(settings, host=host, port=port)
     stopping = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stopping.set())
+    # Ctrl-C stops by the same path as SIGTERM. Python keeps SIGINT ignored when the process started with it
+    # ignored (a background job of a non-interactive shell), and Ctrl-C would then do nothing.
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, lambda *_: stopping.set())
     try:
         typer.echo(f"  URL     : {stack.base_url}/  (API docs: {stack.base_url}/docs)")
         typer.echo("  running : API + worker; Ctrl-C stops both")
@@ -79,8 +82,6 @@ def _serve(settings: Settings, host: str, port: int) -> None:
                 if process is not None and process.poll() is not None:
                     log.error("the %s exited (code %s); see %s", name, process.returncode, stack.log_dir)
                     stopping.set()
-    except KeyboardInterrupt:
-        pass
     finally:
         typer.echo("  stopping ...")
         stack.stop()

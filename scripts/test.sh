@@ -12,4 +12,11 @@ fi
 .venv/bin/ruff check .
 # The parts of docs/architecture.md and the directions imports may take ([tool.importlinter] in pyproject.toml).
 .venv/bin/lint-imports
-.venv/bin/python -m pytest "$@"
+# Two processes (HANDLOOP_TEST_WORKERS; 0 runs in this one): half the suite waits on servers, workers and the
+# browser, so two overlap well even on 2 cores. --dist loadscope keeps a module's tests (and its fixtures) in one.
+workers=${HANDLOOP_TEST_WORKERS:-2}
+if [ "$workers" = "0" ]; then
+  .venv/bin/python -m pytest "$@"
+else
+  .venv/bin/python -m pytest -n "$workers" --dist loadscope "$@"
+fi

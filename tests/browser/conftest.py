@@ -31,7 +31,10 @@ def _chromium_or_skip() -> str:
     return CHROMIUM
 
 
-@pytest.fixture(scope="session")
+# Per module, not per session: Playwright's sync API keeps its event loop marked running while it is open, so
+# a test run after it in the same process (with pytest-xdist, any module) could not start a loop of its own
+# (`bench api`'s client, `bench import --ui`'s own Playwright).
+@pytest.fixture(scope="module")
 def browser() -> Iterator:
     executable = _chromium_or_skip()
     from playwright.sync_api import sync_playwright

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import gc
 import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
@@ -60,20 +59,6 @@ def create_app(settings: Settings | None = None, *, job_queue: JobQueue | None =
     return app
 
 
-_heap_frozen = False
-
-
-def _freeze_startup_heap() -> None:
-    """Move what exists once the first app has started (modules, the app, pools, ~135k objects) out of the
-    cyclic collector's reach, once per process. Left in, every full collection walks them all on a request's
-    thread: a pause of tens of milliseconds in the latency tail (docs/benchmarks.md, "api")."""
-    global _heap_frozen
-    if not _heap_frozen:
-        _heap_frozen = True
-        gc.collect()
-        gc.freeze()
-
-
 @asynccontextmanager
 async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
     """Start the job queue's outbox (re-sends jobs whose hand-off to the broker failed) while serving."""
@@ -81,7 +66,6 @@ async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
     start = getattr(queue, "start", None)
     if start is not None:
         start(app.state.session_factory)
-    _freeze_startup_heap()
     try:
         yield
     finally:

@@ -85,21 +85,3 @@ def test_openapi_docs_and_health(sqlite_env):
     assert sqlite_env.client.get("/docs").status_code == 200
     assert "/api/annotate/next" in sqlite_env.client.get("/openapi.json").json()["paths"]
     assert sqlite_env.client.get("/api/health").json() == {"status": "ok"}
-
-
-def test_the_startup_heap_is_frozen_once_per_process(tmp_path):
-    """The first app's startup moves what exists out of the cyclic collector's reach (gc.freeze), so a full
-    collection no longer walks the modules and the app on a request's thread; later apps do not freeze again."""
-    code = ("import gc; from fastapi.testclient import TestClient; from backend.app import create_app\n"
-            "assert gc.get_freeze_count() == 0\n"
-            "with TestClient(create_app()):\n    first = gc.get_freeze_count()\n"
-            "junk = [[i] for i in range(5000)]\n"
-            "with TestClient(create_app()):\n    second = gc.get_freeze_count()\n"
-            "print(first, second)")
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
-                            env={"HANDLOOP_DATABASE_URL": f"sqlite:///{tmp_path / 'db.sqlite3'}",
-                                 "HANDLOOP_DATA_DIR": str(tmp_path), "PATH": "/usr/bin:/bin"})
-    assert result.returncode == 0, result.stderr
-    first, second = map(int, result.stdout.split())
-    # Frozen objects freed since leave the count; the 5000 lists made in between would join it on a second freeze.
-    assert first > 50_000 and second < first + 1000

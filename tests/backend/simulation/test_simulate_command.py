@@ -116,6 +116,13 @@ def test_bench_sim_refuses_a_width_or_round_count_out_of_range():
         assert result.exit_code == 2 and message in result.output, result.output
 
 
+def _d0_summary(share: float, rate: float, annotated: int) -> dict:
+    """A simulation summary of D_0 alone (6 verified samples plus `annotated`), for the fakes below."""
+    return {"minutes": 1.0, "accepted_vertex_mm": 4.0, "auto_accept_precision": None, "rounds_completed": 0,
+            "d0_verified_share": share, "labels_per_human_hour": rate,
+            "rounds": [{"index": 0, "added": {"heuristic": 0, "manual": 6, "annotated": annotated}}]}
+
+
 def test_bench_sim_runs_d0_alone_with_zero_rounds(monkeypatch, tmp_path):
     """--rounds 0 measures round 0 (the detector's pre-annotation, clicks, reviews) without training a network."""
     from backend.bench import sim
@@ -124,9 +131,7 @@ def test_bench_sim_runs_d0_alone_with_zero_rounds(monkeypatch, tmp_path):
 
     def fake_simulate(capture, work, plan, detector, accept_proposals_px):
         seen.update(rounds=plan["rounds"], detector=detector, px=accept_proposals_px)
-        return {"minutes": 1.0, "accepted_vertex_mm": 4.0, "auto_accept_precision": None, "rounds_completed": 0,
-                "d0_verified_share": 0.25, "labels_per_human_hour": 50.0,
-                "rounds": [{"index": 0, "added": {"heuristic": 0, "manual": 6, "annotated": 18}}]}
+        return _d0_summary(0.25, 50.0, 18)
 
     monkeypatch.setattr(sim, "_capture", lambda root, *a: tmp_path)
     monkeypatch.setattr(sim, "_simulate", fake_simulate)
@@ -139,7 +144,7 @@ def test_bench_sim_runs_d0_alone_with_zero_rounds(monkeypatch, tmp_path):
 
 
 def test_bench_sim_passes_the_round_0_plan_to_the_simulation(monkeypatch, tmp_path):
-    """--initial-every and --round0-rest reach the bootstrap's config and the record's plan."""
+    """--initial-every and --round0-rest reach the simulation (its config and its initial set's spacing)."""
     from backend.bench import sim
     from backend.simulation.bootstrap import BootstrapConfig
 
@@ -147,9 +152,7 @@ def test_bench_sim_passes_the_round_0_plan_to_the_simulation(monkeypatch, tmp_pa
 
     def fake_run_simulation(capture, work, config, *, initial_every, server, on_round):
         seen.update(rest=config.round0_rest, every=initial_every)
-        return {"minutes": 1.0, "accepted_vertex_mm": 4.0, "auto_accept_precision": None, "rounds_completed": 0,
-                "d0_verified_share": 0.6, "labels_per_human_hour": 150.0,
-                "rounds": [{"index": 0, "added": {"heuristic": 0, "manual": 6, "annotated": 4}}]}
+        return _d0_summary(0.6, 150.0, 4)
 
     monkeypatch.setattr(sim, "_capture", lambda root, *a: tmp_path)
     monkeypatch.setattr(sim, "run_simulation", fake_run_simulation)

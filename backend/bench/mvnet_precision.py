@@ -51,7 +51,7 @@ from workers.geometry.camera import Camera
 from workers.handmodel.loading import load_hand_model
 from workers.nets.configs import CONFIGS, MVNetConfig, NetsConfig, get_config
 from workers.nets.data import MVNetDataset, build_mvnet_dataset
-from workers.nets.detections import DetectionCache, FrameDetections, detect_frames
+from workers.nets.detections import DetectionCache, detect_frames, learn_detector_offsets
 from workers.nets.keypoint_maps import image_to_crop_px
 from workers.nets.mvnet import MVNet
 from workers.nets.predict import predict_from_crops
@@ -91,18 +91,17 @@ def ensure_capture(data_dir: Path, width: int, sequences: int, frames: int, seed
     return root
 
 
-def predict(model: MVNet, data: MVNetDataset, detections: Sequence[FrameDetections]) -> Any:
-    """`model`'s KeypointPrediction on the dataset's crops (grid at the lifted keypoints' centroid)."""
+def predict(model: MVNet, data: MVNetDataset) -> Any:
+    """`model`'s KeypointPrediction on the dataset's crops (grid at the lifted keypoints' centroid) and detections
+    (corrected by the learned keypoint offsets where the configuration has them)."""
     K = np.stack([np.asarray(c.K, np.float64) for c in data.cameras])
-    px = np.stack([d.keypoints_px for d in detections]).astype(np.float32)
-    scores = np.stack([d.scores for d in detections]).astype(np.float32)
     return predict_from_crops(model, data.crops, data.K_crop, data.centers_world, data.cameras, data.view_valid, 4,
-                              image_to_crop_px(px, data.K_crop, K), scores)
+                              image_to_crop_px(data.detector_px, data.K_crop, K), data.detector_scores)
 
 
-def mvnet_stats(model: MVNet, data: MVNetDataset, detections: Sequence[FrameDetections]) -> dict[str, Any]:
+def mvnet_stats(model: MVNet, data: MVNetDataset) -> dict[str, Any]:
     """keypoint_stats of `model`'s errors on the dataset, with its mean confidence (eq. 8)."""
-    pred = predict(model, data, detections)
+    pred = predict(model, data)
     errors = 1000 * np.linalg.norm(pred.keypoints_3d - data.keypoints_3d, axis=-1)
     return {**keypoint_stats(errors), "mean_confidence": round(float(pred.sample_confidence.mean()), 3),
             **confidence_ranking(np.asarray(pred.confidence, np.float64), errors)}
@@ -157,11 +156,11 @@ def prediction_masks(kind: str, hand_masks: dict[str, np.ndarray], chroma: dict[
     return tuple(masks), include_forearm
 
 
-def heuristic_on_fits(engine: FittingEngine, model: MVNet, data: MVNetDataset, detections: Sequence[FrameDetections],
+def heuristic_on_fits(engine: FittingEngine, model: MVNet, data: MVNetDataset,
                       frames: Sequence[FrameRef]) -> dict[str, Any]:
     """Fits from `model`'s predictions (as a round makes them) with the ground-truth hand masks and with the chroma
     key, judged by the paper's heuristic against the predictions; see the module docstring."""
-    pred = predict(model, data, detections)
+    pred = predict(model, data)
     cameras = list(data.cameras)
     thresholds = HeuristicThresholds()
     rows: dict[str, list[dict[str, Any]]] = {"gt_hand_masks": [], "chroma_key": []}
@@ -205,7 +204,8 @@ def heuristic_on_fits(engine: FittingEngine, model: MVNet, data: MVNetDataset, d
 
 def parse_config(spec: str) -> NetsConfig:
     """A configuration name, optionally with MVNet fields replaced for an experiment:
-    "cpu-small-detector:detector_residual=likelihood,sigma_voxels=2" (values parsed as int, float or str)."""
+    "cpu-small-detector:detector_residual=likelihood,sigma_voxels=2" (values parsed as bool "true"/"false", int,
+    float or str)."""
     name, _, overrides = spec.partition(":")
     if name not in CONFIGS:
         raise ValueError(f"unknown configuration {name!r}; choose from {sorted(CONFIGS)}")
@@ -214,6 +214,9 @@ def parse_config(spec: str) -> NetsConfig:
         key, sep, value = item.partition("=")
         if not sep or key not in MVNetConfig.__dataclass_fields__:
             raise ValueError(f"{spec!r}: {item!r} is not FIELD=VALUE of an MVNet configuration field")
+        if value.lower() in ("true", "false"):
+            fields[key] = value.lower() == "true"
+            continue
         for kind in (int, float):
             try:
                 fields[key] = kind(value)
@@ -260,18 +263,25 @@ def run(*, data_dir: Path | None = None, width: int = 640, sequences: int = 8, f
     record: dict[str, Any] = {"lift": {}, "configs": {}}
     engine = FittingEngine(load_hand_model(get_settings().mano_path, side), cameras,
                            FitConfig(weights=LossWeights.later_rounds())) if heuristic else None
+    labels = {k: np.stack([load_ground_truth(f).keypoints_3d for f in v]) for k, v in (("train", train), *held.items())}
+    for key, found in detections.items():
+        lifted = np.stack([d.points_world for d in found])
+        record["lift"][key] = keypoint_stats(1000 * np.linalg.norm(lifted - labels[key], axis=-1))
+    offsets = learn_detector_offsets(detections["train"], labels["train"])
+    record["lift_corrected"] = {  # the lift moved by the keypoint offsets learned from the training frames' labels
+        key: keypoint_stats(1000 * np.linalg.norm(offsets.apply(np.stack([d.points_world for d in found]))
+                                                  - labels[key], axis=-1)) for key, found in detections.items()}
+    record["keypoint_offsets_mm"] = np.round(1000 * offsets.offsets_m, 2).tolist()
     for name in configs:
         config = parsed[name]
-        sets = {"train": build_mvnet_dataset(capture, train, config.mvnet, detections=detections["train"])}
-        sets.update({k: build_mvnet_dataset(capture, v, config.mvnet, detections=detections[k])
-                     for k, v in held.items()})
-        if not record["lift"]:
-            for key, data in sets.items():
-                lifted = np.stack([d.points_world for d in detections[key]])
-                record["lift"][key] = keypoint_stats(1000 * np.linalg.norm(lifted - data.keypoints_3d, axis=-1))
+        use = offsets if config.mvnet.detector_offsets else None
+        sets = {k: build_mvnet_dataset(capture, v, config.mvnet, detections=detections[k], detector_offsets=use)
+                for k, v in (("train", train), *held.items())}
         torch.manual_seed(seed)
         untrained = MVNet(config.mvnet).eval()
-        result: dict[str, Any] = {"untrained": {k: mvnet_stats(untrained, sets[k], detections[k]) for k in held}}
+        if config.mvnet.detector_offsets:
+            untrained.set_keypoint_offsets(use)
+        result: dict[str, Any] = {"untrained": {k: mvnet_stats(untrained, sets[k]) for k in held}}
         for n in steps:
             load_before = os.getloadavg()[0]
             t1 = time.perf_counter()
@@ -279,12 +289,12 @@ def run(*, data_dir: Path | None = None, width: int = 640, sequences: int = 8, f
             trained = train_mvnet(sets["train"], config, float("inf"), out, resume=False, max_steps=int(n),
                                   seed=seed).model
             seconds = time.perf_counter() - t1
-            result[f"steps_{n}"] = {**{k: mvnet_stats(trained, sets[k], detections[k]) for k in ("train", *held)},
+            result[f"steps_{n}"] = {**{k: mvnet_stats(trained, sets[k]) for k in ("train", *held)},
                                     "s_per_step": round(seconds / n, 3),
                                     "load": [round(load_before, 2), round(os.getloadavg()[0], 2)]}
         if heuristic:
             result["heuristic"] = {"steps": int(steps[-1]), **{
-                k: heuristic_on_fits(engine, trained, sets[k], detections[k], held[k]) for k in held}}
+                k: heuristic_on_fits(engine, trained, sets[k], held[k]) for k in held}}
         record["configs"][name] = result
     record.update({"train_frames": len(train), **{f"{k}_frames": len(v) for k, v in held.items()},
                    "detect_s": round(detect_s, 1)})

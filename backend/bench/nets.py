@@ -43,7 +43,7 @@ from backend.settings import get_settings
 from workers.capture.reader import load_frame_images, load_ground_truth, read_capture
 from workers.nets.configs import get_config
 from workers.nets.data import build_handseg_dataset, build_mvnet_dataset, hand_center_from_labels
-from workers.nets.detections import DetectionCache, detect_frames, detector_backed
+from workers.nets.detections import DetectionCache, detect_frames, detector_backed, learn_detector_offsets
 from workers.nets.handsegnet import mask_iou
 from workers.nets.predict import predict_keypoints, predict_masks
 from workers.nets.sparsification import plot_sparsification, sparsification
@@ -170,9 +170,14 @@ def run(*, quick: bool = False, data_dir: Path | None = None, out_dir: Path | No
         with tqdm(total=len(train_frames), desc="detect (training frames, cached)", file=sys.stderr) as bar:
             train_detections = detect_frames(train_frames, cameras, handedness=hand, cache=cache, progress=bar.update)
         detection_s = time.perf_counter() - t0
+        offsets = None
+        if det_config.mvnet.detector_offsets:  # learned from the training frames' labels, as a round does
+            offsets = learn_detector_offsets(train_detections, np.stack([load_ground_truth(f).keypoints_3d
+                                                                         for f in train_frames]))
         with tqdm(total=len(train_frames), desc="crops (detector)", file=sys.stderr) as bar:
             datasets["detector"] = build_mvnet_dataset(capture, train_frames, det_config.mvnet,
-                                                       detections=train_detections, progress=bar.update)
+                                                       detections=train_detections, detector_offsets=offsets,
+                                                       progress=bar.update)
     step = max(1, len(train_frames) // size.handseg_max_frames)
     with tqdm(total=len(train_frames[::step]), desc="masks", file=sys.stderr) as bar:
         seg_data = build_handseg_dataset(capture, train_frames[::step], progress=bar.update)

@@ -75,6 +75,10 @@ class MVNetConfig:
             beside the detector's maps; False: the detector's maps alone (no 2D CNN at all): the refinement is
             learned from the views' geometry, which carries over to unseen hands from a few dozen labels where
             image features learned from them do not (docs/networks.md, "Detector-backed MVNet").
+        detector_offsets: detector-backed only: before the detections become maps, move them by per-keypoint
+            offsets learned from the training labels (workers.detector.keypoint_offsets: the detector's keypoint
+            convention against the hand model's); the offsets are part of the weights (a buffer), so prediction
+            applies what training learned.
     """
 
     crop_px: int = 32
@@ -110,6 +114,7 @@ class MVNetConfig:
     detector_sigma_px: float = 1.0
     detector_residual: DetectorResidual = "views"
     unet_image_features: bool = True
+    detector_offsets: bool = False
 
     def __post_init__(self) -> None:
         if self.loss not in ("scorevolume", "softargmax"):
@@ -126,6 +131,8 @@ class MVNetConfig:
         if self.heatmap_source == "detector" and not self.heatmap_residual:
             raise ValueError("heatmap_source='detector' needs heatmap_residual=True (the detector's maps enter "
                              "through the unprojection and the heat-map residual)")
+        if self.detector_offsets and self.heatmap_source != "detector":
+            raise ValueError("detector_offsets needs heatmap_source='detector' (they correct the detector's keypoints)")
         if self.heatmap_source == "detector" and not self.detector_sigma_px > 0:
             raise ValueError(f"detector_sigma_px must be positive, got {self.detector_sigma_px}")
         if self.detector_residual not in ("views", "agreement", "likelihood"):
@@ -231,8 +238,10 @@ def detector_backed_variant(config: NetsConfig, grid_size: int = 24, grid_side_m
     24 = 11.7 mm; 32 voxels were as precise per step and 2.3x slower per step on this CPU), Gaussian targets of the
     detector maps' width (1.5 voxels = 17.5 mm = 1 pixel of the 16 x 16 map over 0.28 m), the likelihood residual
     (peak 1 where the views agree, as the targets; its maps sqrt(2/3) as wide, so that it has the targets' width;
-    the agreement residual before 2026-12-03 09:10), and the 3D U-Net on the detector's maps alone: no 2D CNN, no
-    2D head, no 2D-only warm-up."""
+    the agreement residual before 2026-12-03 09:10), the 3D U-Net on the detector's maps alone: no 2D CNN, no
+    2D head, no 2D-only warm-up; and the detector's keypoint offsets learned from the labels (since 2026-12-03
+    18:40: held-out error 6.16 -> 4.13 mm median after 600 steps, docs/benchmarks.md "Detector keypoint
+    offsets")."""
     sigma_map_px = 1.0
     # the maps' width in metres at the hand (one map pixel spans 2 crop_radius_m / feature_px) in voxels
     sigma_voxels = sigma_map_px * (2 * config.mvnet.crop_radius_m / config.mvnet.feature_px) / (grid_side_m / grid_size)
@@ -242,7 +251,8 @@ def detector_backed_variant(config: NetsConfig, grid_size: int = 24, grid_side_m
     mvnet = replace(config.mvnet, warmup_2d_fraction=0.0, heatmap_source="detector",
                     detector_sigma_px=round(sigma_map_px * math.sqrt(2 / 3), 4),
                     grid_size=grid_size, grid_side_m=grid_side_m, sigma_voxels=round(sigma_voxels, 3),
-                    detector_residual="likelihood", unet_image_features=False, aux_2d_weight=0.0)
+                    detector_residual="likelihood", unet_image_features=False, aux_2d_weight=0.0,
+                    detector_offsets=True)
     return replace(config, name=f"{config.name}-detector", mvnet=mvnet)
 
 
@@ -274,6 +284,8 @@ def config_digest(config: MVNetConfig | HandSegNetConfig) -> str:
         arch["detector_residual"] = data["detector_residual"]
     if not data.get("unet_image_features", True):  # absent where True: earlier digests stay as they were
         arch["unet_image_features"] = False
+    if data.get("detector_offsets"):  # absent where False: earlier digests stay as they were
+        arch["detector_offsets"] = True
     return hashlib.sha1(json.dumps(arch, sort_keys=True).encode()).hexdigest()[:12]
 
 
@@ -322,7 +334,8 @@ def paper_only(config: NetsConfig) -> NetsConfig:
     mv = config.mvnet
     return replace(config, name=f"{config.name}-paper-only",
                    mvnet=replace(mv, heatmap_source="learned", aux_2d_weight=mv.aux_2d_weight or 1.0,
-                                 detector_residual="views", unet_image_features=True))
+                                 detector_residual="views", unet_image_features=True,
+                                 detector_offsets=False))
 
 
 def get_config(name: str, **mvnet_overrides: Any) -> NetsConfig:

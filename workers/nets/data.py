@@ -24,6 +24,7 @@ import skimage.data
 
 from workers.capture.reader import load_frame_images, load_frame_masks, load_ground_truth
 from workers.capture.schema import Capture, FrameRef
+from workers.detector.keypoint_offsets import KeypointOffsets
 from workers.geometry.camera import Camera
 from workers.geometry.projection import project_points
 from workers.nets.configs import HandSegNetConfig, MVNetConfig
@@ -296,6 +297,8 @@ class MVNetDataset:
         detector_px: (M, C, K, 2) float32 the detector's keypoints in pixels of the full images (NaN where a
             view found none), or None for a paper-only configuration.
         detector_scores: (M, C, K) float32 their map weights (detections.FrameDetections.scores), or None.
+        detector_offsets: the learned keypoint offsets the detections were corrected with (FrameDetections.corrected),
+            or None.
     """
 
     crops: np.ndarray
@@ -311,6 +314,7 @@ class MVNetDataset:
     crop_radius_m: float
     detector_px: np.ndarray | None = None
     detector_scores: np.ndarray | None = None
+    detector_offsets: KeypointOffsets | None = None
 
     def __len__(self) -> int:
         return len(self.sample_ids)
@@ -321,7 +325,8 @@ class MVNetDataset:
                             self.view_valid[idx], self.centers_world[idx], self.keypoints_3d[idx], self.cameras,
                             tuple(self.sample_ids[i] for i in idx), self.crop_px, self.crop_radius_m,
                             None if self.detector_px is None else self.detector_px[idx],
-                            None if self.detector_scores is None else self.detector_scores[idx])
+                            None if self.detector_scores is None else self.detector_scores[idx],
+                            self.detector_offsets)
 
 
 def hand_center_from_labels(masks: Sequence[np.ndarray] | None, keypoints_3d: np.ndarray,
@@ -341,6 +346,7 @@ def build_mvnet_dataset(capture: Capture, frames: Sequence[FrameRef], config: MV
                         hand_masks: Sequence[Mapping[str, np.ndarray] | None] | None = None,
                         detections: Sequence[FrameDetections] | None = None,
                         detection_cache: DetectionCache | None = None,
+                        detector_offsets: KeypointOffsets | None = None,
                         progress: Callable[[int], None] | None = None) -> MVNetDataset:
     """Crops and labels of `frames`.
 
@@ -355,6 +361,8 @@ def build_mvnet_dataset(capture: Capture, frames: Sequence[FrameRef], config: MV
         detections: for a detector-backed configuration (heatmap_source="detector"), the frames' detections;
             default: detected here (detections.detect_frames with the chroma-key masks, through
             `detection_cache` when given: a frame is detected once, not per training step or round).
+        detector_offsets: learned keypoint offsets to correct the detections with (learn_detector_offsets), as a
+            configuration with detector_offsets=True trains and predicts; None: as detected.
         progress: called with 1 per frame done.
     Returns:
         MVNetDataset (crop centres from the hand masks; the mean keypoint where a frame has none or they
@@ -412,11 +420,15 @@ def build_mvnet_dataset(capture: Capture, frames: Sequence[FrameRef], config: MV
         if progress:
             progress(1)
     det_px, det_scores = None, None
+    if detections is not None and detector_offsets is not None:
+        # after the crop centres, which stay the uncorrected lift's as at prediction time (predict_frames)
+        detections = [d.corrected(detector_offsets, cameras) for d in detections]
     if detections is not None:
         det_px, det_scores = stack_detections(detections) if M else \
             (np.zeros((0, C, 21, 2), np.float32), np.zeros((0, C, 21), np.float32))
     return MVNetDataset(crops, alphas, has_alpha, K_crop, valid, centers, labels, tuple(cameras),
-                        tuple(frame_id(f) for f in frames), S, config.crop_radius_m, det_px, det_scores)
+                        tuple(frame_id(f) for f in frames), S, config.crop_radius_m, det_px, det_scores,
+                        detector_offsets if detections is not None else None)
 
 
 def random_rotation(rng: np.random.Generator) -> np.ndarray:

@@ -20,7 +20,9 @@ import numpy as np
 
 from workers.capture.reader import load_frame_images, load_frame_masks
 from workers.capture.schema import FrameRef
+from workers.detector.keypoint_offsets import KeypointOffsets, fit_keypoint_offsets
 from workers.geometry.camera import Camera
+from workers.geometry.projection import project_points
 from workers.handmodel.keypoints import NUM_KEYPOINTS
 from workers.nets.configs import NetsConfig, paper_only
 
@@ -80,6 +82,19 @@ class FrameDetections:
             return None
         return np.median(self.points_world[finite], axis=0)
 
+    def corrected(self, offsets: KeypointOffsets, cameras: Sequence[Camera]) -> FrameDetections:
+        """These detections with the learned keypoint offsets applied (workers.detector.keypoint_offsets): the
+        lifted keypoints moved, and each view's 2D keypoint moved by its lifted keypoint's move as that view
+        sees it, so the maps MVNet unprojects meet at the corrected point. Keypoints not lifted stay."""
+        moved = offsets.apply(self.points_world)
+        pixels = self.keypoints_px.astype(np.float64)
+        finite = np.isfinite(self.points_world).all(axis=1)
+        if finite.any():
+            before, _ = project_points(self.points_world[finite], list(cameras))
+            after, _ = project_points(moved[finite], list(cameras))
+            pixels[:, finite] += after - before  # NaN stays NaN where a view found no hand
+        return FrameDetections(pixels.astype(np.float32), self.scores, moved, self.confidence)
+
     def to_npz(self, path: Path) -> None:
         tmp = path.with_suffix(".tmp.npz")
         np.savez(tmp, keypoints_px=self.keypoints_px, scores=self.scores, points_world=self.points_world,
@@ -90,6 +105,16 @@ class FrameDetections:
     def from_npz(cls, path: Path) -> FrameDetections:
         with np.load(path) as data:
             return cls(data["keypoints_px"], data["scores"], data["points_world"], data["confidence"])
+
+
+def learn_detector_offsets(detections: Sequence[FrameDetections], labels_m: np.ndarray) -> KeypointOffsets:
+    """The detector's keypoint offsets learned from M labelled frames: their detections and labels (M, 21, 3)
+    metres, world frame (workers.detector.keypoint_offsets.fit_keypoint_offsets)."""
+    if len(detections) != len(labels_m):
+        raise ValueError(f"got {len(detections)} detections for {len(labels_m)} labels")
+    if not len(detections):
+        return KeypointOffsets.none()
+    return fit_keypoint_offsets(np.stack([d.points_world for d in detections]), np.asarray(labels_m, np.float64))
 
 
 def stack_detections(detections: Sequence[FrameDetections]) -> tuple[np.ndarray, np.ndarray]:

@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import functools
 
+import numpy as np
 import torch
 from torch import nn
 
+from workers.detector.keypoint_offsets import KeypointOffsets
 from workers.handmodel.keypoints import NUM_KEYPOINTS
 from workers.nets.blocks import conv_block, max_pool_2x2, unet_pass
 from workers.nets.configs import MVNetConfig
@@ -137,8 +139,27 @@ class MVNet(nn.Module):
             # U-Net's correction starts at zero and is learned from the labels.
             nn.init.zeros_(self.unet.head.weight)
             nn.init.zeros_(self.unet.head.bias)
+        if config.detector_offsets:
+            # What training learned of the detector's keypoint convention (keypoint_offsets.KeypointOffsets.offsets_m,
+            # (K, 3) metres in each keypoint's bone frame): saved with the weights, applied to the detections
+            # before they become maps (predict.predict_keypoints, data.build_mvnet_dataset).
+            self.register_buffer("detector_offsets_m", torch.zeros(num_keypoints, 3, dtype=torch.float64))
+            self.register_buffer("detector_offsets_frames", torch.zeros(num_keypoints, dtype=torch.int64))
         self.register_buffer("rgb_mean", torch.tensor(RGB_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("rgb_std", torch.tensor(RGB_STD).view(1, 3, 1, 1), persistent=False)
+
+    def keypoint_offsets(self) -> KeypointOffsets | None:
+        """The detector keypoint offsets this network was trained with (None where its configuration has none)."""
+        if not self.config.detector_offsets:
+            return None
+        return KeypointOffsets(self.detector_offsets_m.detach().cpu().numpy().astype(np.float64),
+                               self.detector_offsets_frames.detach().cpu().numpy().astype(np.int64))
+
+    def set_keypoint_offsets(self, offsets: KeypointOffsets | None) -> None:
+        """Record the offsets the training data was corrected with (None: no correction)."""
+        offsets = offsets or KeypointOffsets.none()
+        self.detector_offsets_m.copy_(torch.as_tensor(offsets.offsets_m, dtype=torch.float64))
+        self.detector_offsets_frames.copy_(torch.as_tensor(offsets.frames_used, dtype=torch.int64))
 
     def encode_views(self, crops: torch.Tensor) -> torch.Tensor:
         """crops (B, C, S, S, 3) uint8 or float in [0, 1] -> features (B, C, F, h, h); F = 0 (an empty tensor)

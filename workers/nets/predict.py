@@ -146,6 +146,9 @@ def predict_keypoints(model: MVNet, frames_views: Sequence[Views], cameras: Sequ
     valid = np.stack([p[2] for p in prepared])
     det_px = det_scores = None
     if model.config.heatmap_source == "detector" and detections is not None:
+        offsets = model.keypoint_offsets()
+        if offsets is not None:  # as training corrected its detections (data.build_mvnet_dataset)
+            detections = [d.corrected(offsets, cameras) for d in detections]
         px, det_scores = stack_detections(detections)
         det_px = image_to_crop_px(px, K_crop, np.stack([np.asarray(c.K, np.float64) for c in cameras]))
     return predict_from_crops(model, crops, K_crop, centers_world, cameras, valid, batch_frames, det_px, det_scores)

@@ -257,6 +257,8 @@ def train_mvnet(dataset: MVNetDataset, config: NetsConfig | MVNetConfig, budget_
     torch.manual_seed(seed)
     model = MVNet(cfg)
     warm = warm_start_weights(model, "mvnet", cfg, init_from) if init_from is not None else None
+    if cfg.detector_offsets:  # this round's, learned from its labels (a warm start's are the previous round's)
+        model.set_keypoint_offsets(dataset.detector_offsets)
     model = model.to(device)
     cams = stack_cameras(list(dataset.cameras), device=device)
     batch_size = min(cfg.batch_frames, len(dataset))

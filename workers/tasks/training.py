@@ -30,7 +30,13 @@ from backend.models.review import Round, RoundMember
 from backend.services import jobs
 from backend.services.errors import DomainError
 from workers.nets.configs import CONFIGS, get_config
-from workers.nets.detections import DetectionCache, chroma_masks, detect_frames, detector_backed
+from workers.nets.detections import (
+    DetectionCache,
+    chroma_masks,
+    detect_frames,
+    detector_backed,
+    learn_detector_offsets,
+)
 from workers.tasks.context import WorkerContext
 from workers.tasks.inputs import InputError, Rig, SampleFrame, capture_for, load_frames, read_mask, rig_of
 from workers.tasks.json_values import json_safe
@@ -260,13 +266,25 @@ def _train(ctx: WorkerContext, net: str, tset: TrainingSet, masks: list[dict[str
     if net == "handsegnet":
         dataset = build_handseg_dataset(capture, frames, hand_masks=masks)
         return train_handsegnet(dataset, config, budget, folder, **common)
-    detections = None
+    detections, offsets = None, None
     if config.mvnet.heatmap_source == "detector":
         reporter(0.0, f"{net}: detecting keypoints in {len(frames)} samples (cached per frame)", force=True)
         detections = training_detections(ctx, frames, list(tset.rig.cameras), masks)
+    if config.mvnet.detector_offsets and detections is not None:
+        offsets = learn_detector_offsets(detections, tset.keypoints_3d)
+        common["extra_metadata"] = {**extra, "detector_offsets": offsets_summary(offsets)}
     dataset = build_mvnet_dataset(capture, frames, config.mvnet, keypoints_3d=tset.keypoints_3d, hand_masks=masks,
-                                  detections=detections)
+                                  detections=detections, detector_offsets=offsets)
     return train_mvnet(dataset, config, budget, folder, **common)
+
+
+def offsets_summary(offsets: Any) -> dict[str, Any]:
+    """What the round learned of the detector's keypoint convention, for its checkpoint's metadata: per keypoint
+    the offset along its bone (mm; negative: the detector's keypoint lies beyond the label's) and its length, and
+    the labelled samples each came from."""
+    return {"along_bone_mm": [round(1000 * float(v), 2) for v in offsets.offsets_m[:, 0]],
+            "length_mm": [round(1000 * float(v), 2) for v in np.linalg.norm(offsets.offsets_m, axis=1)],
+            "samples": [int(n) for n in offsets.frames_used]}
 
 
 def training_detections(ctx: WorkerContext, frames: list[Any], cameras: list[Any],

@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 import torch
 
-from workers.capture.reader import load_ground_truth
+from workers.capture.reader import load_frame_images, load_ground_truth
 from workers.detector import DetectorUnavailableError
+from workers.detector.keypoint_offsets import KeypointOffsets
 from workers.geometry.projection import project_points
 from workers.geometry.rig import default_rig
 from workers.nets.checkpoints import CheckpointError, load_model
@@ -311,3 +312,37 @@ def test_maps_only_network_learns_the_detectors_bias_and_round_trips(tiny_captur
     np.testing.assert_allclose(_error_mm(model, dataset), trained_mm, atol=1e-4)
     with pytest.raises(CheckpointError):  # another digest: refused
         load_model(result.checkpoint, "mvnet", replace(TINY_AGREEMENT, detector_residual="views"))
+
+
+def test_learned_keypoint_offsets_move_the_maps_and_travel_with_the_weights(tiny_capture, tiny_frames, tmp_path):
+    """detector_offsets=True: the dataset's detections are moved by the offsets (the untrained network triangulates
+    the moved points, not the detected ones), the offsets are saved with the weights, and prediction from the raw
+    detections applies them as training did."""
+    config = replace(TINY_DETECTOR, detector_offsets=True)
+    cameras = list(tiny_capture.cameras)
+    detections = perfect_detections(tiny_frames, cameras)
+    offsets = KeypointOffsets(np.tile([0.03, 0.0, 0.0], (21, 1)), np.full(21, 10))  # 3 cm along every bone
+    dataset = build_mvnet_dataset(tiny_capture, tiny_frames, config, detections=detections, detector_offsets=offsets)
+    truth = np.stack([load_ground_truth(f).keypoints_3d for f in tiny_frames])
+    moved = offsets.apply(truth)
+    torch.manual_seed(0)
+    untrained = MVNet(config).eval()
+    untrained.set_keypoint_offsets(offsets)
+    pred = predict_from_crops(untrained, dataset.crops, dataset.K_crop, dataset.centers_world, cameras,
+                              dataset.view_valid, detector_px=_crop_px(dataset), detector_scores=dataset.detector_scores)
+    assert 1000 * np.linalg.norm(pred.keypoints_3d - moved, axis=-1).mean() < 0.2 * 1000 * config.voxel_m
+    assert 1000 * np.linalg.norm(pred.keypoints_3d - truth, axis=-1).mean() > 20
+    result = train_mvnet(dataset, config, budget_s=300, checkpoint_dir=tmp_path, max_steps=2, seed=2)
+    model, meta = load_model(result.checkpoint, "mvnet")
+    assert meta["config_digest"] == config_digest(config) != config_digest(TINY_DETECTOR)
+    np.testing.assert_array_equal(model.keypoint_offsets().offsets_m, offsets.offsets_m)
+    np.testing.assert_array_equal(model.keypoint_offsets().frames_used, offsets.frames_used)
+    views = [[load_frame_images(f, cameras)[c.name] for c in cameras] for f in tiny_frames]
+    from_raw = predict_keypoints(model, views, cameras, dataset.centers_world, detections=detections)
+    from_dataset = predict_from_crops(model, dataset.crops, dataset.K_crop, dataset.centers_world, cameras,
+                                      dataset.view_valid, detector_px=_crop_px(dataset),
+                                      detector_scores=dataset.detector_scores)
+    np.testing.assert_allclose(from_raw.keypoints_3d, from_dataset.keypoints_3d, atol=1e-6)
+    assert MVNet(TINY_DETECTOR).keypoint_offsets() is None
+    with pytest.raises(ValueError, match="detector_offsets needs"):
+        replace(get_config("tiny").mvnet, detector_offsets=True)

@@ -1,0 +1,92 @@
+"""Learned keypoint offsets (workers/detector/keypoint_offsets.py): a convention difference expressed in each
+bone's frame is recovered from labelled frames of hands in every orientation and flexion, despite gross outliers;
+keypoints without a frame stay where they are; too few frames learn nothing; bad input is refused."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from workers.detector.keypoint_offsets import PARENT, KeypointOffsets, bone_frames, fit_keypoint_offsets
+
+
+def random_rotation(rng: np.random.Generator) -> np.ndarray:
+    q, r = np.linalg.qr(rng.normal(size=(3, 3)))
+    q = q * np.sign(np.diag(r))
+    return q if np.linalg.det(q) > 0 else -q
+
+
+def hands(n: int, rng: np.random.Generator) -> np.ndarray:
+    """n skeletons (n, 21, 3) metres: a palm fan of MCPs, fingers flexed by random angles towards the palm's normal,
+    randomly oriented and placed."""
+    out = np.zeros((n, 21, 3))
+    for i in range(n):
+        points = np.zeros((21, 3))
+        for f, spread in enumerate(np.deg2rad([-50, -20, 0, 18, 36])):
+            base = 4 * f + 1
+            direction = np.array([np.sin(spread), np.cos(spread), 0.0])
+            points[base] = 0.09 * direction if f else 0.03 * direction
+            flex = 0.0
+            for j, length in enumerate((0.045, 0.028, 0.022)):
+                flex += rng.uniform(0, np.deg2rad(60))
+                bend = np.cos(flex) * direction + np.sin(flex) * np.array([0.0, 0.0, -1.0])
+                points[base + j + 1] = points[base + j] + length * bend
+        out[i] = points @ random_rotation(rng).T + rng.normal(0, 0.3, 3)
+    return out
+
+
+def test_bone_frames_are_rotations_along_each_bone():
+    points = hands(3, np.random.default_rng(0))
+    frames = bone_frames(points)
+    assert frames.shape == (3, 21, 3, 3)
+    np.testing.assert_allclose(frames @ np.swapaxes(frames, -1, -2), np.broadcast_to(np.eye(3), frames.shape),
+                               atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(frames), 1.0, atol=1e-12)
+    bone = points - points[:, PARENT]
+    np.testing.assert_allclose(frames[..., 0], bone / np.linalg.norm(bone, axis=-1, keepdims=True), atol=1e-12)
+
+
+def test_offsets_in_the_bone_frame_are_recovered_despite_outliers():
+    rng = np.random.default_rng(1)
+    truth = rng.normal(0, 0.006, (21, 3))  # up to ~1-2 cm, as the detector's fingertips
+    lifted = hands(40, rng)
+    labels = lifted + np.einsum("nkij,kj->nki", bone_frames(lifted), truth) + rng.normal(0, 0.001, lifted.shape)
+    gross = rng.random((40, 21)) < 0.1  # a detector's gross failures: 3-6 cm off
+    labels[gross] += rng.choice([-1, 1], (gross.sum(), 3)) * rng.uniform(0.03, 0.06, (gross.sum(), 3))
+    learned = fit_keypoint_offsets(lifted, labels)
+    np.testing.assert_allclose(learned.offsets_m, truth, atol=0.0012)
+    assert np.all(learned.frames_used == 40)
+    # On other hands the correction removes the convention difference.
+    held = hands(10, rng)
+    target = held + np.einsum("nkij,kj->nki", bone_frames(held), truth)
+    before = np.linalg.norm(held - target, axis=-1).mean()
+    after = np.linalg.norm(learned.apply(held) - target, axis=-1).mean()
+    assert after < 0.15 * before, (before, after)
+
+
+def test_keypoints_without_a_frame_stay_and_few_frames_learn_nothing():
+    rng = np.random.default_rng(2)
+    lifted = hands(12, rng)
+    labels = lifted + 0.01
+    lifted[:5, 8] = np.nan  # index tip not lifted in 5 frames: 7 usable, under MIN_FRAMES
+    learned = fit_keypoint_offsets(lifted, labels)
+    assert learned.frames_used[8] == 0 and np.all(learned.offsets_m[8] == 0)
+    assert learned.frames_used[7] == 12 and np.any(learned.offsets_m[7] != 0)
+    one = hands(1, rng)[0]
+    one[17] = np.nan  # the pinky's MCP: no palm normal, so no keypoint has a frame
+    np.testing.assert_array_equal(learned.apply(one), one)
+    assert np.all(KeypointOffsets.none().apply(one)[np.isfinite(one)] == one[np.isfinite(one)])
+
+
+def test_bad_input_is_refused():
+    lifted = hands(10, np.random.default_rng(3))
+    with pytest.raises(ValueError, match="must both be"):
+        fit_keypoint_offsets(lifted[:, :20], lifted[:, :20])
+    with pytest.raises(ValueError, match="must both be"):
+        fit_keypoint_offsets(lifted, lifted[:9])
+    labels = lifted.copy()
+    labels[0, 0, 0] = np.inf
+    with pytest.raises(ValueError, match="finite"):
+        fit_keypoint_offsets(lifted, labels)
+    with pytest.raises(ValueError, match="points must be"):
+        bone_frames(np.zeros((21, 2)))

@@ -2,13 +2,14 @@
 its labels.
 
 Why: MediaPipe's landmarks follow MediaPipe's annotation convention, not the hand model's. On synthetic captures
-of the built-in hand the lifted fingertips and finger joints sit 6-10 mm short along their bone and the thumb's
-base 10-11 mm off, alike on two seeds (docs/benchmarks.md, "Detector keypoint offsets"). A difference of
-convention is a constant in the right frame, so a few dozen labels learn it. The frame is the bone's leading into
-the keypoint (along the bone; the palm's normal made orthogonal to it; their cross product): finger flexion turns
-an offset expressed in the palm's frame with the finger, and a palm frame made the fingertips worse. Each
-component is the median over the labelled frames, which the detector's gross failures (a thumb > 30 mm off on
-~8 % of keypoints) do not move.
+of the built-in hand the lifted fingertips sit 6-13 mm short along their bone, the finger joints 2-12 mm, and the
+thumb's base ~9 mm off (docs/benchmarks.md, "### Detector keypoint offsets"; an earlier study saw the same on two
+seeds). A difference of convention is a constant in the right frame, so a few labels learn it (3 gave most of it).
+The frame is the bone's leading into the keypoint (along the bone; the palm's normal made orthogonal to it; their
+cross product): finger flexion turns an offset expressed in the palm's frame with the finger, and in that study a
+palm frame made the fingertips worse. Each component is the median over the labelled frames, which the detector's
+gross failures (a thumb > 30 mm off on ~8 % of keypoints) do not move. The palm's normal flips with handedness;
+a round's frames are all of one hand (workers/tasks/training.ROUND_HANDEDNESS), so its offsets are consistent.
 """
 
 from __future__ import annotations
@@ -23,8 +24,10 @@ from workers.handmodel.keypoints import NUM_KEYPOINTS, SKELETON_EDGES
 MIDDLE_MCP = 9
 PARENT: tuple[int, ...] = (MIDDLE_MCP, *(p for p, _ in SKELETON_EDGES))
 WRIST, INDEX_MCP, PINKY_MCP = 0, 5, 17
-# Fewer labelled frames than this for a keypoint leave it uncorrected: a median of a handful is noise.
-MIN_FRAMES = 8
+# Fewer labelled frames than this leave a keypoint uncorrected. Measured (docs/benchmarks.md, "### Detector keypoint
+# offsets"): offsets from 2 / 3 random labelled frames already take the lift's median on an unseen subject from 10.2 to
+# 6.5 / 6.1 mm (worst of 30 draws 7.3 / 7.4); 3 keeps one frame's outlier from setting a median alone.
+MIN_FRAMES = 3
 
 
 def bone_frames(points_m: np.ndarray) -> np.ndarray:

@@ -7,7 +7,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from workers.detector.keypoint_offsets import PARENT, KeypointOffsets, bone_frames, fit_keypoint_offsets
+from workers.detector.keypoint_offsets import (
+    MIN_FRAMES,
+    PARENT,
+    KeypointOffsets,
+    bone_frames,
+    fit_keypoint_offsets,
+)
 
 
 def random_rotation(rng: np.random.Generator) -> np.ndarray:
@@ -68,9 +74,11 @@ def test_keypoints_without_a_frame_stay_and_few_frames_learn_nothing():
     rng = np.random.default_rng(2)
     lifted = hands(12, rng)
     labels = lifted + 0.01
-    lifted[:5, 8] = np.nan  # index tip not lifted in 5 frames: 7 usable, under MIN_FRAMES
+    lifted[: 12 - (MIN_FRAMES - 1), 8] = np.nan  # index tip lifted in MIN_FRAMES - 1 frames: not learned
+    lifted[: 12 - MIN_FRAMES, 4] = np.nan  # thumb tip lifted in MIN_FRAMES frames: learned
     learned = fit_keypoint_offsets(lifted, labels)
     assert learned.frames_used[8] == 0 and np.all(learned.offsets_m[8] == 0)
+    assert learned.frames_used[4] == MIN_FRAMES and np.any(learned.offsets_m[4] != 0)
     assert learned.frames_used[7] == 12 and np.any(learned.offsets_m[7] != 0)
     one = hands(1, rng)[0]
     one[17] = np.nan  # the pinky's MCP: no palm normal, so no keypoint has a frame

@@ -142,8 +142,9 @@ class MVNet(nn.Module):
         if config.detector_offsets:
             # What training learned of the detector's keypoint convention (keypoint_offsets.KeypointOffsets.offsets_m,
             # (K, 3) metres in each keypoint's bone frame): saved with the weights, applied to the detections
-            # before they become maps (predict.predict_keypoints, data.build_mvnet_dataset).
-            self.register_buffer("detector_offsets_m", torch.zeros(num_keypoints, 3, dtype=torch.float64))
+            # before they become maps (predict.predict_keypoints, data.build_mvnet_dataset). float32: every device
+            # has it (MPS has no float64), and 1e-7 m is far below what the detector resolves.
+            self.register_buffer("detector_offsets_m", torch.zeros(num_keypoints, 3, dtype=torch.float32))
             self.register_buffer("detector_offsets_frames", torch.zeros(num_keypoints, dtype=torch.int64))
         self.register_buffer("rgb_mean", torch.tensor(RGB_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("rgb_std", torch.tensor(RGB_STD).view(1, 3, 1, 1), persistent=False)
@@ -158,7 +159,7 @@ class MVNet(nn.Module):
     def set_keypoint_offsets(self, offsets: KeypointOffsets | None) -> None:
         """Record the offsets the training data was corrected with (None: no correction)."""
         offsets = offsets or KeypointOffsets.none()
-        self.detector_offsets_m.copy_(torch.as_tensor(offsets.offsets_m, dtype=torch.float64))
+        self.detector_offsets_m.copy_(torch.as_tensor(offsets.offsets_m, dtype=torch.float32))
         self.detector_offsets_frames.copy_(torch.as_tensor(offsets.frames_used, dtype=torch.int64))
 
     def encode_views(self, crops: torch.Tensor) -> torch.Tensor:

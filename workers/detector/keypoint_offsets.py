@@ -73,6 +73,13 @@ class KeypointOffsets:
         """No correction."""
         return cls(np.zeros((NUM_KEYPOINTS, 3)), np.zeros(NUM_KEYPOINTS, dtype=np.int64))
 
+    def summary(self) -> dict[str, list[float] | list[int]]:
+        """For a checkpoint's metadata: per keypoint the offset along its bone and its length (mm; positive along
+        the bone: the label lies farther along it than the detection) and the labelled frames it came from."""
+        return {"along_bone_mm": [round(1000 * float(v), 2) for v in self.offsets_m[:, 0]],
+                "length_mm": [round(1000 * float(v), 2) for v in np.linalg.norm(self.offsets_m, axis=1)],
+                "samples": [int(n) for n in self.frames_used]}
+
     def apply(self, points_m: np.ndarray) -> np.ndarray:
         """Corrected keypoints: points (..., 21, 3) metres -> (..., 21, 3), each moved by its offset in the frame
         of the uncorrected points; a keypoint whose frame is undefined (a point it needs is NaN) stays as it is."""

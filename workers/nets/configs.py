@@ -131,6 +131,8 @@ class MVNetConfig:
         if self.heatmap_source == "detector" and not self.heatmap_residual:
             raise ValueError("heatmap_source='detector' needs heatmap_residual=True (the detector's maps enter "
                              "through the unprojection and the heat-map residual)")
+        if not isinstance(self.detector_offsets, bool):
+            raise ValueError(f"detector_offsets must be true or false, got {self.detector_offsets!r}")
         if self.detector_offsets and self.heatmap_source != "detector":
             raise ValueError("detector_offsets needs heatmap_source='detector' (they correct the detector's keypoints)")
         if self.heatmap_source == "detector" and not self.detector_sigma_px > 0:

@@ -272,19 +272,11 @@ def _train(ctx: WorkerContext, net: str, tset: TrainingSet, masks: list[dict[str
         detections = training_detections(ctx, frames, list(tset.rig.cameras), masks)
     if config.mvnet.detector_offsets and detections is not None:
         offsets = learn_detector_offsets(detections, tset.keypoints_3d)
-        common["extra_metadata"] = {**extra, "detector_offsets": offsets_summary(offsets)}
+        common["extra_metadata"] = {**extra, "detector_offsets": offsets.summary()}
     dataset = build_mvnet_dataset(capture, frames, config.mvnet, keypoints_3d=tset.keypoints_3d, hand_masks=masks,
                                   detections=detections, detector_offsets=offsets)
     return train_mvnet(dataset, config, budget, folder, **common)
 
-
-def offsets_summary(offsets: Any) -> dict[str, Any]:
-    """What the round learned of the detector's keypoint convention, for its checkpoint's metadata: per keypoint
-    the offset along its bone (mm; negative: the detector's keypoint lies beyond the label's) and its length, and
-    the labelled samples each came from."""
-    return {"along_bone_mm": [round(1000 * float(v), 2) for v in offsets.offsets_m[:, 0]],
-            "length_mm": [round(1000 * float(v), 2) for v in np.linalg.norm(offsets.offsets_m, axis=1)],
-            "samples": [int(n) for n in offsets.frames_used]}
 
 
 def training_detections(ctx: WorkerContext, frames: list[Any], cameras: list[Any],

@@ -52,6 +52,7 @@ def test_mvnet_steps_must_be_positive(tmp_path):
     (["--sequences", "3"], "--sequences"),
     (["--config", "cpu-small-detector:nofield=1"], "nofield=1"),
     (["--config", "cpu-small-detector:detector_residual=bogus"], "detector_residual must be"),
+    (["--config", "cpu-small-detector:detector_offsets=maybe"], "detector_offsets must be true or false"),
 ])
 def test_mvnet_precision_refuses_bad_input(args, says, tmp_path):
     result = runner.invoke(app, ["bench", "mvnet-precision", "--data", str(tmp_path), *args])

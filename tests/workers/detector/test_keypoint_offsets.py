@@ -62,6 +62,9 @@ def test_offsets_in_the_bone_frame_are_recovered_despite_outliers():
     learned = fit_keypoint_offsets(lifted, labels)
     np.testing.assert_allclose(learned.offsets_m, truth, atol=0.0012)
     assert np.all(learned.frames_used == 40)
+    summary = learned.summary()
+    np.testing.assert_allclose(summary["along_bone_mm"], 1000 * truth[:, 0], atol=1.2)
+    assert summary["samples"] == [40] * 21
     # On other hands the correction removes the convention difference.
     held = hands(10, rng)
     target = held + np.einsum("nkij,kj->nki", bone_frames(held), truth)

@@ -96,7 +96,8 @@ def predict(model: MVNet, data: MVNetDataset) -> Any:
     (corrected by the learned keypoint offsets where the configuration has them)."""
     K = np.stack([np.asarray(c.K, np.float64) for c in data.cameras])
     return predict_from_crops(model, data.crops, data.K_crop, data.centers_world, data.cameras, data.view_valid, 4,
-                              image_to_crop_px(data.detector_px, data.K_crop, K), data.detector_scores)
+                              image_to_crop_px(data.detector_px, data.K_crop, K), data.detector_scores,
+                              data.detector_world)
 
 
 def mvnet_stats(model: MVNet, data: MVNetDataset) -> dict[str, Any]:

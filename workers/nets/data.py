@@ -299,6 +299,9 @@ class MVNetDataset:
         detector_scores: (M, C, K) float32 their map weights (detections.FrameDetections.scores), or None.
         detector_offsets: the learned keypoint offsets the detections were corrected with (FrameDetections.corrected),
             or None.
+        detector_world: (M, K, 3) float64 the detector's lifted keypoints (corrected as detector_px), metres, world
+            frame, NaN where not lifted; None for a paper-only configuration. Prediction's readout window
+            (MVNetConfig.detector_window_m) is around them.
     """
 
     crops: np.ndarray
@@ -315,6 +318,7 @@ class MVNetDataset:
     detector_px: np.ndarray | None = None
     detector_scores: np.ndarray | None = None
     detector_offsets: KeypointOffsets | None = None
+    detector_world: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.sample_ids)
@@ -326,7 +330,8 @@ class MVNetDataset:
                             tuple(self.sample_ids[i] for i in idx), self.crop_px, self.crop_radius_m,
                             None if self.detector_px is None else self.detector_px[idx],
                             None if self.detector_scores is None else self.detector_scores[idx],
-                            self.detector_offsets)
+                            self.detector_offsets,
+                            None if self.detector_world is None else self.detector_world[idx])
 
 
 def hand_center_from_labels(masks: Sequence[np.ndarray] | None, keypoints_3d: np.ndarray,
@@ -419,16 +424,17 @@ def build_mvnet_dataset(capture: Capture, frames: Sequence[FrameRef], config: MV
             alphas[m] = mask_crops
         if progress:
             progress(1)
-    det_px, det_scores = None, None
+    det_px, det_scores, det_world = None, None, None
     if detections is not None and detector_offsets is not None:
         # after the crop centres, which stay the uncorrected lift's as at prediction time (predict_frames)
         detections = [d.corrected(detector_offsets, cameras) for d in detections]
     if detections is not None:
         det_px, det_scores = stack_detections(detections) if M else \
             (np.zeros((0, C, 21, 2), np.float32), np.zeros((0, C, 21), np.float32))
+        det_world = np.stack([d.points_world for d in detections]) if M else np.zeros((0, 21, 3))
     return MVNetDataset(crops, alphas, has_alpha, K_crop, valid, centers, labels, tuple(cameras),
                         tuple(frame_id(f) for f in frames), S, config.crop_radius_m, det_px, det_scores,
-                        detector_offsets if detections is not None else None)
+                        detector_offsets if detections is not None else None, det_world)
 
 
 def random_rotation(rng: np.random.Generator) -> np.ndarray:

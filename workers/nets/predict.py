@@ -25,7 +25,7 @@ from workers.nets.detections import DetectionCache, FrameDetections, detect_fram
 from workers.nets.handsegnet import HandSegNet
 from workers.nets.keypoint_maps import image_to_crop_px
 from workers.nets.localisation import HandLocation, LocalisationError, localise_hand
-from workers.nets.losses import grid_to_world, refined_argmax, soft_argmax
+from workers.nets.losses import grid_to_world, refined_argmax, soft_argmax, world_to_grid
 from workers.nets.mvnet import MVNet
 
 log = logging.getLogger(__name__)
@@ -72,18 +72,50 @@ def ordered_views(images: Views, cameras: Sequence[Camera], what: str = "image")
     return list(images)
 
 
-def readout(model: MVNet, scores: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Score volumes (B, K, N, N, N) -> keypoints in voxel indices (B, K, 3) and confidence (B, K)."""
+def readout(model: MVNet, scores: torch.Tensor,
+            window_grid: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """Score volumes (B, K, N, N, N) -> keypoints in voxel indices (B, K, 3) and confidence (B, K).
+
+    window_grid: (B, K, 3) voxel indices (NaN: none) around which the peak is looked for, within the configuration's
+    `detector_window_m` (`window_scores`); None: the whole grid."""
+    if window_grid is not None and model.config.detector_window_m > 0:
+        radius = model.config.detector_window_m / model.config.voxel_m
+        scores = window_scores(scores, window_grid, radius)
     if model.config.loss == "softargmax":
         return soft_argmax(scores)
     return refined_argmax(scores)
+
+
+def window_scores(scores: torch.Tensor, centers_grid: torch.Tensor, radius_voxels: float) -> torch.Tensor:
+    """Score volumes with every voxel farther than `radius_voxels` from its keypoint's window centre set to -inf.
+
+    Why: fed the detector's lifted keypoints, the U-Net's medians equal the lift's, but where its volume peaks far
+    from the lift it is confidently wrong (issue 15's sim, round 1: 96 keypoints over 30 mm from the lift, 127 mm
+    from the truth at median confidence 0.85, the lift 43 mm). Within the window the network refines the lift;
+    its confidence (eq. 8) is the peak inside it, so a volume that peaks elsewhere reads as unsure.
+
+    Args:
+        scores: (B, K, N, N, N).
+        centers_grid: (B, K, 3) continuous voxel indices (i, j, k as the volume's axes); a NaN row, or a window
+            holding no voxel centre (a lift outside the grid), leaves that keypoint's volume whole.
+        radius_voxels: window radius in voxels.
+    """
+    N = scores.shape[-1]
+    axis = torch.arange(N, device=scores.device, dtype=torch.float32)  # float32 even for bf16 scores: exact indices
+    c = torch.nan_to_num(centers_grid.to(torch.float32), nan=float("inf"))
+    d2 = ((axis - c[..., 0, None]) ** 2)[..., :, None, None] + ((axis - c[..., 1, None]) ** 2)[..., None, :, None] \
+        + ((axis - c[..., 2, None]) ** 2)[..., None, None, :]  # (B, K, N, N, N)
+    inside = d2 <= radius_voxels**2
+    inside = inside | ~inside.flatten(2).any(dim=-1)[..., None, None, None]
+    return scores.masked_fill(~inside, float("-inf"))
 
 
 @torch.no_grad()
 def predict_from_crops(model: MVNet, crops: np.ndarray, K_crop: np.ndarray, centers_world: np.ndarray,
                        cameras: Sequence[Camera], view_valid: np.ndarray | None = None,
                        batch_frames: int = 4, detector_px: np.ndarray | None = None,
-                       detector_scores: np.ndarray | None = None) -> KeypointPrediction:
+                       detector_scores: np.ndarray | None = None,
+                       detector_world: np.ndarray | None = None) -> KeypointPrediction:
     """MVNet on prepared crops.
 
     Args:
@@ -91,6 +123,9 @@ def predict_from_crops(model: MVNet, crops: np.ndarray, K_crop: np.ndarray, cent
         view_valid: (N, C) bool (default all); cameras: the C cameras.
         detector_px: (N, C, K, 2) the detector's keypoints in crop pixels, detector_scores: (N, C, K) their
             weights (keypoint_maps.image_to_crop_px; a detector-backed MVNet needs them).
+        detector_world: (N, K, 3) the detector's lifted (and offset-corrected) keypoints, metres, world frame, NaN
+            where not lifted: with the configuration's `detector_window_m` the readout looks for each keypoint
+            within that distance of its lift (`window_scores`); None: the whole grid.
     """
     if model.config.heatmap_source == "detector" and (detector_px is None or detector_scores is None):
         raise ValueError("a detector-backed MVNet needs the detector's keypoints (detector_px, detector_scores)")
@@ -111,7 +146,10 @@ def predict_from_crops(model: MVNet, crops: np.ndarray, K_crop: np.ndarray, cent
         scores = model(torch.as_tensor(crops[sl], device=device),
                        torch.as_tensor(K_crop[sl], dtype=torch.float32, device=device), cams["dist"], cams["R"],
                        cams["t"], centers, torch.as_tensor(valid[sl], device=device), **detector)
-        grid, conf = readout(model, scores)
+        window = None if detector_world is None else world_to_grid(
+            torch.as_tensor(detector_world[sl], dtype=torch.float32, device=device), centers, cfg.grid_size,
+            cfg.grid_side_m)
+        grid, conf = readout(model, scores, window)
         keypoints[sl] = grid_to_world(grid, centers, cfg.grid_size, cfg.grid_side_m).cpu().numpy()
         confidence[sl] = conf.cpu().numpy()
     return KeypointPrediction(keypoints, confidence, confidence.mean(axis=1), np.asarray(centers_world, float))
@@ -144,14 +182,16 @@ def predict_keypoints(model: MVNet, frames_views: Sequence[Views], cameras: Sequ
     crops = np.stack([p[0] for p in prepared])
     K_crop = np.stack([p[1] for p in prepared])
     valid = np.stack([p[2] for p in prepared])
-    det_px = det_scores = None
+    det_px = det_scores = det_world = None
     if model.config.heatmap_source == "detector" and detections is not None:
         offsets = model.keypoint_offsets()
         if offsets is not None:  # as training corrected its detections (data.build_mvnet_dataset)
             detections = [d.corrected(offsets, cameras) for d in detections]
         px, det_scores = stack_detections(detections)
         det_px = image_to_crop_px(px, K_crop, np.stack([np.asarray(c.K, np.float64) for c in cameras]))
-    return predict_from_crops(model, crops, K_crop, centers_world, cameras, valid, batch_frames, det_px, det_scores)
+        det_world = np.stack([d.points_world for d in detections])
+    return predict_from_crops(model, crops, K_crop, centers_world, cameras, valid, batch_frames, det_px, det_scores,
+                              det_world if model.config.heatmap_source == "detector" else None)
 
 
 @torch.no_grad()

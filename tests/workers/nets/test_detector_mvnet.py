@@ -16,12 +16,13 @@ from workers.detector.keypoint_offsets import KeypointOffsets
 from workers.geometry.projection import project_points
 from workers.geometry.rig import default_rig
 from workers.nets.checkpoints import CheckpointError, load_model
-from workers.nets.configs import CONFIGS, MVNetConfig, config_digest, get_config, paper_only
+from workers.nets.configs import CONFIGS, DETECTOR_WINDOW_M, MVNetConfig, config_digest, get_config, paper_only
 from workers.nets.data import augment_mvnet_batch, build_mvnet_dataset, crop_views
 from workers.nets.detections import FrameDetections, detector_backed
 from workers.nets.keypoint_maps import image_to_crop_px, render_keypoint_maps
+from workers.nets.losses import refined_argmax
 from workers.nets.mvnet import MVNet
-from workers.nets.predict import predict_from_crops, predict_keypoints
+from workers.nets.predict import predict_from_crops, predict_keypoints, window_scores
 from workers.nets.train import train_mvnet
 from workers.nets.unproject import project_batched
 
@@ -347,3 +348,61 @@ def test_learned_keypoint_offsets_move_the_maps_and_travel_with_the_weights(tiny
     assert MVNet(TINY_DETECTOR).keypoint_offsets() is None
     with pytest.raises(ValueError, match="detector_offsets needs"):
         replace(get_config("tiny").mvnet, detector_offsets=True)
+
+
+def test_readout_window_keeps_the_peak_near_the_lift():
+    """window_scores: a volume peaking far from the window's centre is read inside the window (its confidence the
+    peak there); no centre (NaN), or a window that holds no voxel, leaves the volume whole."""
+    N = 12
+    axis = torch.arange(N, dtype=torch.float32)
+
+    def bump(center, height):
+        d2 = sum(((axis - c) ** 2).reshape([-1 if i == a else 1 for i in range(3)]) for a, c in enumerate(center))
+        return height * torch.exp(-d2 / (2 * 1.5**2))
+
+    volume = torch.maximum(bump((2, 2, 2), 1.0), bump((9, 8, 9), 0.6))[None, None].repeat(1, 3, 1, 1, 1)
+    centers = torch.tensor([[[8.6, 8.0, 9.4], [float("nan")] * 3, [40.0, 40.0, 40.0]]])
+    grid, conf = refined_argmax(window_scores(volume, centers, radius_voxels=2.5))
+    np.testing.assert_allclose(grid[0, 0].numpy(), [9, 8, 9], atol=1e-4)
+    assert conf[0, 0].item() == pytest.approx(0.6, abs=1e-3)
+    np.testing.assert_allclose(grid[0, 1:].numpy(), [[2, 2, 2], [2, 2, 2]], atol=1e-4)  # whole volume: the far peak
+    assert conf[0, 1:].numpy() == pytest.approx([1.0, 1.0], abs=1e-3)
+    whole, _ = refined_argmax(volume)
+    np.testing.assert_allclose(whole[0, 0].numpy(), [2, 2, 2], atol=1e-4)
+
+
+def test_readout_window_is_a_prediction_setting_around_the_lifted_keypoints(tiny_capture, tiny_frames):
+    """detector_window_m: validated, detector-backed only, not part of the digest (the weights mean the same); the
+    prediction stays within the window of the lifted keypoints, from the raw detections and from the dataset alike."""
+    assert get_config("cpu-small-detector").mvnet.detector_window_m == DETECTOR_WINDOW_M > 0
+    assert paper_only(replace(get_config("tiny"), name="tiny-detector",
+                              mvnet=replace(TINY_DETECTOR, detector_window_m=0.04))).mvnet.detector_window_m == 0
+    assert config_digest(TINY_DETECTOR) == config_digest(replace(TINY_DETECTOR, detector_window_m=0.04))
+    for bad in (-0.01, float("nan"), float("inf"), True, "3cm"):
+        with pytest.raises(ValueError, match="detector_window_m must be"):
+            replace(TINY_DETECTOR, detector_window_m=bad)
+    with pytest.raises(ValueError, match="detector_window_m needs"):
+        replace(get_config("tiny").mvnet, detector_window_m=0.03)
+    cameras = list(tiny_capture.cameras)
+    truth = np.stack([load_ground_truth(f).keypoints_3d for f in tiny_frames])
+    # The views' keypoints where the hand is, the lift reported 10 cm off: the maps peak at the truth.
+    shift = np.array([0.1, 0.0, 0.0])
+    detections = [replace(d, points_world=d.points_world + shift) for d in perfect_detections(tiny_frames, cameras)]
+    views = [[load_frame_images(f, cameras)[c.name] for c in cameras] for f in tiny_frames]
+    torch.manual_seed(0)
+    model = MVNet(TINY_DETECTOR).eval()
+    dataset = build_mvnet_dataset(tiny_capture, tiny_frames, replace(TINY_DETECTOR, detector_window_m=0.04),
+                                  detections=detections)
+    centers = dataset.centers_world
+    free = predict_keypoints(model, views, cameras, centers, detections=detections)
+    assert 1000 * np.linalg.norm(free.keypoints_3d - truth, axis=-1).mean() < 0.2 * 1000 * TINY_DETECTOR.voxel_m
+    model.config = replace(TINY_DETECTOR, detector_window_m=0.04)
+    windowed = predict_keypoints(model, views, cameras, centers, detections=detections)
+    to_lift = np.linalg.norm(windowed.keypoints_3d - (truth + shift), axis=-1)
+    assert to_lift.max() <= 0.04 + 0.5 * TINY_DETECTOR.voxel_m
+    assert (windowed.confidence < free.confidence).all()  # the peak inside the window is the Gaussian's tail
+    np.testing.assert_allclose(dataset.detector_world, truth + shift)
+    from_dataset = predict_from_crops(model, dataset.crops, dataset.K_crop, centers, cameras, dataset.view_valid,
+                                      detector_px=_crop_px(dataset), detector_scores=dataset.detector_scores,
+                                      detector_world=dataset.detector_world)
+    np.testing.assert_allclose(from_dataset.keypoints_3d, windowed.keypoints_3d, atol=1e-5)

@@ -188,9 +188,11 @@ def _per_cycle_ms(seconds: float, cycles: int) -> float | None:
 def run(annotators: int = 50, seconds: float = 30.0, *, rate: float = 200.0, samples: int | None = None,
         cameras: int = 8, server_workers: int = 2, database: str = "postgres",
         pg_admin_url: str = "postgresql+psycopg://postgres@127.0.0.1:5432/postgres",
-        broker_url: str = "redis://127.0.0.1:6379/15", width: int = 320, warmup_s: float = 3.0) -> dict[str, Any]:
+        broker_url: str = "redis://127.0.0.1:6379/15", width: int = 320, warmup_s: float = 3.0,
+        db_pool: int | None = None) -> dict[str, Any]:
     """One measured run; `rate` offered submissions/s in total (0: saturate); `database` "postgres" (with
-    the Redis broker at `broker_url`) or "sqlite" (with the embedded broker)."""
+    the Redis broker at `broker_url`) or "sqlite" (with the embedded broker); `db_pool` a fixed pool of
+    that many connections per server worker (None: enough for the annotators, at most 27, plus 5 overflow)."""
 
     if database not in DATABASES:
         raise ValueError(f"database must be one of {', '.join(DATABASES)}, not {database!r}")
@@ -215,10 +217,11 @@ def run(annotators: int = 50, seconds: float = 30.0, *, rate: float = 200.0, sam
                     time.perf_counter() - t0)
         port = _free_port()
         # Enough connections for the requests in flight, bounded: PostgreSQL's max_connections is shared.
-        pool = min(27, max(5, annotators // server_workers + 2))
+        pool = db_pool or min(27, max(5, annotators // server_workers + 2))
+        overflow = 0 if db_pool else 5
         env = {**os.environ, "HANDLOOP_DATABASE_URL": url, "HANDLOOP_SECRET_KEY": SECRET,
                "HANDLOOP_ENVIRONMENT": "production", "HANDLOOP_DB_POOL_SIZE": str(pool),
-               "HANDLOOP_DB_MAX_OVERFLOW": "5", "HANDLOOP_DATA_DIR": str(data_dir)}
+               "HANDLOOP_DB_MAX_OVERFLOW": str(overflow), "HANDLOOP_DATA_DIR": str(data_dir)}
         env.pop("HANDLOOP_BROKER_URL", None)
         env.pop("HANDLOOP_BROKER_PREFIX", None)
         if database == "postgres":
@@ -288,7 +291,7 @@ def run(annotators: int = 50, seconds: float = 30.0, *, rate: float = 200.0, sam
         "load_average_1min": {"before": round(load_before, 2), "after": round(load_after, 2)},
         "client": f"{annotators} asyncio coroutines in one process, one HTTP/1.1 keep-alive connection each",
         "server": f"uvicorn --workers {server_workers} --loop uvloop --http httptools --timeout-keep-alive 120, "
-                  f"db pool {pool}+5 per worker",
+                  f"db pool {pool}+{overflow} per worker",
     }
 
 

@@ -29,6 +29,9 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         rate: float = typer.Option(200.0, min=0, max=100_000, help="Offered submissions/s in total, each annotator "
                                    "on a fixed schedule; 0 saturates (every annotator as fast as it can)."),
         server_workers: int = typer.Option(2, min=1, max=64, help="uvicorn worker processes."),
+        db_pool: int = typer.Option(None, "--db-pool", min=1, max=200, help="A fixed pool of this many database "
+                                    "connections per server worker (default: annotators / workers + 2, at most 27, "
+                                    "plus 5 overflow)."),
         cameras: int = typer.Option(8, min=1, max=64, help="Views per sample (6 clicks each)."),
         pg_url: str = typer.Option("postgresql+psycopg://postgres@127.0.0.1:5432/postgres",
                                    help="Maintenance database URL; a fresh database is created beside it."),
@@ -54,10 +57,10 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
             rate, annotators, seconds = rate * min(annotators, 10) / annotators, min(annotators, 10), min(seconds, 5.0)
         started = time.perf_counter()
         result = run(annotators, seconds, rate=rate, cameras=cameras, server_workers=server_workers,
-                     database=database, pg_admin_url=pg_url, broker_url=broker_url)
+                     database=database, pg_admin_url=pg_url, broker_url=broker_url, db_pool=db_pool)
         logger.info("api bench: %s", json.dumps(result))
         emit("api", {"run": mode, **result},
              {"annotators": annotators, "seconds": seconds, "server_workers": server_workers, "cameras": cameras,
-              "rate": rate, "backend": "postgresql" if database == "postgres" else "sqlite",
+              "rate": rate, "db_pool": db_pool, "backend": "postgresql" if database == "postgres" else "sqlite",
               "broker": "redis" if database == "postgres" else "embedded", "quick": quick}, started)
         del json_out  # the JSON line is always the last stdout line; progress goes to stderr

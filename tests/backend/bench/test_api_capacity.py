@@ -45,11 +45,13 @@ def test_the_meter_counts_a_child_process_s_cpu() -> None:
 
 
 def test_probe_on_sqlite_runs_end_to_end_and_checks_what_it_served(tmp_path) -> None:
-    result = CliRunner().invoke(app, ["bench", "api", "--json", "--probe", "--database", "sqlite", "--seconds", "2"])
+    result = CliRunner().invoke(app, ["bench", "api", "--json", "--probe", "--database", "sqlite", "--seconds", "2",
+                                      "--db-pool", "3"])
     assert result.exit_code == 0, result.output
     record = json.loads(result.stdout.strip().splitlines()[-1])
     assert record["benchmark"] == "api" and record["run"] == "probe" and record["database"] == "sqlite"
     assert record["settings"]["annotators"] == 1 and record["settings"]["server_workers"] == 1
+    assert record["settings"]["db_pool"] == 3 and "db pool 3+0 per worker" in record["server"]  # a fixed pool
     assert record["duplicate_assignments"] == 0 and record["lost_submissions"] == 0 and record["errors"] == {}
     assert record["db_cpu_ms_per_cycle"] is None  # SQLite runs inside the server's processes
     if record["submits"]:

@@ -64,13 +64,31 @@ def heuristic_share(report: dict[str, Any]) -> float | None:
     return counts["accepted"] / counts["evaluated"] if counts.get("evaluated") else None
 
 
+def heuristic_shares_cumulative(rounds: list[dict[str, Any]]) -> list[float | None]:
+    """Per round, the heuristic's acceptances so far over the samples fitted in its first round (the pool the
+    rounds share); None before that round. Round 2's share alone drops when round 1 took the easy samples; this
+    one does not (docs/benchmarks.md, "MVNet's readout window" in the loop)."""
+    shares: list[float | None] = []
+    pool, accepted = None, 0
+    for r in rounds:
+        counts = (r.get("round_job") or {}).get("heuristic") or {}
+        if counts.get("evaluated") and pool is None:
+            pool = counts["evaluated"]
+        accepted += counts.get("accepted", 0)
+        shares.append(accepted / pool if pool else None)
+    return shares
+
+
 def side_by_side_rows(summary: dict[str, Any]) -> list[dict[str, Any]]:
-    """Per round: D^h count, share and auto-accept precision, D^m, D^l, labels per human hour, accepted error,
-    MVNet's keypoint error (over all predictions and by sequence kind) and the heuristic's counts by kind."""
+    """Per round: D^h count, share (of the round's fits, and cumulative) and auto-accept precision, D^m, D^l,
+    labels per human hour, accepted error, MVNet's keypoint error (over all predictions and by sequence kind) and
+    the heuristic's counts by kind."""
+    cumulative = heuristic_shares_cumulative(summary["rounds"])
     return [{"index": r["index"], "heuristic": r["added"]["heuristic"], "manual": r["added"]["manual"],
              "annotated": r["added"]["annotated"], "heuristic_share": heuristic_share(r),
+             "heuristic_share_cumulative": share,
              "heuristic_by_kind": ((r.get("round_job") or {}).get("heuristic") or {}).get("by_kind"),
-             **{k: r.get(k) for k in ROUND_KEYS}} for r in summary["rounds"]]
+             **{k: r.get(k) for k in ROUND_KEYS}} for r, share in zip(summary["rounds"], cumulative, strict=True)]
 
 
 def _mm(value: float | None) -> str:

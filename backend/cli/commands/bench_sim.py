@@ -47,8 +47,10 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         if not json_out:
             for mode, rows in (record.get("side_by_side") or {}).items():
                 for r in rows:
+                    so_far = ("" if r["heuristic_share_cumulative"] is None
+                              else f", {r['heuristic_share_cumulative']:.1%} of the fitted so far")
                     typer.echo(f"detector {mode} D_{r['index']}: +{r['heuristic']} Dh (precision "
-                               f"{r['auto_accept_precision']}) +{r['manual']} Dm +{r['annotated']} Dl, "
+                               f"{r['auto_accept_precision']}{so_far}) +{r['manual']} Dm +{r['annotated']} Dl, "
                                f"{r['labels_per_human_hour']} labels/h, accepted {r['accepted_vertex_mm']} mm")
                     if r["index"] > 0:
                         typer.echo(f"  {by_kind_line(r)}")

@@ -32,3 +32,12 @@ def test_a_round_without_a_heuristic_summary_prints_mvnet_alone():
     row = side_by_side_rows({"rounds": [_round(0, None)]})[0]
     assert row["heuristic_by_kind"] is None
     assert "heuristic" not in by_kind_line(row) and "cluttered: MVNet 41.0 mm mean" in by_kind_line(row)
+
+
+def test_the_cumulative_share_counts_every_round_s_acceptances_against_the_first_fitted_pool():
+    """Round 2's own share falls when round 1 took the easy samples; the cumulative one (of round 1's fits) not."""
+    rounds = [_round(0, None), _round(1, {"evaluated": 176, "accepted": 33}),
+              _round(2, {"evaluated": 133, "accepted": 8})]
+    rows = side_by_side_rows({"rounds": rounds})
+    assert [r["heuristic_share"] for r in rows] == [None, 33 / 176, 8 / 133]
+    assert [r["heuristic_share_cumulative"] for r in rows] == [None, 33 / 176, 41 / 176]

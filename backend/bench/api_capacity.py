@@ -196,6 +196,8 @@ def run(annotators: int = 50, seconds: float = 30.0, *, rate: float = 200.0, sam
 
     if database not in DATABASES:
         raise ValueError(f"database must be one of {', '.join(DATABASES)}, not {database!r}")
+    if db_pool is not None and db_pool < 1:
+        raise ValueError(f"db_pool must be at least 1 connection per worker, not {db_pool}")
     samples = samples or max(2000, int(400 * (seconds + warmup_s)) if rate <= 0 else
                              int(1.5 * rate * (seconds + warmup_s)) + 2 * annotators)
     prefix = f"handloop-bench-{uuid.uuid4().hex[:8]}:"
@@ -217,8 +219,8 @@ def run(annotators: int = 50, seconds: float = 30.0, *, rate: float = 200.0, sam
                     time.perf_counter() - t0)
         port = _free_port()
         # Enough connections for the requests in flight, bounded: PostgreSQL's max_connections is shared.
-        pool = db_pool or min(27, max(5, annotators // server_workers + 2))
-        overflow = 0 if db_pool else 5
+        pool = db_pool if db_pool is not None else min(27, max(5, annotators // server_workers + 2))
+        overflow = 0 if db_pool is not None else 5
         env = {**os.environ, "HANDLOOP_DATABASE_URL": url, "HANDLOOP_SECRET_KEY": SECRET,
                "HANDLOOP_ENVIRONMENT": "production", "HANDLOOP_DB_POOL_SIZE": str(pool),
                "HANDLOOP_DB_MAX_OVERFLOW": str(overflow), "HANDLOOP_DATA_DIR": str(data_dir)}

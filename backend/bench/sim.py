@@ -58,9 +58,14 @@ def detector_default() -> tuple[str, str | None]:
     return ("both", None) if problem is None else ("off", problem)
 
 
+def _heuristic_counts(report: dict[str, Any]) -> dict[str, Any]:
+    """The round job's heuristic summary (evaluated, accepted, by_kind); empty for a round without one."""
+    return (report.get("round_job") or {}).get("heuristic") or {}
+
+
 def heuristic_share(report: dict[str, Any]) -> float | None:
     """The share of the round's fitted samples the heuristic accepted (the round job's heuristic summary)."""
-    counts = (report.get("round_job") or {}).get("heuristic") or {}
+    counts = _heuristic_counts(report)
     return counts["accepted"] / counts["evaluated"] if counts.get("evaluated") else None
 
 
@@ -71,7 +76,7 @@ def heuristic_shares_cumulative(rounds: list[dict[str, Any]]) -> list[float | No
     shares: list[float | None] = []
     pool, accepted = None, 0
     for r in rounds:
-        counts = (r.get("round_job") or {}).get("heuristic") or {}
+        counts = _heuristic_counts(r)
         if counts.get("evaluated") and pool is None:
             pool = counts["evaluated"]
         accepted += counts.get("accepted", 0)
@@ -87,7 +92,7 @@ def side_by_side_rows(summary: dict[str, Any]) -> list[dict[str, Any]]:
     return [{"index": r["index"], "heuristic": r["added"]["heuristic"], "manual": r["added"]["manual"],
              "annotated": r["added"]["annotated"], "heuristic_share": heuristic_share(r),
              "heuristic_share_cumulative": share,
-             "heuristic_by_kind": ((r.get("round_job") or {}).get("heuristic") or {}).get("by_kind"),
+             "heuristic_by_kind": _heuristic_counts(r).get("by_kind"),
              **{k: r.get(k) for k in ROUND_KEYS}} for r, share in zip(summary["rounds"], cumulative, strict=True)]
 
 

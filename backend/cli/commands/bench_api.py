@@ -29,7 +29,7 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         rate: float = typer.Option(200.0, min=0, max=100_000, help="Offered submissions/s in total, each annotator "
                                    "on a fixed schedule; 0 saturates (every annotator as fast as it can)."),
         server_workers: int = typer.Option(2, min=1, max=64, help="uvicorn worker processes."),
-        db_pool: int = typer.Option(None, "--db-pool", min=1, max=200, help="A fixed pool of this many database "
+        db_pool: int | None = typer.Option(None, "--db-pool", min=1, max=200, help="A fixed pool of this many database "
                                     "connections per server worker (default: annotators / workers + 2, at most 27, "
                                     "plus 5 overflow)."),
         cameras: int = typer.Option(8, min=1, max=64, help="Views per sample (6 clicks each)."),

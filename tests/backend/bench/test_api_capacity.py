@@ -19,6 +19,7 @@ from backend.cli.main import app
 @pytest.mark.parametrize(("args", "message"), [
     (["--database", "mysql"], "postgres, sqlite"),
     (["--probe", "--crowd", "5"], "choose one"),
+    (["--db-pool", "0"], "--db-pool"),
 ])
 def test_bad_options_are_refused_naming_the_problem(args, message) -> None:
     result = CliRunner().invoke(app, ["bench", "api", "--json", *args])
@@ -58,3 +59,12 @@ def test_probe_on_sqlite_runs_end_to_end_and_checks_what_it_served(tmp_path) -> 
         assert record["cpu_ms_per_cycle"] == record["server_cpu_ms_per_cycle"] > 0
     for key in ("p99_ms_next", "p99_ms_submit", "submits_per_s", "load_average_1min"):
         assert key in record
+
+
+def test_run_refuses_an_empty_pool_before_creating_anything(tmp_path, monkeypatch) -> None:
+    from backend.bench.api_capacity import run
+
+    monkeypatch.setattr("tempfile.tempdir", str(tmp_path))
+    with pytest.raises(ValueError, match="db_pool must be at least 1"):
+        run(1, 1.0, database="sqlite", db_pool=0)
+    assert list(tmp_path.iterdir()) == []  # no data folder made

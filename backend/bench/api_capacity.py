@@ -45,7 +45,7 @@ from typing import Any
 import httpx
 import numpy as np
 import redis
-from sqlalchemy import create_engine, insert, select, text
+from sqlalchemy import Engine, create_engine, insert, select, text
 
 from backend.db.migrate import upgrade
 from backend.db.session import create_engine_from_url, make_session_factory
@@ -101,10 +101,24 @@ def _seed(url: str, annotators: int, samples: int, cameras: int, width: int) -> 
                          width=width, height=width)
         ids = dict(session.execute(select(User.email, User.id).where(User.email.in_(emails))).all())
     if engine.dialect.name == "postgresql":  # statistics, as autovacuum keeps them in a server that has been running
-        with engine.connect().execution_options(isolation_level="AUTOCOMMIT") as conn:
-            conn.exec_driver_sql("ANALYZE")
+        _analyze_seeded_tables(engine)
     engine.dispose()
     return [ids[email] for email in emails]
+
+
+def _analyze_seeded_tables(engine: Engine) -> None:
+    """ANALYZE the tables the seed filled, and only those. An analyzed empty table reads to PostgreSQL (14 and
+    later) as truly empty, so the plans its backends cache for the foreign-key checks (clicks -> submissions,
+    submissions -> jobs) scan it sequentially for as long as they live, while the run fills it: per submission 48
+    scans of a growing table, most of the database's CPU in a 30 s run. A never-analyzed table is planned as
+    at least 10 pages (an index scan), and autovacuum does not analyze a table before 50 rows have changed, so
+    a server that has been running never holds that state."""
+    with engine.connect().execution_options(isolation_level="AUTOCOMMIT") as conn:
+        tables = conn.execute(text("SELECT tablename FROM pg_tables WHERE schemaname = current_schema()")).scalars()
+        for table in list(tables):
+            quoted = engine.dialect.identifier_preparer.quote(table)
+            if conn.exec_driver_sql(f"SELECT EXISTS (SELECT FROM {quoted})").scalar():
+                conn.exec_driver_sql(f"ANALYZE {quoted}")
 
 
 def _verify(url: str, logs: list[AnnotatorLog]) -> tuple[int, int]:
@@ -125,14 +139,24 @@ def _verify(url: str, logs: list[AnnotatorLog]) -> tuple[int, int]:
     return duplicates, lost
 
 
-def _cpu_ticks(pid: int) -> int | None:
-    """utime + stime of a process (all its threads), in clock ticks; None if it is gone."""
+def _cpu_ticks(pid: int, *, reaped: bool = False) -> int | None:
+    """utime + stime of a process (all its threads), in clock ticks; with `reaped`, cutime + cstime instead: what
+    its children that it has waited for used in all. None if it is gone."""
     try:
         with open(f"/proc/{pid}/stat", "rb") as f:
             fields = f.read().rsplit(b")", 1)[1].split()
     except OSError:
         return None
-    return int(fields[11]) + int(fields[12])  # fields 14 and 15 of proc(5), counted after the ')'
+    first = 13 if reaped else 11  # fields 14-15 (16-17 reaped) of proc(5), counted after the ')'
+    return int(fields[first]) + int(fields[first + 1])
+
+
+def _parent(pid: int) -> int | None:
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            return int(f.read().rsplit(b")", 1)[1].split()[1])
+    except (OSError, ValueError, IndexError):
+        return None
 
 
 def _descendants(root: int) -> list[int]:
@@ -154,31 +178,60 @@ def _descendants(root: int) -> list[int]:
     return found
 
 
+def _machine_busy_ticks() -> int:
+    """Clock ticks every CPU of the machine spent busy since boot (/proc/stat's first line: user, nice,
+    system, irq, softirq; idle, iowait and steal, time the guest did not run, are not busy)."""
+    with open("/proc/stat", "rb") as f:
+        user, nice, system, _idle, _iowait, irq, softirq = map(int, f.readline().split()[1:8])
+    return user + nice + system + irq + softirq
+
+
 class CpuMeter:
     """CPU seconds used between `start` and `stop` by the server's process tree and by the PostgreSQL
     backends connected to the run's database (`backend_pids`: None on SQLite, where the database is in the
-    server's processes). A process first seen at `stop` counts from zero (it was forked meanwhile)."""
+    server's processes). A process first seen at `stop` counts from zero (it was forked meanwhile). A backend
+    that exits meanwhile (a pool's overflow connection closed at check-in, perhaps opened after `start` too) is
+    counted from what the postmaster, its parent, has reaped: its children's CPU in all, less what the exited
+    backends had used before `start`; an autovacuum worker or another database's session ending in the window
+    is counted with them. `machine_s`, the whole machine's busy CPU over the same window, is kept beside them as
+    a check, and `sessions` (a callable returning the run's database's session count) gives `sessions_opened`."""
 
-    def __init__(self, server_pid: int, backend_pids: Any = None) -> None:
-        self.server_pid, self.backend_pids = server_pid, backend_pids
+    def __init__(self, server_pid: int, backend_pids: Any = None, sessions: Any = None) -> None:
+        self.server_pid, self.backend_pids, self.sessions = server_pid, backend_pids, sessions
         self.ticks_per_s = os.sysconf("SC_CLK_TCK")
         self._start: tuple[dict[int, int], dict[int, int]] | None = None
-        self.server_s = self.db_s = 0.0
+        self._start_machine = self._start_sessions = self._start_reaped = 0
+        self._postmaster: int | None = None
+        self.server_s = self.db_s = self.machine_s = 0.0
+        self.sessions_opened: int | None = None
 
     def _sample(self) -> tuple[dict[int, int], dict[int, int]]:
         def ticks(pids: list[int]) -> dict[int, int]:
             return {pid: t for pid in pids if (t := _cpu_ticks(pid)) is not None}
         return ticks(_descendants(self.server_pid)), ticks(self.backend_pids() if self.backend_pids else [])
 
+    def _reaped(self) -> int:
+        return (_cpu_ticks(self._postmaster, reaped=True) or 0) if self._postmaster else 0
+
     def start(self) -> None:
+        self._start_sessions = self.sessions() if self.sessions else 0
+        self._start_machine = _machine_busy_ticks()
         self._start = self._sample()
+        self._postmaster = next(iter(filter(None, map(_parent, self._start[1]))), None)
+        self._start_reaped = self._reaped()
 
     def stop(self) -> None:
         assert self._start is not None
         end = self._sample()
-        used = [sum(t - before.get(pid, 0) for pid, t in after.items()) / self.ticks_per_s
-                for before, after in zip(self._start, end, strict=True)]
-        self.server_s, self.db_s = used
+        reaped = self._reaped() - self._start_reaped
+        self.machine_s = (_machine_busy_ticks() - self._start_machine) / self.ticks_per_s
+        server, db = (sum(t - before.get(pid, 0) for pid, t in after.items())
+                      for before, after in zip(self._start, end, strict=True))
+        exited_before_start = sum(t for pid, t in self._start[1].items() if pid not in end[1])
+        self.server_s = server / self.ticks_per_s
+        self.db_s = (db + max(0, reaped - exited_before_start)) / self.ticks_per_s
+        if self.sessions:
+            self.sessions_opened = self.sessions() - self._start_sessions
 
 
 def _per_cycle_ms(seconds: float, cycles: int) -> float | None:
@@ -243,7 +296,13 @@ def run(annotators: int = 50, seconds: float = 30.0, *, rate: float = 200.0, sam
                 return list(conn.execute(text("SELECT pid FROM pg_stat_activity WHERE datname = :db"),
                                          {"db": db_name}).scalars())
 
-        meter = CpuMeter(server.pid, backend_pids if database == "postgres" else None)
+        def sessions() -> int:  # PostgreSQL >= 14 counts the sessions established to each database
+            assert admin is not None
+            with admin.connect() as conn:
+                return int(conn.execute(text("SELECT sessions FROM pg_stat_database WHERE datname = :db"),
+                                        {"db": db_name}).scalar_one())
+
+        meter = (CpuMeter(server.pid, backend_pids, sessions) if database == "postgres" else CpuMeter(server.pid))
         logs = [AnnotatorLog() for _ in range(annotators)]
         warmup_logs = [AnnotatorLog() for _ in range(annotators)]
         tokens = [create_token(SECRET, uid, 0, 24 * 3600) for uid in user_ids]
@@ -281,6 +340,9 @@ def run(annotators: int = 50, seconds: float = 30.0, *, rate: float = 200.0, sam
         "server_cpu_ms_per_cycle": _per_cycle_ms(meter.server_s, submits),
         "db_cpu_ms_per_cycle": _per_cycle_ms(meter.db_s, submits) if database == "postgres" else None,
         "client_cpu_ms_per_cycle": _per_cycle_ms(client_cpu[0], submits) if client_cpu else None,
+        # everything busy on the machine (this client, the database's shared writers, other tenants included)
+        "machine_cpu_ms_per_cycle": _per_cycle_ms(meter.machine_s, submits),
+        "db_sessions_opened": meter.sessions_opened,
         "wall_ms_per_cycle": _per_cycle_ms(elapsed * annotators, submits) if rate <= 0 else None,
         "p50_ms_next": _percentile(lat["next"], 50), "p99_ms_next": _percentile(lat["next"], 99),
         "p50_ms_submit": _percentile(lat["submit"], 50), "p99_ms_submit": _percentile(lat["submit"], 99),

@@ -19,14 +19,12 @@ from sqlalchemy.orm import Session
 from backend.db.base import utcnow
 from backend.models.capture import Sample
 from backend.models.drafts import Draft
-from backend.models.enums import LeaseKind, SampleState
+from backend.models.enums import LeaseKind
 from backend.services import audit
 from backend.services.errors import ConflictError, LeaseExpiredError, NotFoundError, PermissionDeniedError
-from backend.services.lease_statement import acquire_statement
+from backend.services.lease_statement import QUEUE_STATE, acquire_statement, free_pick
 from backend.services.samples import ViewInfo
 from backend.services.users import Actor
-
-QUEUE_STATE = {LeaseKind.annotate: SampleState.needs_annotation, LeaseKind.review: SampleState.in_review}
 
 
 @dataclass(frozen=True, slots=True)
@@ -61,13 +59,6 @@ def _lease_of(sample: Sample) -> Lease:
 
 _SAMPLES = Sample.__table__  # Core columns: the hot path skips the ORM's statement machinery
 _DRAFTS = Draft.__table__
-
-
-def _order(kind: LeaseKind) -> tuple:
-    # Reviewers see the most confident first (paper); annotators take frames in capture order.
-    if kind is LeaseKind.review:
-        return (_SAMPLES.c.confidence.desc().nulls_last(), _SAMPLES.c.id)
-    return (_SAMPLES.c.id,)
 
 
 HEAD_COLUMNS = (_SAMPLES.c.id, _SAMPLES.c.sequence_id, _SAMPLES.c.frame_index, _SAMPLES.c.time_s,
@@ -133,13 +124,13 @@ def take_free(session: Session, user: Actor, kind: LeaseKind, expires: datetime,
     hold) until `expires`, with its audit row; None when no sample is free. With `drafted_by`, only
     samples that user has a draft of in this queue (found through the drafts' user index)."""
     c = _SAMPLES.c
-    conditions = [c.state == QUEUE_STATE[kind].value, or_(c.lease_expires_at.is_(None), c.lease_expires_at <= now)]
+    conditions = []
     if exclude_sample_id is not None:
         conditions.append(c.id != exclude_sample_id)
     if drafted_by is not None:
         conditions.append(c.id.in_(select(_DRAFTS.c.sample_id).where(_DRAFTS.c.user_id == drafted_by,
                                                                      _DRAFTS.c.kind == kind.value)))
-    free = select(c.id).where(*conditions).order_by(*_order(kind)).limit(1).with_for_update(skip_locked=True)
+    free = free_pick(kind, now, *conditions)
     token = secrets.token_urlsafe(16)
     taken = session.connection().execute(
         update(_SAMPLES)

@@ -45,6 +45,37 @@ def test_the_meter_counts_a_child_process_s_cpu() -> None:
         child.communicate(b"")
 
 
+def test_the_meter_counts_a_backend_that_exits_in_the_window_from_what_its_parent_reaped() -> None:
+    # A stand-in postmaster: one long-lived child (a backend connected all along) and, on a line from us, a
+    # short-lived one that burns 0.3 s of CPU and exits (an overflow connection closed), which it waits for.
+    postmaster = ("import subprocess, sys\n"
+                  "wait = [sys.executable, '-c', 'import sys; sys.stdin.read()']\n"
+                  "idle = subprocess.Popen(wait, stdin=subprocess.PIPE)\n"
+                  "print(idle.pid, flush=True)\n"
+                  "sys.stdin.readline()\n"
+                  "burn = 'import time\\nend = time.process_time() + 0.3\\nwhile time.process_time() < end: pass'\n"
+                  "subprocess.run([sys.executable, '-c', burn], check=True)\n"
+                  "print('reaped', flush=True)\n"
+                  "sys.stdin.readline()\n"
+                  "idle.communicate(b'')\n")
+    parent = subprocess.Popen([sys.executable, "-c", postmaster], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                              text=True)
+    server = subprocess.Popen([sys.executable, "-c", "import sys; sys.stdin.read()"], stdin=subprocess.PIPE)
+    try:
+        backend = int(parent.stdout.readline())
+        meter = CpuMeter(server.pid, backend_pids=lambda: [backend])
+        meter.start()
+        parent.stdin.write("go\n")
+        parent.stdin.flush()
+        assert parent.stdout.readline().strip() == "reaped"
+        meter.stop()
+        assert meter.db_s > 0.25  # the exited child's 0.3 s, though it was never among the backends listed
+        assert meter.machine_s >= meter.db_s - 0.05  # the machine-wide check saw it too
+    finally:
+        parent.communicate("\n")
+        server.communicate(b"")
+
+
 def test_probe_on_sqlite_runs_end_to_end_and_checks_what_it_served(tmp_path) -> None:
     result = CliRunner().invoke(app, ["bench", "api", "--json", "--probe", "--database", "sqlite", "--seconds", "2",
                                       "--db-pool", "3"])
@@ -54,10 +85,10 @@ def test_probe_on_sqlite_runs_end_to_end_and_checks_what_it_served(tmp_path) -> 
     assert record["settings"]["annotators"] == 1 and record["settings"]["server_workers"] == 1
     assert record["settings"]["db_pool"] == 3 and "db pool 3+0 per worker" in record["server"]  # a fixed pool
     assert record["duplicate_assignments"] == 0 and record["lost_submissions"] == 0 and record["errors"] == {}
-    assert record["db_cpu_ms_per_cycle"] is None  # SQLite runs inside the server's processes
+    assert record["db_cpu_ms_per_cycle"] is None and record["db_sessions_opened"] is None  # SQLite: in the server
     if record["submits"]:
         assert record["cpu_ms_per_cycle"] == record["server_cpu_ms_per_cycle"] > 0
-    for key in ("p99_ms_next", "p99_ms_submit", "submits_per_s", "load_average_1min"):
+    for key in ("p99_ms_next", "p99_ms_submit", "submits_per_s", "load_average_1min", "machine_cpu_ms_per_cycle"):
         assert key in record
 
 

@@ -44,7 +44,9 @@ class Settings(BaseSettings):
         "<data_dir>/handloop.sqlite3.",
     )
     db_pool_size: int = Field(default=10, ge=1, le=200, description="Connection pool size (PostgreSQL).")
-    db_max_overflow: int = Field(default=20, ge=0, le=500, description="Extra connections beyond the pool.")
+    db_max_overflow: int = Field(default=20, ge=0, le=500, description="Extra connections beyond the pool, each "
+                                 "closed when it is given back to a full pool: under a sustained load above the pool, "
+                                 "a new PostgreSQL session per request (docs/benchmarks.md, api).")
     secret_key: str | None = Field(
         default=None, min_length=16, description="Signs access tokens and scene tickets. Unset: a random key made "
         "once and kept in <data_dir>/secret_key (mode 0600), shared by every process using that folder.")

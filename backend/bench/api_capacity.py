@@ -82,6 +82,7 @@ def _percentile(values: list[float], q: float) -> float | None:
 
 DATABASES = ("postgres", "sqlite")
 CROWD_CYCLE_S = 20.0  # a human pace: one next -> submit per annotator every 20 s
+DEFAULT_POOL = 20  # connections per server worker, no overflow (why: in `run`)
 
 
 def _seed(url: str, annotators: int, samples: int, cameras: int, width: int) -> list[int]:
@@ -245,7 +246,7 @@ def run(annotators: int = 50, seconds: float = 30.0, *, rate: float = 200.0, sam
         db_pool: int | None = None) -> dict[str, Any]:
     """One measured run; `rate` offered submissions/s in total (0: saturate); `database` "postgres" (with
     the Redis broker at `broker_url`) or "sqlite" (with the embedded broker); `db_pool` a fixed pool of
-    that many connections per server worker (None: enough for the annotators, at most 27, plus 5 overflow)."""
+    that many connections per server worker (None: DEFAULT_POOL)."""
 
     if database not in DATABASES:
         raise ValueError(f"database must be one of {', '.join(DATABASES)}, not {database!r}")
@@ -271,9 +272,11 @@ def run(annotators: int = 50, seconds: float = 30.0, *, rate: float = 200.0, sam
         logger.info("seeded %d samples x %d views and %d annotators in %.1f s", samples, cameras, annotators,
                     time.perf_counter() - t0)
         port = _free_port()
-        # Enough connections for the requests in flight, bounded: PostgreSQL's max_connections is shared.
-        pool = db_pool if db_pool is not None else min(27, max(5, annotators // server_workers + 2))
-        overflow = 0 if db_pool is not None else 5
+        # A fixed pool: an overflow connection is closed when it is given back to a full pool, so a load above
+        # the pool opened a PostgreSQL session per request (27 + 5 per worker: 343 in a 30 s saturated run, 400/s
+        # against 435-469/s with a fixed 10, 20 or 40; docs/benchmarks.md). 2 x 20 stays well within the server's
+        # max_connections (100 by default).
+        pool, overflow = db_pool or DEFAULT_POOL, 0
         env = {**os.environ, "HANDLOOP_DATABASE_URL": url, "HANDLOOP_SECRET_KEY": SECRET,
                "HANDLOOP_ENVIRONMENT": "production", "HANDLOOP_DB_POOL_SIZE": str(pool),
                "HANDLOOP_DB_MAX_OVERFLOW": str(overflow), "HANDLOOP_DATA_DIR": str(data_dir)}

@@ -7,10 +7,11 @@ import logging
 from logging.config import fileConfig
 
 from alembic import context
-from sqlalchemy import Connection
+from sqlalchemy import Connection, make_url
 
 import backend.models  # noqa: F401  (registers every table on Base.metadata)
 from backend.db.base import Base, UTCDateTime
+from backend.db.migrate import include_for
 from backend.db.session import create_engine_from_url
 from backend.settings import get_settings
 
@@ -45,6 +46,8 @@ def _configure(connection: Connection | None = None, url: str | None = None) -> 
         render_as_batch=True,
         render_item=_render_item,
         compare_type=True,
+        include_object=include_for(connection.dialect.name if connection is not None
+                                   else make_url(url or "").get_dialect().name),
         literal_binds=connection is None,
     )
 

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from alembic import command
 from alembic.config import Config
@@ -34,3 +36,15 @@ def current(url: str) -> str | None:
             return MigrationContext.configure(connection).get_current_revision()
     finally:
         engine.dispose()
+
+
+def include_for(dialect: str) -> Callable[..., bool]:
+    """Alembic's `include_object` for a database of `dialect`: a model's index that only another dialect creates
+    (`Index(...).ddl_if(dialect=...)`, which autogenerate does not read; SQLAlchemy keeps it as `_ddl_if`) is left
+    out of the comparison with the models."""
+
+    def include(obj: Any, _name: str | None, type_: str, reflected: bool, _compare_to: Any) -> bool:
+        only = getattr(getattr(obj, "_ddl_if", None), "dialect", None)
+        return type_ != "index" or reflected or only is None or only == dialect
+
+    return include

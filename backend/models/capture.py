@@ -106,6 +106,13 @@ class Sample(Base):
     views: Mapped[list[View]] = relationship(back_populates="sample", order_by="View.id", lazy="raise")
 
 
+# The review queue in its order (services/lease_statement.py: queue_order), so a reviewer's lease reads its head
+# instead of sorting every sample in review (20,000 in review: 5-9 ms a lease, EXPLAIN ANALYZE). PostgreSQL only:
+# SQLite refuses NULLS LAST in an index, and an embedded project's review queue is small.
+Index("ix_samples_review_queue", Sample.state, Sample.confidence.desc().nulls_last(), Sample.id).ddl_if(
+    dialect="postgresql")
+
+
 
 
 class View(Base):

@@ -43,10 +43,15 @@ class Settings(BaseSettings):
         description="SQLAlchemy URL, e.g. postgresql+psycopg://user@host/db. Unset: SQLite file "
         "<data_dir>/handloop.sqlite3.",
     )
-    db_pool_size: int = Field(default=10, ge=1, le=200, description="Connection pool size (PostgreSQL).")
-    db_max_overflow: int = Field(default=20, ge=0, le=500, description="Extra connections beyond the pool, each "
+    # A fixed pool as large as the old pool + overflow (10 + 20): the same connections at most, and the same wait
+    # beyond them, but an overflow connection was closed when given back to a full pool, so a load above 10
+    # requests in flight opened a PostgreSQL session (a backend planning its statements again) per request
+    # (docs/benchmarks.md, api, 2026-12-04).
+    db_pool_size: int = Field(default=30, ge=1, le=200, description="Database connections per server process "
+                              "(PostgreSQL), opened as needed and kept; a request beyond them waits for one.")
+    db_max_overflow: int = Field(default=0, ge=0, le=500, description="Extra connections beyond the pool, each "
                                  "closed when it is given back to a full pool: under a sustained load above the pool, "
-                                 "a new PostgreSQL session per request (docs/benchmarks.md, api).")
+                                 "a new PostgreSQL session per request.")
     secret_key: str | None = Field(
         default=None, min_length=16, description="Signs access tokens and scene tickets. Unset: a random key made "
         "once and kept in <data_dir>/secret_key (mode 0600), shared by every process using that folder.")

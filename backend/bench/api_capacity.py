@@ -53,6 +53,7 @@ from backend.models.enums import Role
 from backend.models.users import User
 from backend.services.security import create_token, hash_password
 from backend.services.seed import seed_samples
+from backend.settings import Settings
 
 logger = logging.getLogger(__name__)
 
@@ -82,7 +83,6 @@ def _percentile(values: list[float], q: float) -> float | None:
 
 DATABASES = ("postgres", "sqlite")
 CROWD_CYCLE_S = 20.0  # a human pace: one next -> submit per annotator every 20 s
-DEFAULT_POOL = 20  # connections per server worker, no overflow (why: in `run`)
 
 
 def _seed(url: str, annotators: int, samples: int, cameras: int, width: int) -> list[int]:
@@ -246,7 +246,7 @@ def run(annotators: int = 50, seconds: float = 30.0, *, rate: float = 200.0, sam
         db_pool: int | None = None) -> dict[str, Any]:
     """One measured run; `rate` offered submissions/s in total (0: saturate); `database` "postgres" (with
     the Redis broker at `broker_url`) or "sqlite" (with the embedded broker); `db_pool` a fixed pool of
-    that many connections per server worker (None: DEFAULT_POOL)."""
+    that many connections per server worker (None: the server's default, backend/settings.py)."""
 
     if database not in DATABASES:
         raise ValueError(f"database must be one of {', '.join(DATABASES)}, not {database!r}")
@@ -272,11 +272,9 @@ def run(annotators: int = 50, seconds: float = 30.0, *, rate: float = 200.0, sam
         logger.info("seeded %d samples x %d views and %d annotators in %.1f s", samples, cameras, annotators,
                     time.perf_counter() - t0)
         port = _free_port()
-        # A fixed pool: an overflow connection is closed when it is given back to a full pool, so a load above
-        # the pool opened a PostgreSQL session per request (27 + 5 per worker: 343 in a 30 s saturated run, 400/s
-        # against 435-469/s with a fixed 10, 20 or 40; docs/benchmarks.md). 2 x 20 stays well within the server's
-        # max_connections (100 by default).
-        pool, overflow = db_pool or DEFAULT_POOL, 0
+        # The server's own default pool (backend/settings.py), or a fixed one of `db_pool`.
+        pool = db_pool or Settings.model_fields["db_pool_size"].default
+        overflow = 0 if db_pool else Settings.model_fields["db_max_overflow"].default
         env = {**os.environ, "HANDLOOP_DATABASE_URL": url, "HANDLOOP_SECRET_KEY": SECRET,
                "HANDLOOP_ENVIRONMENT": "production", "HANDLOOP_DB_POOL_SIZE": str(pool),
                "HANDLOOP_DB_MAX_OVERFLOW": str(overflow), "HANDLOOP_DATA_DIR": str(data_dir)}

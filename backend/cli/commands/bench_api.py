@@ -30,7 +30,8 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
                                    "on a fixed schedule; 0 saturates (every annotator as fast as it can)."),
         server_workers: int = typer.Option(2, min=1, max=64, help="uvicorn worker processes."),
         db_pool: int | None = typer.Option(None, "--db-pool", min=1, max=200, help="A fixed pool of this many database "
-                                    "connections per server worker (default: 20, no overflow)."),
+                                    "connections per server worker (default: the server's own, "
+                                    "HANDLOOP_DB_POOL_SIZE and HANDLOOP_DB_MAX_OVERFLOW's defaults)."),
         cameras: int = typer.Option(8, min=1, max=64, help="Views per sample (6 clicks each)."),
         pg_url: str = typer.Option("postgresql+psycopg://postgres@127.0.0.1:5432/postgres",
                                    help="Maintenance database URL; a fresh database is created beside it."),

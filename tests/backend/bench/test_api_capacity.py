@@ -1,5 +1,6 @@
-"""`handloop bench api`: its modes' options, the CPU meter's /proc reading, and a short probe end to end on
-SQLite (a real uvicorn server; correctness keys checked, no figure asserted)."""
+"""`handloop bench api`: its modes' options, the CPU meter's /proc reading (backends that exit in the window
+included), the seed's statistics, and short probes end to end on SQLite and PostgreSQL (a real uvicorn server;
+correctness keys checked, no figure asserted)."""
 
 from __future__ import annotations
 
@@ -99,3 +100,36 @@ def test_run_refuses_an_empty_pool_before_creating_anything(tmp_path, monkeypatc
     with pytest.raises(ValueError, match="db_pool must be at least 1"):
         run(1, 1.0, database="sqlite", db_pool=0)
     assert list(tmp_path.iterdir()) == []  # no data folder made
+
+
+@pytest.mark.postgres
+def test_seeding_analyzes_only_the_filled_tables(pg_url) -> None:
+    # An analyzed empty table reads to PostgreSQL as truly empty: the foreign-key checks' cached plans would scan
+    # the submissions sequentially while the run fills them (backend/bench/api_capacity.py, _analyze_seeded_tables).
+    from sqlalchemy import create_engine, text
+
+    from backend.bench.api_capacity import _seed
+
+    _seed(pg_url, annotators=2, samples=50, cameras=2, width=64)
+    engine = create_engine(pg_url)
+    try:
+        with engine.connect() as conn:
+            tuples = dict(conn.execute(text("SELECT relname, reltuples FROM pg_class WHERE oid = ANY(ARRAY["
+                                            "'samples', 'views', 'submissions', 'clicks', 'jobs']::regclass[])")).all())
+    finally:
+        engine.dispose()
+    assert tuples["samples"] >= 50 and tuples["views"] >= 100  # analyzed (the template's rows included)
+    assert tuples["submissions"] == tuples["clicks"] == tuples["jobs"] == -1  # never analyzed
+
+
+@pytest.mark.postgres
+def test_probe_on_postgres_meters_the_database_backends(pg_template) -> None:
+    result = CliRunner().invoke(app, ["bench", "api", "--json", "--probe", "--seconds", "2"])
+    assert result.exit_code == 0, result.output
+    record = json.loads(result.stdout.strip().splitlines()[-1])
+    assert record["database"] == "postgresql" and record["errors"] == {}
+    assert record["duplicate_assignments"] == 0 and record["lost_submissions"] == 0
+    assert record["db_sessions_opened"] is not None and record["db_sessions_opened"] >= 0
+    if record["submits"]:
+        assert record["db_cpu_ms_per_cycle"] is not None and record["db_cpu_ms_per_cycle"] >= 0
+        assert record["cpu_ms_per_cycle"] >= record["server_cpu_ms_per_cycle"]

@@ -153,6 +153,7 @@ def _cpu_ticks(pid: int, *, reaped: bool = False) -> int | None:
 
 
 def _parent(pid: int) -> int | None:
+    """The parent's pid of a process; None if it is gone."""
     try:
         with open(f"/proc/{pid}/stat", "rb") as f:
             return int(f.read().rsplit(b")", 1)[1].split()[1])
@@ -164,12 +165,7 @@ def _descendants(root: int) -> list[int]:
     """`root` and every process below it (uvicorn's supervisor and its workers)."""
     children: dict[int, list[int]] = defaultdict(list)
     for entry in os.listdir("/proc"):
-        if entry.isdigit():
-            try:
-                with open(f"/proc/{entry}/stat", "rb") as f:
-                    ppid = int(f.read().rsplit(b")", 1)[1].split()[1])
-            except (OSError, ValueError, IndexError):
-                continue
+        if entry.isdigit() and (ppid := _parent(int(entry))) is not None:
             children[ppid].append(int(entry))
     found, todo = [], [root]
     while todo:

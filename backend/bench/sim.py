@@ -35,6 +35,7 @@ log = logging.getLogger(__name__)
 FULL = {"sequences": 10, "frames": 20, "width": 320, "rounds": 4, "initial_every": 8,
         "settings": {"nets_config": "cpu-small"}}
 MIN_WIDTH_PX, MAX_WIDTH_PX, MAX_ROUNDS = 64, 4096, 10
+MIN_FRAMES, MAX_FRAMES = 2, 400  # frames per sequence
 QUICK = {"sequences": 3, "frames": 8, "width": 128, "rounds": 1, "initial_every": 4,
          "settings": {"nets_config": "tiny", "round_handsegnet_budget_s": 5.0, "round_mvnet_budget_s": 8.0,
                       "fit_global_iterations": 15, "fit_full_iterations": 30, "round_min_training_samples": 1}}
@@ -165,12 +166,14 @@ def _detector_met(summary: dict[str, Any]) -> dict[str, bool]:
 
 def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = None,
         detector: str | None = None, accept_proposals_px: float | None = None, width: int | None = None,
-        rounds: int | None = None, initial_every: int | None = None, round0_rest: str = "annotate") -> dict[str, Any]:
+        rounds: int | None = None, initial_every: int | None = None, round0_rest: str = "keep",
+        frames: int | None = None) -> dict[str, Any]:
     """One run (`detector` "on" or "off") or both on the same capture and seed ("both"); None: both where the
     detector can run, else off. The record's top level is the run with the detector when it ran, else without.
-    `width` (view width, pixels), `rounds` and `initial_every` (D_0's plan: every k-th training frame) replace the
-    plan's (the detector's targets are set at 640 px); `round0_rest` is what the pre-annotation does with the
-    initial set's samples the review policy does not pick ("annotate" or "keep": see BootstrapConfig)."""
+    `width` (view width, pixels), `frames` (per sequence), `rounds` and `initial_every` (D_0's plan: every k-th
+    training frame) replace the plan's (the detector's targets are set at 640 px); `round0_rest` is what the
+    pre-annotation does with the initial set's samples the review policy does not pick ("keep", the issue's and
+    the paper's treatment, or "annotate": see BootstrapConfig)."""
 
     started = time.perf_counter()
     plan = dict(QUICK if quick else FULL)
@@ -178,6 +181,10 @@ def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = 
         if not MIN_WIDTH_PX <= width <= MAX_WIDTH_PX:
             raise ValueError(f"width must be in {MIN_WIDTH_PX}..{MAX_WIDTH_PX} px, not {width}")
         plan["width"] = width
+    if frames is not None:
+        if not MIN_FRAMES <= frames <= MAX_FRAMES:
+            raise ValueError(f"frames must be in {MIN_FRAMES}..{MAX_FRAMES} per sequence, not {frames}")
+        plan["frames"] = frames
     if rounds is not None:
         if not 0 <= rounds <= MAX_ROUNDS:  # 0: D_0 alone (round 0's cost without training a network)
             raise ValueError(f"rounds must be in 0..{MAX_ROUNDS}, not {rounds}")

@@ -107,8 +107,9 @@ class PreannotateRequest(Strict):
     sample_ids: list[Id] | None = Field(default=None, min_length=1, max_length=1_000_000,
                                          description="Unlabeled samples of the project; default all of them.")
     rest: Literal["annotate", "keep"] = Field(
-        default="annotate", description="Samples the reviewers' queue does not take, and those with no detector "
-        "fit: to the annotators (with the detector's keypoints as proposals), or left as they are.")
+        default="keep", description="Samples the reviewers' queue does not take, and those with no detector "
+        "fit: left as they are for the next round (the paper's treatment), or to the annotators now (with the "
+        "detector's keypoints as proposals). Fits the reviewers send back go to the annotators either way.")
     handedness: Literal["right", "left"] | None = Field(
         default=None, description="Which hand the detector looks for, for every chosen sample; default each "
         "sample's sequence's side (recorded at import).")

@@ -113,13 +113,15 @@ def overview(session: Session) -> dict[str, object]:
 
 
 def launch(session: Session, queue: jobs.JobQueue, project_id: int, *, actor_id: int | None,
-           sample_ids: Sequence[int] | None = None, rest: Rest = "annotate",
+           sample_ids: Sequence[int] | None = None, rest: Rest = "keep",
            handedness: Literal["right", "left"] | None = None) -> Job:
     """Queue a preannotate job for the project's unlabeled samples (or the given ones).
 
     `rest`: what happens to samples the reviewers' queue does not take, and to those with no detector fit:
-    "annotate" hands them to the annotators (with the detector's keypoints as proposals where it made a fit),
-    "keep" leaves them where they are (unlabeled, or fitted for the next round to refit).
+    "keep" (the default: the paper leaves every round's unpicked samples for the next round's MVNet) leaves them
+    where they are (unlabeled, or fitted for the next round to refit); "annotate" hands them to the annotators
+    (with the detector's keypoints as proposals where it made a fit). Fits the reviewers send back reach the
+    annotators either way.
     `handedness`: the hand the detector looks for in every sample; None: each sample's sequence's side.
 
     Raises ServiceUnavailableError (the detector cannot run: its sentence), NotFoundError, InvalidInputError

@@ -57,8 +57,9 @@ class BootstrapConfig:
         detector: round 0 pre-annotated by the pretrained detector (the server must have its model files);
             None: when the server can run it.
         round0_rest: with the detector, what happens to the initial set's samples the review policy does not
-            pick: "annotate" (annotators click them in round 0) or "keep" (they stay for round 1's MVNet, as
-            the paper leaves the unpicked samples of every round; only fits sent back are annotated).
+            pick: "keep" (they stay for round 1's MVNet, as the paper leaves the unpicked samples of every round
+            and the issue routes round 0: only fits sent back are annotated) or "annotate" (annotators click
+            them in round 0; D_0 is then at most half verified, since the policy picks from the median up).
     """
 
     rounds: int = 4
@@ -72,7 +73,7 @@ class BootstrapConfig:
     poll_s: float = 1.0
     project: str = "sim"
     detector: bool | None = False
-    round0_rest: str = "annotate"
+    round0_rest: str = "keep"
 
     def __post_init__(self) -> None:
         if self.round0_rest not in RESTS:

@@ -105,7 +105,7 @@ class ApiClient:
         """Whether the detector can run on the server, and its projects."""
         return self.get_json("/api/admin/preannotation")
 
-    def preannotate(self, project_id: int, sample_ids: list[int] | None = None, rest: str = "annotate"
+    def preannotate(self, project_id: int, sample_ids: list[int] | None = None, rest: str = "keep"
                     ) -> dict[str, Any]:
         body: dict[str, Any] = {"project_id": project_id, "rest": rest}
         if sample_ids is not None:

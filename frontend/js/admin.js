@@ -139,14 +139,14 @@ class AdminPage {
     if (!p) return null;
     const candidates = p.projects.filter((x) => x.unlabeled > 0 && x.running_job_id === null);
     // The section is redrawn at each refresh: the admin's choice is kept across redraws.
-    const chosen = this.preannotateChoice || (this.preannotateChoice = { project: null, rest: "annotate" });
+    const chosen = this.preannotateChoice || (this.preannotateChoice = { project: null, rest: "keep" });
     const project = h("select", { name: "project", disabled: !p.available || !candidates.length,
       onchange: (e) => { chosen.project = e.target.value; } },
     candidates.map((x) => h("option", { value: String(x.project_id), selected: String(x.project_id) === chosen.project },
       `${x.name} (${x.unlabeled} unlabeled)`)));
     const rest = h("select", { name: "rest", disabled: !p.available, onchange: (e) => { chosen.rest = e.target.value; } },
-      h("option", { value: "annotate", selected: chosen.rest === "annotate" }, "the rest to annotators"),
-      h("option", { value: "keep", selected: chosen.rest === "keep" }, "keep the rest"));
+      h("option", { value: "keep", selected: chosen.rest === "keep" }, "keep the rest for round 1"),
+      h("option", { value: "annotate", selected: chosen.rest === "annotate" }, "the rest to annotators"));
     const busy = p.projects.filter((x) => x.running_job_id !== null)
       .map((x) => `${x.name}: job ${x.running_job_id} running`).join(" · ");
     return h("form", { class: "inline-form preannotate", onsubmit: (e) => { e.preventDefault();

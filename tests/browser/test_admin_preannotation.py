@@ -23,6 +23,8 @@ def test_the_admin_sees_the_pre_annotation_form_and_the_reliability_figures(live
     button = page.locator("button.preannotate-button")
     options = page.locator("form.preannotate select[name=project] option").all_inner_texts()
     assert options == ["live (3 unlabeled)"]
+    # The samples the reviewers' queue does not take stay for round 1 unless the admin chooses otherwise.
+    assert page.locator("form.preannotate select[name=rest]").input_value() == "keep"
     if status["available"]:
         assert button.is_enabled()
     else:

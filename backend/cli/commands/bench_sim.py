@@ -19,14 +19,16 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
             None, help="Simulated annotators accept a shown proposal within this many pixels of the true point "
             "(one key per view) instead of clicking it; default: they click every point."),
         width: int | None = typer.Option(None, "--width", help="View width in pixels (default 320; --quick 128)."),
+        frames: int | None = typer.Option(None, "--frames", help="Frames per sequence, 15 per second of capture "
+                                          "(default 20; --quick 8). The review policy picks frames 1 s apart."),
         rounds: int | None = typer.Option(None, "--rounds",
                                           help="Bootstrap rounds after D_0 (default 4; --quick 1; 0: D_0 alone)."),
         initial_every: int | None = typer.Option(None, "--initial-every", min=2,
                                                  help="D_0's plan: every k-th training frame (default 8; --quick 4)."),
         round0_rest: str = typer.Option(
-            "annotate", "--round0-rest", help="With the detector, the initial set's samples the review policy does "
-            "not pick: annotate (clicked in round 0) or keep (left for round 1's MVNet, as the paper leaves every "
-            "round's unpicked samples; only fits sent back are annotated)."),
+            "keep", "--round0-rest", help="With the detector, the initial set's samples the review policy does "
+            "not pick: keep (left for round 1's MVNet, as the paper leaves every round's unpicked samples; only fits "
+            "sent back are annotated) or annotate (clicked in round 0)."),
     ) -> None:
         """200-frame synthetic capture, cpu-small networks, 4 rounds through the real server and workers:
         minutes, accepted labels' vertex error, auto-accept precision, labels per human hour; with the
@@ -40,7 +42,8 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         logging.getLogger("httpx").setLevel(logging.WARNING)  # one line per request drowns the progress
         try:
             record = run(quick=quick, emit_json=json_out, detector=detector, accept_proposals_px=accept_proposals_px,
-                         width=width, rounds=rounds, initial_every=initial_every, round0_rest=round0_rest)
+                         width=width, rounds=rounds, initial_every=initial_every, round0_rest=round0_rest,
+                         frames=frames)
         except ValueError as exc:
             typer.echo(f"error: {exc}", err=True)
             raise typer.Exit(code=2) from exc

@@ -89,6 +89,8 @@ def test_only_admins_see_the_detector_and_launch_pre_annotation(make_world):
     launched = client.post("/api/admin/preannotation", json=body, headers=headers["admin"])
     assert launched.status_code == 202, launched.text
     assert launched.json()["samples"] == 4 and queue.enqueued == [(launched.json()["job_id"], "preannotate")]
+    with ctx.session_factory() as session:  # unpicked samples stay for the next round unless the admin says otherwise
+        assert session.get(Job, launched.json()["job_id"]).payload["rest"] == "keep"
     again = client.post("/api/admin/preannotation", json=body, headers=headers["admin"])
     assert again.status_code == 409 and "already being pre-annotated" in again.json()["detail"]
     listed = client.get("/api/admin/preannotation", headers=headers["admin"]).json()["projects"]

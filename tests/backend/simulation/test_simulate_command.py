@@ -109,6 +109,8 @@ def test_bench_sim_refuses_a_width_or_round_count_out_of_range():
     for args, message in ((["--width", "10"], "width must be in 64..4096 px, not 10"),
                           (["--rounds", "-1"], "rounds must be in 0..10, not -1"),
                           (["--rounds", "11"], "rounds must be in 0..10, not 11"),
+                          (["--frames", "1"], "frames must be in 2..400 per sequence, not 1"),
+                          (["--frames", "401"], "frames must be in 2..400 per sequence, not 401"),
                           (["--round0-rest", "discard"],
                            "round0_rest must be one of ['annotate', 'keep'], not 'discard'"),
                           (["--initial-every", "1"], "--initial-every")):
@@ -144,7 +146,8 @@ def test_bench_sim_runs_d0_alone_with_zero_rounds(monkeypatch, tmp_path):
 
 
 def test_bench_sim_passes_the_round_0_plan_to_the_simulation(monkeypatch, tmp_path):
-    """--initial-every and --round0-rest reach the simulation (its config and its initial set's spacing)."""
+    """--initial-every, --round0-rest (default keep) and --frames reach the simulation (its config, its initial
+    set's spacing and the capture's frames per sequence)."""
     from backend.bench import sim
     from backend.simulation.bootstrap import BootstrapConfig
 
@@ -154,13 +157,21 @@ def test_bench_sim_passes_the_round_0_plan_to_the_simulation(monkeypatch, tmp_pa
         seen.update(rest=config.round0_rest, every=initial_every)
         return _d0_summary(0.6, 150.0, 4)
 
-    monkeypatch.setattr(sim, "_capture", lambda root, *a: tmp_path)
+    def fake_capture(root, sequences, frames, width):
+        seen.update(frames=frames)
+        return tmp_path
+
+    monkeypatch.setattr(sim, "_capture", fake_capture)
     monkeypatch.setattr(sim, "run_simulation", fake_run_simulation)
     monkeypatch.setattr(sim, "detector_default", lambda: ("both", None))
-    record = sim.run(detector="on", rounds=0, initial_every=4, round0_rest="keep", emit_json=False,
-                     work_dir=tmp_path)
-    assert seen == {"rest": "keep", "every": 4}
+    record = sim.run(detector="on", rounds=0, initial_every=4, round0_rest="annotate", emit_json=False,
+                     work_dir=tmp_path, frames=40)
+    assert seen == {"rest": "annotate", "every": 4, "frames": 40}
+    seen.clear()
+    record = sim.run(detector="on", rounds=0, emit_json=False, work_dir=tmp_path)
+    assert seen == {"rest": "keep", "every": sim.FULL["initial_every"], "frames": sim.FULL["frames"]}
     assert record["detector_targets_met"]["d0_verified_share"] is True
+    assert BootstrapConfig().round0_rest == "keep"
     with pytest.raises(ValueError, match="round0_rest must be one of"):
         BootstrapConfig(round0_rest="discard")
 

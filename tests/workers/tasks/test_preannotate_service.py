@@ -81,7 +81,7 @@ def test_preannotation_fits_every_sample_and_routes_them_by_the_review_policy(da
 
     monkeypatch.setattr(jobs, "update_progress", spy)
     fake.outliers_by_frame = {0: 0, 1: 1, 2: 2, 3: 3}  # fewer agreeing views, lower confidence
-    job_id = _launch(ctx, queue, project_id)
+    job_id = _launch(ctx, queue, project_id, rest="annotate")
     assert queue.enqueued == [(job_id, "preannotate")]
     result = preannotate.run_preannotation_job(ctx, job_id)
     assert result["samples"] == 4 and result["detected"] == 4 and result["fitted"] == 4, result
@@ -172,7 +172,7 @@ def test_annotators_see_each_views_chroma_key_cut_at_the_detector_fits_wrist(wor
 def test_samples_without_a_hand_go_to_the_annotators_and_the_reason_is_recorded(world):
     ctx, queue, project_id, fake = world
     fake.no_hand_frames = {1}
-    job_id = _launch(ctx, queue, project_id)
+    job_id = _launch(ctx, queue, project_id, rest="annotate")
     result = preannotate.run_preannotation_job(ctx, job_id)
     assert result["no_detection"] == 1 and result["fitted"] == 3, result
     assert any("no hand to fit" in e and "0 of 8 views" in e for e in result["errors"].values())
@@ -181,12 +181,20 @@ def test_samples_without_a_hand_go_to_the_annotators_and_the_reason_is_recorded(
         assert sample.state == SampleState.needs_annotation and sample.current_fit_id is None
 
 
-def test_rest_keep_leaves_unpicked_samples_fitted(world):
+def test_by_default_unpicked_samples_stay_fitted_for_the_next_round(world):
+    """The default rest is "keep" (the paper's treatment of unpicked samples): the policy's picks go to the
+    reviewers, the others stay fitted and a sample without a hand stays unlabeled; nothing reaches the annotators."""
     ctx, queue, project_id, fake = world
     fake.outliers_by_frame = {0: 0, 1: 1, 2: 2, 3: 3}
-    result = preannotate.run_preannotation_job(ctx, _launch(ctx, queue, project_id, rest="keep"))
+    fake.no_hand_frames = {3}
+    job_id = _launch(ctx, queue, project_id)
+    with ctx.session_factory() as session:
+        assert session.get(Job, job_id).payload["rest"] == "keep"
+    result = preannotate.run_preannotation_job(ctx, job_id)
     _, _, states = _counts(ctx)
-    assert result["to_review"] == 2 and states == {SampleState.in_review: 2, SampleState.fitted: 2}
+    assert result["to_review"] == 2 and result["fitted_to_annotators"] == 0, result
+    assert result["unlabeled_to_annotators"] == 0, result
+    assert states == {SampleState.in_review: 2, SampleState.fitted: 1, SampleState.unlabeled: 1}, states
 
 
 def test_a_redelivered_job_records_nothing_twice(database_url, world):
@@ -288,7 +296,7 @@ def test_launch_refuses_wrong_ids_and_a_second_job(world):
 
 def test_a_cancelled_job_stops_and_leaves_no_sample_fitting(world, monkeypatch):
     ctx, queue, project_id, fake = world
-    job_id = _launch(ctx, queue, project_id)
+    job_id = _launch(ctx, queue, project_id, rest="annotate")
     real = fake.__call__
 
     def cancel_midway(*args, **kwargs):
@@ -338,7 +346,7 @@ def test_a_frame_that_breaks_the_detector_goes_to_the_annotators_and_the_others_
         return fake(images, *args, **kwargs)
 
     monkeypatch.setattr(preannotate, "detect", flaky)
-    result = preannotate.run_preannotation_job(ctx, _launch(ctx, queue, project_id))
+    result = preannotate.run_preannotation_job(ctx, _launch(ctx, queue, project_id, rest="annotate"))
     assert result["fitted"] == 3 and result["no_detection"] == 1, result
     assert any("detector failed: RuntimeError: interpreter tensor 3" in e for e in result["errors"].values())
     _, _, states = _counts(ctx)
@@ -354,7 +362,7 @@ def test_model_files_vanishing_mid_job_fail_it_with_the_reason_and_leave_no_samp
         return fake(images, *args, **kwargs)
 
     monkeypatch.setattr(preannotate, "detect", vanishing)
-    job_id = _launch(ctx, queue, project_id)
+    job_id = _launch(ctx, queue, project_id, rest="annotate")
     result = preannotate.run_preannotation_job(ctx, job_id)
     assert result["failed"] == "hand_landmark_full.tflite: checksum mismatch"
     with ctx.session_factory() as session:

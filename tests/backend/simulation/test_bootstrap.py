@@ -210,8 +210,10 @@ def test_a_timeout_keeps_the_rounds_measured_so_far(env_with, sqlite_url, captur
     assert summary["dataset_size"] == 4 and summary["bookkeeping_ok"]
 
 
-def _detector_sim(env, capture_dir, monkeypatch, *, rounds: int = 1, accept_proposals_px: float | None = None):
-    """The simulation with the detector on: the pre-annotation job runs in-process with the ground-truth fake."""
+def _detector_sim(env, capture_dir, monkeypatch, *, rounds: int = 1, accept_proposals_px: float | None = None,
+                  round0_rest: str = "annotate"):
+    """The simulation with the detector on: the pre-annotation job runs in-process with the ground-truth fake.
+    Round 0's unpicked samples go to the annotators unless `round0_rest` is "keep" (the simulation's default)."""
     from backend.services import preannotation
     from tests.support.detector_fake import FakeDetector
     from workers.tasks import preannotate
@@ -222,7 +224,7 @@ def _detector_sim(env, capture_dir, monkeypatch, *, rounds: int = 1, accept_prop
     monkeypatch.setattr(preannotate, "detect", FakeDetector(capture_dir, outliers_by_frame={0: 0, 3: 2}))
     monkeypatch.setattr(preannotation, "detector_problem", lambda: None)
     admin = ApiClient(env.client, token_of(env, Role.admin))
-    config = BootstrapConfig(rounds=rounds, annotators=1, reviewers=1, detector=True,
+    config = BootstrapConfig(rounds=rounds, annotators=1, reviewers=1, detector=True, round0_rest=round0_rest,
                              annotator=AnnotatorConfig(click_sigma_px=1.0, max_mask_corrections=0, seed=3,
                                                        accept_proposals_within_px=accept_proposals_px),
                              reviewer=ReviewerConfig(accept_below_mm=8.0, error_rate=0.0))
@@ -261,6 +263,24 @@ def test_with_the_detector_d0_comes_from_verified_detector_fits(env_with, sqlite
     assert first["labels_per_human_hour"] == pytest.approx(4 / first["human_hours"])
     assert first["accepted_vertex_mm"] < 8.0  # the fake's detections are within a pixel, one view off by 40 px
     assert summary["rounds_completed"] == 1
+
+
+def test_with_the_default_round_0_plan_d0_is_the_verified_detector_fits_alone(env_with, sqlite_url, capture_dir,
+                                                                              tmp_path, monkeypatch):
+    """round0_rest "keep": the samples the policy does not pick stay fitted for round 1; D_0 is what the reviewers
+    accepted, so it is all verified, and nobody clicked."""
+    env = env_with(sqlite_url, tmp_path / "data", review_min_time_gap_s=0.0, review_min_pose_distance=0.0,
+                   fit_global_iterations=15, fit_full_iterations=25)
+    sim, admin = _detector_sim(env, capture_dir, monkeypatch, rounds=0, round0_rest="keep")
+    summary = sim.run(capture_dir, initial_every=3)
+    assert summary["failure"] is None and summary["bookkeeping_ok"]
+    first = summary["rounds"][0]
+    result = first["preannotation"]["result"]
+    assert result["to_review"] == 2 and result["fitted_to_annotators"] == 0, result
+    assert first["added"] == {"heuristic": 0, "manual": 2, "annotated": 0} and first["dataset_size"] == 2
+    assert summary["d0_verified_share"] == 1.0 and first["effort"]["submissions"] == 0
+    states = {s["frame_index"]: s["state"] for s in admin.sample_index()["samples"] if s["split"] == "train"}
+    assert states[3] == "fitted", states
 
 
 def test_the_detector_run_is_refused_before_anything_is_imported_where_it_cannot_run(env_with, sqlite_url,

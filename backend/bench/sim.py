@@ -21,7 +21,7 @@ from tqdm import tqdm
 
 from backend.bench.common import emit
 from backend.services import preannotation
-from backend.services.preannotation import RESTS
+from backend.services.preannotation import DEFAULT_REST, RESTS
 from backend.settings import get_settings
 from backend.simulation.annotator import AnnotatorConfig
 from backend.simulation.bootstrap import BootstrapConfig
@@ -166,7 +166,7 @@ def _detector_met(summary: dict[str, Any]) -> dict[str, bool]:
 
 def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = None,
         detector: str | None = None, accept_proposals_px: float | None = None, width: int | None = None,
-        rounds: int | None = None, initial_every: int | None = None, round0_rest: str = "keep",
+        rounds: int | None = None, initial_every: int | None = None, round0_rest: str = DEFAULT_REST,
         frames: int | None = None) -> dict[str, Any]:
     """One run (`detector` "on" or "off") or both on the same capture and seed ("both"); None: both where the
     detector can run, else off. The record's top level is the run with the detector when it ran, else without.

@@ -113,8 +113,6 @@ Index("ix_samples_review_queue", Sample.state, Sample.confidence.desc().nulls_la
     dialect="postgresql")
 
 
-
-
 class View(Base):
     """One camera's image of a sample."""
 

@@ -31,6 +31,7 @@ from workers.detector.model_files import detector_status, loaded_detector_status
 Rest = Literal["annotate", "keep"]
 MAX_LISTED = 20  # ids named in an error message
 RESTS = ("annotate", "keep")  # what happens to samples the reviewers' queue does not take
+DEFAULT_REST: Rest = "keep"  # the paper leaves every round's unpicked samples for the next round
 MIN_VIEWS = 2  # one view cannot place a hand in 3D
 
 
@@ -113,7 +114,7 @@ def overview(session: Session) -> dict[str, object]:
 
 
 def launch(session: Session, queue: jobs.JobQueue, project_id: int, *, actor_id: int | None,
-           sample_ids: Sequence[int] | None = None, rest: Rest = "keep",
+           sample_ids: Sequence[int] | None = None, rest: Rest = DEFAULT_REST,
            handedness: Literal["right", "left"] | None = None) -> Job:
     """Queue a preannotate job for the project's unlabeled samples (or the given ones).
 

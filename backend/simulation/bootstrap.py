@@ -26,7 +26,7 @@ from typing import Any
 import httpx
 import numpy as np
 
-from backend.services.preannotation import RESTS
+from backend.services.preannotation import DEFAULT_REST, RESTS
 from backend.simulation.annotator import AnnotatorConfig, SimulatedAnnotator
 from backend.simulation.client import ApiClient, ApiError
 from backend.simulation.costs import PAPER_FULL_ANNOTATION_S, HumanLedger, UnitCosts
@@ -73,7 +73,7 @@ class BootstrapConfig:
     poll_s: float = 1.0
     project: str = "sim"
     detector: bool | None = False
-    round0_rest: str = "keep"
+    round0_rest: str = DEFAULT_REST
 
     def __post_init__(self) -> None:
         if self.round0_rest not in RESTS:

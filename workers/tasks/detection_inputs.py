@@ -75,7 +75,8 @@ def observations_from_detection(record: dict[str, Any], cameras: Sequence[Camera
     """Fit input from a detection record: per view and keypoint the detection where that view is an inlier of the
     keypoint's triangulation, weighted by its score (clipped to [0, 1]) times the view's presence; keypoints
     outside the image are left out. The lifted 3D keypoints (weighted by their confidence) place the hand
-    initially; the round-0 weights give them no loss term (`LossWeights().kp3d == 0`), so the 2D evidence decides.
+    initially; the round-0 weights give them no loss term (`LossWeights().kp3d == 0`). Where the frame has masks,
+    the fit weighs the 2D keypoints low against the silhouettes (`LossWeights.detector_with_silhouettes`).
 
     Args:
         record: `detection_record` output.

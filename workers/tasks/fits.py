@@ -2,9 +2,10 @@
 
 Fits from annotations use the paper's first-round weights with the clicks and the corrected (else the
 chroma-key) masks; fits from predictions use MVNet's 3D keypoints (weighted by confidence) and HandSegNet's
-masks with the later-round weights (`LossWeights.later_rounds()`). One sample that cannot be fitted is
-recorded as a failure (back to the annotators) and never sinks its batch. Every job is claimed first and
-recorded in its own transaction, so a redelivered task neither fits twice nor records twice.
+masks with the later-round weights (`LossWeights.later_rounds()`); round 0's fits from the pretrained detector's
+keypoints are led by the masks where they have them (`LossWeights.detector_with_silhouettes()`). One sample that
+cannot be fitted is recorded as a failure (back to the annotators) and never sinks its batch. Every job is claimed
+first and recorded in its own transaction, so a redelivered task neither fits twice nor records twice.
 """
 
 from __future__ import annotations
@@ -71,11 +72,24 @@ class FitSummary:
                 "seconds": round(self.seconds, 3), "fit_seconds": round(self.fit_seconds, 3)}
 
 
-def fit_config(ctx: WorkerContext, source: str) -> FitConfig:
+def fit_config(ctx: WorkerContext, source: str, with_masks: bool = False) -> FitConfig:
+    """The fit's settings for a source ("annotation", "prediction", "detector"); `with_masks`: the frames have masks
+    (a detector's frames with masks are led by their silhouettes, `LossWeights.detector_with_silhouettes`)."""
     s = ctx.settings
-    weights = LossWeights.later_rounds() if source == "prediction" else LossWeights()
+    if source == "prediction":
+        weights = LossWeights.later_rounds()
+    elif source == DETECTOR_SOURCE and with_masks:
+        weights = LossWeights.detector_with_silhouettes()
+    else:
+        weights = LossWeights()
     return FitConfig(weights=weights, optimizer=s.fit_optimizer, global_iterations=s.fit_global_iterations,
                      full_iterations=s.fit_full_iterations)
+
+
+def has_masks(fi: FitInput) -> bool:
+    """Whether any view of the fit input has a mask."""
+    masks = fi.observations.masks
+    return masks is not None and any(m is not None for m in masks)
 
 
 def engine_for(ctx: WorkerContext, fi: FitInput, config: FitConfig) -> Any:
@@ -93,14 +107,14 @@ def run_fit_jobs(ctx: WorkerContext, job_ids: list[int], *, parent: tuple[int, f
     started = time.perf_counter()
     summary = FitSummary()
     claimed = _claim_and_load_all(ctx, job_ids, summary)
-    groups: dict[tuple[str, str, str], list[FitInput]] = defaultdict(list)
+    groups: dict[tuple[str, str, bool, str], list[FitInput]] = defaultdict(list)
     for fi in claimed:
-        groups[(fi.rig.digest, fi.source, fi.side)].append(fi)
+        groups[(fi.rig.digest, fi.source, has_masks(fi), fi.side)].append(fi)
     progress = ProgressReporter(ctx, [fi.job_id for fi in claimed], parent=parent, heartbeat_of=heartbeat_of)
     done = 0
     try:
-        for (_, source, _side), group in groups.items():
-            config = fit_config(ctx, source)
+        for (_, source, with_masks, _side), group in groups.items():
+            config = fit_config(ctx, source, with_masks)
             engine = engine_for(ctx, group[0], config)
 
             def tick(fraction: float, message: str, offset: int = done, size: int = len(group)) -> None:

@@ -20,6 +20,7 @@ from backend.services.transactions import run_after_commit
 from backend.settings import Settings
 from tests.support.detector_fake import FakeDetector
 from tests.support.live_stack import TEST_SETTINGS, fresh_postgres, prepare_database, tiny_capture
+from workers.fitting.config import DETECTOR_KP2D_WEIGHT
 from workers.tasks import detection_inputs, preannotate
 from workers.tasks.context import build_context
 
@@ -94,6 +95,8 @@ def test_preannotation_fits_every_sample_and_routes_them_by_the_review_policy(da
         for fit in fits:
             assert fit.inputs["source"] == "detector" and fit.inputs["preannotate_job_id"] == job_id
             assert fit.inputs["residual_reweighted"] is True  # fitted again, reweighted by the first fit's residuals
+            # The capture's chroma-key masks lead the fit; the detector's keypoints weigh little against them.
+            assert fit.inputs["mask_ids"] and fit.diagnostics["weights"]["kp2d"] == DETECTOR_KP2D_WEIGHT
             assert fit.prediction_id is None and fit.heuristic is None  # round 0: reviewers first, no heuristic
             assert len(fit.inputs["detection"]["views"]) == 8 and fit.inputs["keypoints_2d"] > 8 * 21 // 2
         samples = session.execute(select(Sample).order_by(Sample.id)).scalars().all()

@@ -109,7 +109,8 @@ def run_fit_jobs(ctx: WorkerContext, job_ids: list[int], *, parent: tuple[int, f
     claimed = _claim_and_load_all(ctx, job_ids, summary)
     groups: dict[tuple[str, str, bool, str], list[FitInput]] = defaultdict(list)
     for fi in claimed:
-        groups[(fi.rig.digest, fi.source, has_masks(fi), fi.side)].append(fi)
+        # Only a detector's fits weigh differently with masks: other sources keep one batch per rig and side.
+        groups[(fi.rig.digest, fi.source, fi.source == DETECTOR_SOURCE and has_masks(fi), fi.side)].append(fi)
     progress = ProgressReporter(ctx, [fi.job_id for fi in claimed], parent=parent, heartbeat_of=heartbeat_of)
     done = 0
     try:

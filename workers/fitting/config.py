@@ -55,6 +55,24 @@ class LossWeights:
         return cls(kp2d=DETECTOR_KP2D_WEIGHT)
 
 
+# Where a fit's evidence comes from: a person's clicks, MVNet's prediction, or the pretrained detector (round 0).
+FIT_SOURCES = ("annotation", "prediction", "detector")
+
+
+def source_weights(source: str, with_masks: bool = False) -> LossWeights:
+    """The loss weights of a fit by its source (FIT_SOURCES): clicks get the paper's first-round weights, MVNet's
+    predictions its later-round ones, and a detector's keypoints are led by the silhouettes where the frame has masks
+    (`with_masks`), else weighed like clicks (they are the only evidence). The fit jobs and `handloop bench detect`
+    both take their weights from here."""
+    if source not in FIT_SOURCES:
+        raise ValueError(f"fit source must be one of {list(FIT_SOURCES)}, not {source!r}")
+    if source == "prediction":
+        return LossWeights.later_rounds()
+    if source == "detector" and with_masks:
+        return LossWeights.detector_with_silhouettes()
+    return LossWeights()
+
+
 @dataclass(frozen=True)
 class FitConfig:
     """How a fit runs. Iteration counts are sized for a 2-core CPU; see docs/benchmarks.md.

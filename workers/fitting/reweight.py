@@ -3,18 +3,25 @@
 A detector's keypoint that lies far from where a hand fitted to all views and keypoints puts it is likely wrong in
 that view (a finger mistaken for another, a joint convention the hand model does not share): a Cauchy weight
 1 / (1 + (r / s)^2) on its residual r lowers its pull in a second fit, with s a fraction of the hand's size in that
-view. Measured on held-out frames (docs/benchmarks.md, "Round 0"): 7.46 -> 7.21 mm median vertex error at 640 px.
+view. Measured on held-out frames (docs/benchmarks.md, "Round 0"): 7.46 -> 7.21 mm median vertex error at 640 px, with
+the keypoints weighed like clicks.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from workers.fitting.inputs import FrameObservations
 from workers.geometry.camera import Camera
 from workers.geometry.projection import project_points
+
+if TYPE_CHECKING:  # the engine imports torch; this module's reweighting is numpy only
+    from workers.fitting.engine import FittingEngine
+    from workers.fitting.result import FitResult
 
 # The Cauchy scale as a fraction of the fitted hand's keypoint box in each view (0.05: ~4 px for a hand of 80 px).
 RESIDUAL_SCALE_FRACTION = 0.05
@@ -40,3 +47,28 @@ def residual_reweighted(observations: FrameObservations, keypoints_world: np.nda
     scale = np.maximum(scale_fraction * hand_px, 1e-6)
     factor = np.where(np.isfinite(residual), 1.0 / (1.0 + (residual / scale) ** 2), 0.0)
     return replace(observations, click_weights=observations.click_weights * factor)
+
+
+def fit_reweighted(engine: FittingEngine, frames: list[FrameObservations],
+                   progress: Callable[[float, str], None] | None = None) -> list[FitResult]:
+    """Round 0's fit from a detector's keypoints, as the fit jobs and `handloop bench detect` both make it: a first
+    fit, then a second with each 2D keypoint reweighted by its residual to the first (`residual_reweighted`).
+
+    Where masks lead the fit (`LossWeights.detector_with_silhouettes`) one fit measured the same on held-out frames
+    for half the CPU, but the loop's D_0 labels came out 0.3 mm worse and fewer fits passed the heuristic
+    (docs/benchmarks.md, "### Round 0's fit once, tried"), so every detector frame is fitted twice.
+
+    Args:
+        engine: the fitting engine (its cameras are the frames' rig, calibration order).
+        frames: each frame's observations (2D keypoints in pixels, masks, lifted 3D keypoints in metres, world frame).
+        progress: called with (fraction in [0, 1], message) over both fits.
+    Returns:
+        The second fits, one per frame, in order.
+    """
+    def part(offset: float) -> Callable[[float, str], None] | None:
+        return None if progress is None else (lambda f, m: progress(offset + 0.5 * f, m))
+
+    cameras = list(engine.cameras)
+    first = engine.fit(frames, progress=part(0.0))
+    second = [residual_reweighted(obs, result.keypoints, cameras) for obs, result in zip(frames, first, strict=True)]
+    return engine.fit(second, progress=part(0.5))

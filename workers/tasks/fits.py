@@ -32,7 +32,7 @@ from backend.services.jobs import JobStillRunningError
 from backend.services.masks import encode_png
 from backend.services.verification import HeuristicThresholds
 from workers.capture.schema import CaptureError
-from workers.fitting.config import FitConfig, LossWeights
+from workers.fitting.config import FitConfig, source_weights
 from workers.fitting.inputs import FitInputError
 from workers.tasks.context import WorkerContext
 from workers.tasks.detection_inputs import SOURCE as DETECTOR_SOURCE
@@ -73,17 +73,11 @@ class FitSummary:
 
 
 def fit_config(ctx: WorkerContext, source: str, with_masks: bool = False) -> FitConfig:
-    """The fit's settings for a source ("annotation", "prediction", "detector"); `with_masks`: the frames have masks
-    (a detector's frames with masks are led by their silhouettes, `LossWeights.detector_with_silhouettes`)."""
+    """The fit's settings for a source ("annotation", "prediction", "detector"; `source_weights`) and the settings'
+    solver schedule; `with_masks`: the frames have masks."""
     s = ctx.settings
-    if source == "prediction":
-        weights = LossWeights.later_rounds()
-    elif source == DETECTOR_SOURCE and with_masks:
-        weights = LossWeights.detector_with_silhouettes()
-    else:
-        weights = LossWeights()
-    return FitConfig(weights=weights, optimizer=s.fit_optimizer, global_iterations=s.fit_global_iterations,
-                     full_iterations=s.fit_full_iterations)
+    return FitConfig(weights=source_weights(source, with_masks), optimizer=s.fit_optimizer,
+                     global_iterations=s.fit_global_iterations, full_iterations=s.fit_full_iterations)
 
 
 def has_masks(fi: FitInput) -> bool:
@@ -232,15 +226,12 @@ def _fit_group(ctx: WorkerContext, engine: Any, group: list[FitInput], tick: Any
 
 
 def _fit_detector_twice(engine: Any, group: list[FitInput], tick: Any) -> tuple[list[Any], list[FitInput]]:
-    """Fits from a detector's keypoints: a first fit, then one more with each keypoint reweighted by its residual to
-    the first (workers.fitting.reweight: a detection far from the hand all views agree on pulls less). Returns the
-    second fits and the inputs marked `residual_reweighted`."""
-    from workers.fitting.reweight import residual_reweighted  # deferred: torch with the first fit
+    """Fits from a detector's keypoints (`workers.fitting.reweight.fit_reweighted`: a first fit, then one more with
+    each keypoint reweighted by its residual to the first). Returns the second fits and the inputs marked
+    `residual_reweighted`."""
+    from workers.fitting.reweight import fit_reweighted  # deferred: torch with the first fit
 
-    first = engine.fit([fi.observations for fi in group], progress=lambda f, m: tick(0.5 * f, m))
-    second = [residual_reweighted(fi.observations, r.keypoints, list(engine.cameras)) for fi, r in zip(group, first,
-                                                                                                       strict=True)]
-    results = engine.fit(second, progress=lambda f, m: tick(0.5 + 0.5 * f, m))
+    results = fit_reweighted(engine, [fi.observations for fi in group], progress=tick)
     marked = [dataclasses.replace(fi, inputs={**fi.inputs, "residual_reweighted": True}) for fi in group]
     return results, marked
 

@@ -41,3 +41,17 @@ def test_bench_detect_without_model_files_is_a_clear_error(tmp_path: Path) -> No
     assert out.returncode == 2
     assert "bench detect needs the detector" in out.stderr and "is missing" in out.stderr
     assert not out.stdout.strip()  # no record of a run that did not happen
+
+
+def test_bench_detect_fits_as_round_0s_fit_jobs_do() -> None:
+    from types import SimpleNamespace
+
+    from backend.bench.detect import round0_fit_config
+    from backend.settings import get_settings
+    from workers.fitting.config import LossWeights
+    from workers.tasks.fits import fit_config
+
+    # The same weights and solver schedule as a fit job of a detector's frame with masks: the benchmark's fit
+    # error is what users get from round 0.
+    assert round0_fit_config() == fit_config(SimpleNamespace(settings=get_settings()), "detector", with_masks=True)
+    assert round0_fit_config().weights == LossWeights.detector_with_silhouettes()

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
 from workers.fitting.inputs import FrameObservations
-from workers.fitting.reweight import residual_reweighted
+from workers.fitting.reweight import fit_reweighted, residual_reweighted
 from workers.geometry.camera import Camera
 from workers.geometry.projection import project_points
 
@@ -45,3 +47,37 @@ def test_a_keypoint_far_from_the_fit_pulls_less_and_one_on_it_keeps_its_weight()
     assert obs.click_weights[0, 4] == 0.8  # the input is not changed
     with pytest.raises(ValueError, match="scale_fraction"):
         residual_reweighted(obs, keypoints, cameras, scale_fraction=0.0)
+
+
+class _RecordingEngine:
+    """Stands in for FittingEngine: records the frames it is given and answers each with a fixed hand."""
+
+    def __init__(self, cameras: list[Camera], answers: list[np.ndarray]) -> None:
+        self.cameras = cameras
+        self.answers = answers
+        self.calls: list[list[FrameObservations]] = []
+
+    def fit(self, frames, progress=None):
+        self.calls.append(frames)
+        if progress is not None:
+            progress(0.0, "start")
+            progress(1.0, "done")
+        return [SimpleNamespace(keypoints=self.answers[len(self.calls) - 1]) for _ in frames]
+
+
+def test_a_detector_frame_is_fitted_again_with_the_first_fits_residuals():
+    cameras = _cameras()
+    keypoints = np.random.default_rng(5).uniform(-0.05, 0.05, (21, 3))
+    clicks, _ = project_points(keypoints, cameras)
+    clicks[0, 4] += [25.0, 0.0]  # one detection off the first fit
+    obs = FrameObservations(clicks, np.full((2, 21), 0.8), points_source="detector")
+    second_answer = keypoints + 0.001
+    engine = _RecordingEngine(cameras, [keypoints, second_answer])
+    seen: list[float] = []
+    results = fit_reweighted(engine, [obs], progress=lambda f, m: seen.append(f))
+    assert len(engine.calls) == 2 and engine.calls[0] == [obs]
+    expected = residual_reweighted(obs, keypoints, cameras).click_weights
+    assert engine.calls[1][0].click_weights == pytest.approx(expected)
+    assert engine.calls[1][0].click_weights[0, 4] < 0.8 / 2  # the far detection pulls less the second time
+    assert results[0].keypoints is second_answer  # the second fit is the answer
+    assert seen == [0.0, 0.5, 0.5, 1.0]  # progress over both fits

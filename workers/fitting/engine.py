@@ -123,7 +123,28 @@ class FittingEngine:
         finally:
             torch.set_num_threads(previous)
 
-    def _fit(self, frames: list[FrameObservations], progress: ProgressCallback | None) -> list[FitResult]:
+    def refine(self, frames: list[FrameObservations], earlier: list[FitResult],
+               progress: ProgressCallback | None = None) -> list[FitResult]:
+        """Continue each frame's earlier fit on changed observations of the same frame (reweighted keypoints):
+        the second stage only (every parameter, silhouettes against masks cut at the earlier fit's wrist), started
+        from the earlier fit's parameters; no placement, no first stage, no other starts. Raises FitInputError on
+        bad input or where `earlier` does not pair one to one with `frames`.
+
+        The articulation restarts from the earlier fit's PCA coefficients (least squares of its pose, exact with
+        all 45 components)."""
+        if len(earlier) != len(frames):
+            raise FitInputError(f"refine needs one earlier fit per frame: {len(earlier)} fits, {len(frames)} frames")
+        threads = self.config.torch_threads
+        previous = torch.get_num_threads()
+        if threads:
+            torch.set_num_threads(threads)
+        try:
+            return self._fit(frames, progress, earlier)
+        finally:
+            torch.set_num_threads(previous)
+
+    def _fit(self, frames: list[FrameObservations], progress: ProgressCallback | None,
+             earlier: list[FitResult] | None = None) -> list[FitResult]:
         if not frames:
             raise FitInputError("no frames to fit")
         for i, obs in enumerate(frames):
@@ -140,11 +161,16 @@ class FittingEngine:
         click_w = self._tensor(np.stack([f.click_weights for f in frames]))
         kp3d, kp3d_w = self._targets_3d(frames)
         targets = Targets(clicks, click_w, kp3d, kp3d_w)
-        placements = self._placements(frames)
-        if cfg.optimizer == "adam":
-            params, terms, silhouettes, iterations = self._fit_adam(frames, targets, placements, notify)
+        if earlier is not None:
+            start = self._earlier_vectors(earlier)
+            if cfg.optimizer == "adam":
+                params, terms, silhouettes, iterations = self._fit_adam(frames, targets, None, notify, start)
+            else:
+                params, terms, silhouettes, iterations = self._refine_lm(frames, targets, start, notify)
+        elif cfg.optimizer == "adam":
+            params, terms, silhouettes, iterations = self._fit_adam(frames, targets, self._placements(frames), notify)
         else:
-            params, terms, silhouettes, iterations = self._fit_lm(frames, targets, placements, notify)
+            params, terms, silhouettes, iterations = self._fit_lm(frames, targets, self._placements(frames), notify)
         with torch.no_grad():
             out = self._forward(params)
         notify(1.0, "done")
@@ -172,14 +198,8 @@ class FittingEngine:
         cost1, _ = self.objective.evaluate(stage1, keypoint_targets, False, coarse=True)
         best1 = cost1.reshape(B, M).argmin(1)
         pick = torch.arange(B, device=self.device) * M + best1
-        silhouettes = None
-        if cfg.use_silhouette and any(f.masks is not None for f in frames):
-            # Masks are cut at the wrist of each frame's best stage-1 model.
-            with torch.no_grad():
-                placed = self._forward(self._params(stage1[pick]))
-            silhouettes = self._prepare_silhouettes(frames, placed.joints.double().cpu().numpy(),
-                                                    placed.vertices.double().cpu().numpy())
-            targets = self._with_silhouettes(targets, silhouettes).to(torch.float64)
+        # Masks are cut at the wrist of each frame's best stage-1 model.
+        silhouettes, targets = self._silhouette_targets(frames, stage1[pick], targets)
         silhouette = silhouettes is not None
         K = min(cfg.finalists, M)
         if K < M:
@@ -199,6 +219,37 @@ class FittingEngine:
         iterations = steps1[rows[chosen]] + steps2[chosen]
         terms = self.objective.terms(solved, targets, silhouette)
         return self._params(solved), terms, silhouettes, iterations.cpu().numpy()
+
+    def _refine_lm(self, frames, targets: Targets, start: torch.Tensor, notify):
+        """Stage 2 from each frame's start vector (B, P) float64."""
+        cfg = self.config
+        targets = targets.to(torch.float64)
+        silhouettes, targets = self._silhouette_targets(frames, start, targets)
+        silhouette = silhouettes is not None
+        solved, steps = self._solve(start, self._STAGE2, targets, cfg.full_iterations,
+                                    lambda i: notify(i / max(cfg.full_iterations, 1), "refining pose and shape"),
+                                    silhouette=silhouette)
+        terms = self.objective.terms(solved, targets, silhouette)
+        return self._params(solved), terms, silhouettes, steps.cpu().numpy()
+
+    def _silhouette_targets(self, frames, vectors: torch.Tensor, targets: Targets,
+                            ) -> tuple[dict[str, torch.Tensor] | None, Targets]:
+        """The silhouettes (None without masks or with silhouettes off), masks cut at the wrist of the models of
+        `vectors` (B, P), and the float64 targets with them."""
+        if not (self.config.use_silhouette and any(f.masks is not None for f in frames)):
+            return None, targets
+        with torch.no_grad():
+            placed = self._forward(self._params(vectors))
+        silhouettes = self._prepare_silhouettes(frames, placed.joints.double().cpu().numpy(),
+                                                placed.vertices.double().cpu().numpy())
+        return silhouettes, self._with_silhouettes(targets, silhouettes).to(torch.float64)
+
+    def _earlier_vectors(self, earlier: list[FitResult]) -> torch.Tensor:
+        """Earlier fits -> (B, P) float64 parameter vectors (see `_LAYOUT`)."""
+        coefficients = self._to_coefficients(np.stack([np.asarray(r.pose, dtype=np.float64) for r in earlier]))
+        rows = [np.concatenate([r.global_orient, r.transl, c, r.betas]) for r, c in zip(earlier, coefficients,
+                                                                                       strict=True)]
+        return torch.as_tensor(np.stack(rows), dtype=torch.float64, device=self.device)
 
     def _columns(self, names: tuple[str, ...]) -> torch.Tensor:
         """Columns of the parameter vector (see `kinematics`) that hold the named parameters."""
@@ -254,16 +305,19 @@ class FittingEngine:
                        coverage_cap=silhouettes["coverage_cap"])
 
     # -- Adam (the paper's optimiser) ----------------------------------------------------------------
-    def _fit_adam(self, frames, targets: Targets, placements, notify):
-        """One start per frame (the best placement); stage 1 from keypoints, stage 2 with silhouettes."""
+    def _fit_adam(self, frames, targets: Targets, placements, notify, start: torch.Tensor | None = None):
+        """One start per frame (the best placement); stage 1 from keypoints, stage 2 with silhouettes. Given
+        `start` (B, P) (`refine`): stage 2 only, from there."""
         cfg = self.config
-        best = [ranked[0] for ranked in placements]
-        start = self._start_vectors([[p] for p in best], 1).to(self.dtype)
-        params = {name: value.requires_grad_() for name, value in self._params(start).items()}
+        if start is None:
+            best = [ranked[0] for ranked in placements]
+            start = self._start_vectors([[p] for p in best], 1)
+        params = {name: value.requires_grad_() for name, value in self._params(start.to(self.dtype)).items()}
         clicks, click_w, kp3d, kp3d_w = targets.clicks, targets.click_weights, targets.keypoints_3d, \
             targets.keypoint_3d_weights
-        total = cfg.global_iterations + cfg.full_iterations
-        iterations = self._optimise([params[n] for n in self._STAGE1], params, cfg.global_iterations, clicks, click_w,
+        first = cfg.global_iterations if placements is not None else 0
+        total = first + cfg.full_iterations
+        iterations = self._optimise([params[n] for n in self._STAGE1], params, first, clicks, click_w,
                                     kp3d, kp3d_w, None, lambda i: notify(i / total, "placing the hand"), coarse=True)
         silhouettes = None
         if cfg.use_silhouette and any(f.masks is not None for f in frames):
@@ -273,7 +327,7 @@ class FittingEngine:
                                                     placed.vertices.double().cpu().numpy())
         iterations = iterations + self._optimise(
             [params[n] for n in self._STAGE2], params, cfg.full_iterations, clicks, click_w, kp3d, kp3d_w, silhouettes,
-            lambda i: notify((cfg.global_iterations + i) / total, "fitting pose and shape"))
+            lambda i: notify((first + i) / total, "fitting pose and shape"))
         with torch.no_grad():
             terms = self._loss_terms(params, clicks, click_w, kp3d, kp3d_w, silhouettes)
         return {k: v.detach() for k, v in params.items()}, terms, silhouettes, iterations

@@ -200,6 +200,10 @@ class HandSegNetConfig:
         recolor: strength of the random skin-tone change of pasted foregrounds (0 = none, 1 = full range).
         color_jitter: amplitude of the random gain and offset in training.
         threshold: probability above which a pixel is hand.
+        round_min_steps: steps a bootstrap round's training makes at least, past its seconds budget if need be
+            (None: the budget alone). cpu-small: 1280, what a 2-core CPU with native bfloat16 makes in the
+            default 90 s; one without (AVX2, float32) makes ~830 there, and its cluttered frames, whose IoU
+            reference is HandSegNet's mask, then passed the heuristic less often (docs/benchmarks.md).
     """
 
     widths: tuple[int, ...] = (12, 24, 32)
@@ -217,8 +221,13 @@ class HandSegNetConfig:
     recolor: float = 0.0
     color_jitter: float = 0.2
     threshold: float = 0.5
+    round_min_steps: int | None = None
 
     def __post_init__(self) -> None:
+        if self.round_min_steps is not None and (isinstance(self.round_min_steps, bool)
+                                                 or not isinstance(self.round_min_steps, int)
+                                                 or self.round_min_steps < 1):
+            raise ValueError(f"round_min_steps must be a positive integer or None, got {self.round_min_steps!r}")
         if self.crop_px % (self.stem_stride * 2 ** (len(self.widths) - 1)):
             raise ValueError(f"crop_px={self.crop_px} must be divisible by stem_stride * 2^(levels-1)")
         if not 0 < self.crop_radius_m <= self.coarse_radius_m:
@@ -319,7 +328,7 @@ CONFIGS: dict[str, NetsConfig] = {
                           crop_scale=0.1, train_views=6),
         handsegnet=HandSegNetConfig(widths=(16, 32, 64), stem_stride=2, norm="batch", bf16=True, crop_px=104,
                                     crop_radius_m=0.14, batch_size=8, lr=2e-3, fine_prob=0.6, center_jitter=0.25,
-                                    cut_paste_prob=0.9, recolor=1.0),
+                                    cut_paste_prob=0.9, recolor=1.0, round_min_steps=1280),
     ),
     "paper": NetsConfig(
         name="paper",

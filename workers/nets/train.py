@@ -1,9 +1,9 @@
 """Training of MVNet and HandSegNet within a time budget, resumable, on the GPU when there is one.
 
 Both loops: Adam, a cosine learning-rate decay over the budget (time-based, so a budget fits any
-machine; or over `max_steps` when that ends training first), a partial checkpoint every
-`checkpoint_every_s` (weights, optimiser, step, seconds) that `resume=True` continues from, and a final
-checkpoint with metadata (checkpoints.py).
+machine; or over `max_steps` when that ends training first; held open until `min_steps` where a floor is
+given), a partial checkpoint every `checkpoint_every_s` (weights, optimiser, step, seconds) that `resume=True`
+continues from, and a final checkpoint with metadata (checkpoints.py).
 """
 
 from __future__ import annotations
@@ -48,11 +48,32 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class TrainProgress:
-    """Reported after every step: step count, training seconds so far, smoothed loss."""
+    """Reported after every step: step count, training seconds so far, smoothed loss, and the share of training
+    done (`schedule_fraction`: 1 ends it)."""
 
     step: int
     seconds: float
     loss: float
+    fraction: float = 0.0
+
+
+# A step floor holds training open past its seconds budget, but never past this many budgets (a loaded machine).
+MIN_STEPS_MAX_BUDGETS = 2.0
+
+
+def schedule_fraction(seconds: float, step: int, budget_s: float, min_steps: int | None = None,
+                      max_steps: int | None = None) -> float:
+    """How far training is (training ends at 1; the learning rate decays over it): the seconds budget, held open
+    until `min_steps` steps (at most MIN_STEPS_MAX_BUDGETS budgets), or `max_steps` steps if that comes first.
+
+    A step floor makes a machine without native bfloat16 (AVX2) learn what one with it learns in the same budget,
+    at the cost of time: the steps, not the seconds, are what the network learns from."""
+    by_time = seconds / budget_s
+    if min_steps:
+        by_time = max(min(by_time, step / min_steps), seconds / (MIN_STEPS_MAX_BUDGETS * budget_s))
+    if max_steps is None:
+        return by_time
+    return max(by_time, step / max_steps if max_steps > 0 else 1.0)
 
 
 @dataclass(frozen=True)
@@ -84,10 +105,12 @@ def _train_loop(kind: NetKind, model: torch.nn.Module, config: MVNetConfig | Han
                 step_fn: Callable[[np.random.Generator, float], torch.Tensor], sample_ids: tuple[str, ...],
                 budget_s: float, checkpoint_dir: Path | str, resume: bool,
                 progress: Callable[[TrainProgress], None] | None, seed: int, max_steps: int | None,
-                checkpoint_every_s: float, extra: dict[str, Any] | None, warm_start: dict[str, Any] | None = None
-                ) -> TrainResult:
+                checkpoint_every_s: float, extra: dict[str, Any] | None, warm_start: dict[str, Any] | None = None,
+                min_steps: int | None = None) -> TrainResult:
     if budget_s <= 0:
         raise ValueError(f"budget_s must be positive, got {budget_s}")
+    if min_steps is not None and (isinstance(min_steps, bool) or not isinstance(min_steps, int) or min_steps < 1):
+        raise ValueError(f"min_steps must be a positive integer or None, got {min_steps!r}")
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
     step, spent_before = 0, 0.0
     partial = checkpoint_path(checkpoint_dir, kind, partial=True)
@@ -119,9 +142,9 @@ def _train_loop(kind: NetKind, model: torch.nn.Module, config: MVNetConfig | Han
 
     while True:
         spent = spent_before + time.perf_counter() - started
-        if spent >= budget_s or (max_steps is not None and step >= max_steps):
+        fraction = schedule_fraction(spent, step, budget_s, min_steps, max_steps)
+        if fraction >= 1:
             break
-        fraction = max(spent / budget_s, step / max_steps if max_steps else 0.0)
         for group in optimizer.param_groups:
             group["lr"] = _cosine_lr(config.lr, fraction)
         loss = step_fn(rng, fraction)
@@ -132,7 +155,9 @@ def _train_loop(kind: NetKind, model: torch.nn.Module, config: MVNetConfig | Han
         value = float(loss.detach())
         smoothed = value if math.isnan(smoothed) else 0.95 * smoothed + 0.05 * value
         if progress:
-            progress(TrainProgress(step, spent_before + time.perf_counter() - started, smoothed))
+            now = spent_before + time.perf_counter() - started
+            progress(TrainProgress(step, now, smoothed, min(1.0, schedule_fraction(now, step, budget_s, min_steps,
+                                                                                   max_steps))))
         if time.perf_counter() - last_save > checkpoint_every_s:
             save_checkpoint(partial, model, meta(spent_before + time.perf_counter() - started), optimizer)
             last_save = time.perf_counter()
@@ -223,13 +248,15 @@ def train_mvnet(dataset: MVNetDataset, config: NetsConfig | MVNetConfig, budget_
                 checkpoint_dir: Path | str, *, resume: bool = True,
                 progress: Callable[[TrainProgress], None] | None = None, seed: int = 0, max_steps: int | None = None,
                 device: torch.device | str | None = None, checkpoint_every_s: float = 60.0,
-                extra_metadata: dict[str, Any] | None = None, init_from: Path | str | None = None) -> TrainResult:
+                extra_metadata: dict[str, Any] | None = None, init_from: Path | str | None = None,
+                min_steps: int | None = None) -> TrainResult:
     """Train MVNet on `dataset` for `budget_s` seconds of training (cumulative over resumes).
 
     Args:
         dataset: crops and 3D labels (data.build_mvnet_dataset); its crop size must match the config.
         config: a named configuration (its .mvnet is used) or an MVNetConfig.
-        budget_s: training seconds; max_steps: optional step limit as well.
+        budget_s: training seconds; max_steps: optional step limit as well; min_steps: optional step floor that
+            holds training open past the budget (`schedule_fraction`).
         checkpoint_dir: the round's folder (checkpoints.round_dir); gets mvnet.pt, mvnet.json, mvnet.partial.pt.
         resume: continue from mvnet.partial.pt when present (same architecture required).
         progress: called after every step with TrainProgress.
@@ -270,7 +297,7 @@ def train_mvnet(dataset: MVNetDataset, config: NetsConfig | MVNetConfig, budget_
                           only_2d=fraction < warmup)
 
     return _train_loop("mvnet", model, cfg, name, step, dataset.sample_ids, budget_s, checkpoint_dir, resume,
-                       progress, seed, max_steps, checkpoint_every_s, extra_metadata, warm)
+                       progress, seed, max_steps, checkpoint_every_s, extra_metadata, warm, min_steps)
 
 
 def handseg_loss(logits: torch.Tensor, targets: torch.Tensor) -> torch.Tensor:
@@ -287,7 +314,7 @@ def train_handsegnet(dataset: HandSegDataset, config: NetsConfig | HandSegNetCon
                      progress: Callable[[TrainProgress], None] | None = None, seed: int = 0,
                      max_steps: int | None = None, device: torch.device | str | None = None,
                      checkpoint_every_s: float = 60.0, extra_metadata: dict[str, Any] | None = None,
-                     init_from: Path | str | None = None) -> TrainResult:
+                     init_from: Path | str | None = None, min_steps: int | None = None) -> TrainResult:
     """Train HandSegNet on random patches of `dataset` for `budget_s` training seconds.
 
     Arguments as `train_mvnet` (init_from: a final handsegnet.pt of the same architecture); files
@@ -308,4 +335,4 @@ def train_handsegnet(dataset: HandSegDataset, config: NetsConfig | HandSegNetCon
         return handseg_loss(logits, torch.as_tensor(np.ascontiguousarray(targets), device=device))
 
     return _train_loop("handsegnet", model, cfg, name, step, dataset.sample_ids, budget_s, checkpoint_dir, resume,
-                       progress, seed, max_steps, checkpoint_every_s, extra_metadata, warm)
+                       progress, seed, max_steps, checkpoint_every_s, extra_metadata, warm, min_steps)

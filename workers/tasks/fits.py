@@ -31,6 +31,7 @@ from backend.services.errors import DomainError
 from backend.services.jobs import JobStillRunningError
 from backend.services.masks import encode_png
 from backend.services.verification import HeuristicThresholds
+from backend.settings import Settings
 from workers.capture.schema import CaptureError
 from workers.fitting.config import FitConfig, source_weights
 from workers.fitting.inputs import FitInputError
@@ -72,12 +73,16 @@ class FitSummary:
                 "seconds": round(self.seconds, 3), "fit_seconds": round(self.fit_seconds, 3)}
 
 
-def fit_config(ctx: WorkerContext, source: str, with_masks: bool = False) -> FitConfig:
+def fit_config_from_settings(settings: Settings, source: str, with_masks: bool = False) -> FitConfig:
     """The fit's settings for a source ("annotation", "prediction", "detector"; `source_weights`) and the settings'
-    solver schedule; `with_masks`: the frames have masks."""
-    s = ctx.settings
-    return FitConfig(weights=source_weights(source, with_masks), optimizer=s.fit_optimizer,
-                     global_iterations=s.fit_global_iterations, full_iterations=s.fit_full_iterations)
+    solver schedule; `with_masks`: the frames have masks. Also what `handloop bench detect` fits with."""
+    return FitConfig(weights=source_weights(source, with_masks), optimizer=settings.fit_optimizer,
+                     global_iterations=settings.fit_global_iterations, full_iterations=settings.fit_full_iterations)
+
+
+def fit_config(ctx: WorkerContext, source: str, with_masks: bool = False) -> FitConfig:
+    """`fit_config_from_settings` with the worker's settings."""
+    return fit_config_from_settings(ctx.settings, source, with_masks)
 
 
 def has_masks(fi: FitInput) -> bool:
@@ -226,8 +231,8 @@ def _fit_group(ctx: WorkerContext, engine: Any, group: list[FitInput], tick: Any
 
 
 def _fit_detector_twice(engine: Any, group: list[FitInput], tick: Any) -> tuple[list[Any], list[FitInput]]:
-    """Fits from a detector's keypoints (`workers.fitting.reweight.fit_reweighted`: a first fit, then one more with
-    each keypoint reweighted by its residual to the first). Returns the second fits and the inputs marked
+    """Fits from a detector's keypoints (`workers.fitting.reweight.fit_reweighted`: a first fit, then the first
+    continued with each keypoint reweighted by its residual to it). Returns the second fits and the inputs marked
     `residual_reweighted`."""
     from workers.fitting.reweight import fit_reweighted  # deferred: torch with the first fit
 

@@ -254,8 +254,11 @@ def _train(ctx: WorkerContext, net: str, tset: TrainingSet, masks: list[dict[str
     capture = capture_for(tset.rig, ctx.settings.storage_dir)
     frames = [f.frame for f in tset.frames]
 
+    min_steps = config.handsegnet.round_min_steps if net == "handsegnet" else None
+    floor = f", at least {min_steps} steps" if min_steps else ""
+
     def progress(p: Any) -> None:
-        reporter(min(1.0, p.seconds / budget), f"training {net}: step {p.step}, {p.seconds:.0f}/{budget:.0f} s, "
+        reporter(p.fraction, f"training {net}: step {p.step}, {p.seconds:.0f}/{budget:.0f} s{floor}, "
                  f"loss {p.loss:.4f}")
 
     init_from = warm_start_of(ctx, net, config, int(extra["round_index"]))
@@ -265,7 +268,7 @@ def _train(ctx: WorkerContext, net: str, tset: TrainingSet, masks: list[dict[str
               "extra_metadata": extra, "checkpoint_every_s": 30.0, "init_from": init_from}
     if net == "handsegnet":
         dataset = build_handseg_dataset(capture, frames, hand_masks=masks)
-        return train_handsegnet(dataset, config, budget, folder, **common)
+        return train_handsegnet(dataset, config, budget, folder, min_steps=min_steps, **common)
     detections, offsets = None, None
     if config.mvnet.heatmap_source == "detector":
         reporter(0.0, f"{net}: detecting keypoints in {len(frames)} samples (cached per frame)", force=True)

@@ -20,6 +20,7 @@ KEYS = ("kp2d_median_px", "kp2d_p90_px", "kp2d_median_frac", "detection_rate", "
 def test_bench_detect_reports_every_key(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                         capsys: pytest.CaptureFixture[str]) -> None:
     from backend.bench.detect import run
+    from backend.simulation.reviewer import ReviewerConfig
 
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # the capture cache goes to the test's folder
     record = run(quick=True, frames_per_sequence=1)
@@ -28,6 +29,8 @@ def test_bench_detect_reports_every_key(tmp_path: Path, monkeypatch: pytest.Monk
     for key in KEYS:
         assert isinstance(printed[key], float) and math.isfinite(printed[key]), key
     assert 0 < record["detection_rate"] <= 1 and record["fits"] >= 1
+    assert printed["reviewer_bar_mm"] == ReviewerConfig().accept_below_mm
+    assert 0 <= printed["fit_vertex_within_reviewer_bar"] <= 1
     # Detections on the rendered hand are not noise: a few px at 320 px, millimetres in 3D.
     assert record["kp2d_median_frac"] < 0.3 and record["kp3d_median_mm"] < 40
     assert (tmp_path / "handloop-bench-cache").is_dir()

@@ -144,3 +144,25 @@ def test_bad_config_fails_with_a_clear_error(changes, message):
         FitConfig(**changes)
     with pytest.raises(ValueError, match=r"LossWeights\.seg"):
         FitConfig().with_weights(seg=-1.0)
+
+
+@pytest.mark.parametrize("config", [FitConfig(), FitConfig.adam(global_iterations=5, full_iterations=20)],
+                         ids=["levenberg_marquardt", "adam"])
+def test_refine_continues_an_earlier_fit_from_its_parameters(hand, rig, known_frames, config):
+    frames, truth = known_frames
+    engine = FittingEngine(hand, rig, config)
+    placed = FittingEngine(hand, rig, dataclasses.replace(config, full_iterations=0)).fit(frames[1:])[0]
+    refined = engine.refine(frames[1:], [placed])[0]
+    # From the placement, the second stage alone lowers the objective and reaches the hand.
+    assert sum(refined.diagnostics.loss_terms.values()) < sum(placed.diagnostics.loss_terms.values())
+    assert refined.diagnostics.iterations <= config.full_iterations
+    assert np.abs(refined.vertices - truth["vertices"][1]).mean() < \
+        np.abs(placed.vertices - truth["vertices"][1]).mean()
+    if config.optimizer == "levenberg_marquardt":
+        # From a converged fit there is nothing left to gain: it stays where it was.
+        fitted = engine.fit(frames[1:])[0]
+        again = engine.refine(frames[1:], [fitted])[0]
+        assert np.abs(again.vertices - fitted.vertices).max() < 1e-3  # metres
+        assert sum(again.diagnostics.loss_terms.values()) <= sum(fitted.diagnostics.loss_terms.values()) * 1.001
+    with pytest.raises(FitInputError, match="one earlier fit per frame"):
+        engine.refine(frames, [placed])

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from workers.fitting.inputs import FrameObservations
-from workers.fitting.reweight import fit_reweighted, residual_reweighted
+from workers.fitting.reweight import FIRST_FIT_SHARE, fit_reweighted, residual_reweighted
 from workers.geometry.camera import Camera
 from workers.geometry.projection import project_points
 
@@ -64,6 +64,10 @@ class _RecordingEngine:
             progress(1.0, "done")
         return [SimpleNamespace(keypoints=self.answers[len(self.calls) - 1]) for _ in frames]
 
+    def refine(self, frames, earlier, progress=None):
+        self.refined_from = earlier
+        return self.fit(frames, progress)
+
 
 def test_a_detector_frame_is_fitted_again_with_the_first_fits_residuals():
     cameras = _cameras()
@@ -80,4 +84,5 @@ def test_a_detector_frame_is_fitted_again_with_the_first_fits_residuals():
     assert engine.calls[1][0].click_weights == pytest.approx(expected)
     assert engine.calls[1][0].click_weights[0, 4] < 0.8 / 2  # the far detection pulls less the second time
     assert results[0].keypoints is second_answer  # the second fit is the answer
-    assert seen == [0.0, 0.5, 0.5, 1.0]  # progress over both fits
+    assert [r.keypoints for r in engine.refined_from] == [keypoints]  # it continues the first
+    assert seen == pytest.approx([0.0, FIRST_FIT_SHARE, FIRST_FIT_SHARE, 1.0])  # progress over both fits

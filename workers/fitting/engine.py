@@ -131,9 +131,14 @@ class FittingEngine:
         bad input or where `earlier` does not pair one to one with `frames`.
 
         The articulation restarts from the earlier fit's PCA coefficients (least squares of its pose, exact with
-        all 45 components)."""
+        all 45 components). Adam restarts its moments and learning-rate schedule, so it moves a converged fit
+        before it settles again; Levenberg-Marquardt (the default) only takes steps that lower the objective."""
         if len(earlier) != len(frames):
             raise FitInputError(f"refine needs one earlier fit per frame: {len(earlier)} fits, {len(frames)} frames")
+        for i, result in enumerate(earlier):
+            if result.hand_model != self.arrays.name:
+                raise FitInputError(f"frame {i}: the earlier fit is of hand model {result.hand_model!r}, this engine "
+                                    f"fits {self.arrays.name!r}")
         threads = self.config.torch_threads
         previous = torch.get_num_threads()
         if threads:

@@ -71,7 +71,7 @@ def fit_reweighted(engine: FittingEngine, frames: list[FrameObservations],
         frames: each frame's observations (2D keypoints in pixels, masks, lifted 3D keypoints in metres, world frame).
         progress: called with (fraction in [0, 1], message) over both fits.
     Returns:
-        The second fits, one per frame, in order.
+        The second fits, one per frame, in order; their diagnostics' iterations and seconds are both fits'.
     """
     def part(offset: float, share: float) -> Callable[[float, str], None] | None:
         return None if progress is None else (lambda f, m: progress(offset + share * f, m))
@@ -79,4 +79,11 @@ def fit_reweighted(engine: FittingEngine, frames: list[FrameObservations],
     cameras = list(engine.cameras)
     first = engine.fit(frames, progress=part(0.0, FIRST_FIT_SHARE))
     second = [residual_reweighted(obs, result.keypoints, cameras) for obs, result in zip(frames, first, strict=True)]
-    return engine.refine(second, first, progress=part(FIRST_FIT_SHARE, 1.0 - FIRST_FIT_SHARE))
+    refined = engine.refine(second, first, progress=part(FIRST_FIT_SHARE, 1.0 - FIRST_FIT_SHARE))
+    # The diagnostics count the work of both fits (solver steps, seconds per frame).
+    out = []
+    for a, b in zip(first, refined, strict=True):
+        both = replace(b.diagnostics, iterations=a.diagnostics.iterations + b.diagnostics.iterations,
+                       seconds=a.diagnostics.seconds + b.diagnostics.seconds)
+        out.append(replace(b, diagnostics=both))
+    return out

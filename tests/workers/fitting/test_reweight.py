@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from types import SimpleNamespace
+from dataclasses import dataclass
 
 import numpy as np
 import pytest
@@ -49,6 +49,18 @@ def test_a_keypoint_far_from_the_fit_pulls_less_and_one_on_it_keeps_its_weight()
         residual_reweighted(obs, keypoints, cameras, scale_fraction=0.0)
 
 
+@dataclass(frozen=True)
+class _Diagnostics:
+    iterations: int
+    seconds: float
+
+
+@dataclass(frozen=True)
+class _Answer:
+    keypoints: np.ndarray
+    diagnostics: _Diagnostics
+
+
 class _RecordingEngine:
     """Stands in for FittingEngine: records the frames it is given and answers each with a fixed hand."""
 
@@ -62,7 +74,8 @@ class _RecordingEngine:
         if progress is not None:
             progress(0.0, "start")
             progress(1.0, "done")
-        return [SimpleNamespace(keypoints=self.answers[len(self.calls) - 1]) for _ in frames]
+        n = len(self.calls)
+        return [_Answer(self.answers[n - 1], _Diagnostics(iterations=10 * n, seconds=0.1 * n)) for _ in frames]
 
     def refine(self, frames, earlier, progress=None):
         self.refined_from = earlier
@@ -85,4 +98,5 @@ def test_a_detector_frame_is_fitted_again_with_the_first_fits_residuals():
     assert engine.calls[1][0].click_weights[0, 4] < 0.8 / 2  # the far detection pulls less the second time
     assert results[0].keypoints is second_answer  # the second fit is the answer
     assert [r.keypoints for r in engine.refined_from] == [keypoints]  # it continues the first
+    assert results[0].diagnostics == _Diagnostics(iterations=10 + 20, seconds=pytest.approx(0.1 + 0.2))  # both fits
     assert seen == pytest.approx([0.0, FIRST_FIT_SHARE, FIRST_FIT_SHARE, 1.0])  # progress over both fits

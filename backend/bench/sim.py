@@ -40,6 +40,10 @@ QUICK = {"sequences": 3, "frames": 8, "width": 128, "rounds": 1, "initial_every"
          "settings": {"nets_config": "tiny", "round_handsegnet_budget_s": 5.0, "round_mvnet_budget_s": 8.0,
                       "fit_global_iterations": 15, "fit_full_iterations": 30, "round_min_training_samples": 1}}
 SEED = 2026
+# `train_steps`: each network trains exactly that many steps a round, under budgets it cannot reach first (and below
+# the training task's 3 h limit): such runs repeat exactly, time-budgeted ones do not (docs/benchmarks.md).
+MAX_TRAIN_STEPS = 1_000_000
+STEP_COUNTED_BUDGET_S = 7200.0
 TARGETS = {"minutes_max": 60.0, "accepted_vertex_mm_max": 8.0, "auto_accept_precision_min": 0.95}
 # Issue 15, with the detector: D_0 at least half from verification alone, the heuristic accepting >= 30 % of the
 # fitted samples by round 2 at >= 95 % precision, >= 100 labels per human hour, accepted labels <= 6 mm.
@@ -167,13 +171,14 @@ def _detector_met(summary: dict[str, Any]) -> dict[str, bool]:
 def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = None,
         detector: str | None = None, accept_proposals_px: float | None = None, width: int | None = None,
         rounds: int | None = None, initial_every: int | None = None, round0_rest: str = DEFAULT_REST,
-        frames: int | None = None) -> dict[str, Any]:
+        frames: int | None = None, train_steps: int | None = None) -> dict[str, Any]:
     """One run (`detector` "on" or "off") or both on the same capture and seed ("both"); None: both where the
     detector can run, else off. The record's top level is the run with the detector when it ran, else without.
     `width` (view width, pixels), `frames` (per sequence), `rounds` and `initial_every` (D_0's plan: every k-th
     training frame) replace the plan's (the detector's targets are set at 640 px); `round0_rest` is what the
     pre-annotation does with the initial set's samples the review policy does not pick ("keep", the issue's and
-    the paper's treatment, or "annotate": see BootstrapConfig)."""
+    the paper's treatment, or "annotate": see BootstrapConfig); `train_steps` trains each network that many steps
+    a round instead of for the time budgets (repeatable runs, to compare variants)."""
 
     started = time.perf_counter()
     plan = dict(QUICK if quick else FULL)
@@ -196,6 +201,12 @@ def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = 
     if round0_rest not in RESTS:
         raise ValueError(f"round0_rest must be one of {list(RESTS)}, not {round0_rest!r}")
     plan["round0_rest"] = round0_rest
+    if train_steps is not None:
+        if not 1 <= train_steps <= MAX_TRAIN_STEPS:
+            raise ValueError(f"train_steps must be in 1..{MAX_TRAIN_STEPS}, not {train_steps}")
+        plan["settings"] = {**plan["settings"], "round_max_train_steps": train_steps,
+                            "round_handsegnet_budget_s": STEP_COUNTED_BUDGET_S,
+                            "round_mvnet_budget_s": STEP_COUNTED_BUDGET_S}
     default_mode, why_not = detector_default()
     mode = detector or default_mode
     if mode not in DETECTOR_MODES:

@@ -29,6 +29,9 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
             "keep", "--round0-rest", help="With the detector, the initial set's samples the review policy does "
             "not pick: keep (left for round 1's MVNet, as the paper leaves every round's unpicked samples; only fits "
             "sent back are annotated) or annotate (clicked in round 0)."),
+        train_steps: int | None = typer.Option(
+            None, "--train-steps", min=1, help="Each network trains this many steps a round instead of for the time "
+            "budgets: runs then repeat exactly (to compare variants); default: the budgets, as users run."),
     ) -> None:
         """200-frame synthetic capture, cpu-small networks, 4 rounds through the real server and workers:
         minutes, accepted labels' vertex error, auto-accept precision, labels per human hour; with the
@@ -43,7 +46,7 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         try:
             record = run(quick=quick, emit_json=json_out, detector=detector, accept_proposals_px=accept_proposals_px,
                          width=width, rounds=rounds, initial_every=initial_every, round0_rest=round0_rest,
-                         frames=frames)
+                         frames=frames, train_steps=train_steps)
         except ValueError as exc:
             typer.echo(f"error: {exc}", err=True)
             raise typer.Exit(code=2) from exc

@@ -113,7 +113,9 @@ def test_bench_sim_refuses_a_width_or_round_count_out_of_range():
                           (["--frames", "401"], "frames must be in 2..400 per sequence, not 401"),
                           (["--round0-rest", "discard"],
                            "round0_rest must be one of ['annotate', 'keep'], not 'discard'"),
-                          (["--initial-every", "1"], "--initial-every")):
+                          (["--initial-every", "1"], "--initial-every"),
+                          (["--train-steps", "0"], "--train-steps"),
+                          (["--train-steps", "1000001"], "train_steps must be in 1..1000000, not 1000001")):
         result = runner.invoke(app, ["bench", "sim", "--quick", "--detector", "off", *args])
         assert result.exit_code == 2 and message in result.output, result.output
 
@@ -174,6 +176,33 @@ def test_bench_sim_passes_the_round_0_plan_to_the_simulation(monkeypatch, tmp_pa
     assert BootstrapConfig().round0_rest == "keep"
     with pytest.raises(ValueError, match="round0_rest must be one of"):
         BootstrapConfig(round0_rest="discard")
+
+
+def test_bench_sim_train_steps_counts_training_in_steps(monkeypatch, tmp_path):
+    """--train-steps: every network trains exactly that many steps a round, under budgets it cannot reach first;
+    without it the stack keeps the plan's time budgets."""
+    from backend.bench import sim
+
+    seen = []
+
+    def fake_simulate(capture, work, plan, detector, accept_proposals_px):
+        seen.append(dict(plan["settings"]))
+        return _d0_summary(0.6, 150.0, 4)
+
+    monkeypatch.setattr(sim, "_capture", lambda root, *a: tmp_path)
+    monkeypatch.setattr(sim, "_simulate", fake_simulate)
+    monkeypatch.setattr(sim, "detector_default", lambda: ("both", None))
+    record = sim.run(detector="on", rounds=0, emit_json=False, work_dir=tmp_path, train_steps=1000)
+    assert seen[-1] == {**sim.FULL["settings"], "round_max_train_steps": 1000,
+                        "round_handsegnet_budget_s": sim.STEP_COUNTED_BUDGET_S,
+                        "round_mvnet_budget_s": sim.STEP_COUNTED_BUDGET_S}
+    assert record["rounds_completed"] == 0
+    from backend.settings import Settings
+
+    # The budgets end training before the training task's time limit would.
+    assert Settings.model_fields["task_time_limit_s"].default > sim.STEP_COUNTED_BUDGET_S
+    sim.run(detector="on", rounds=0, emit_json=False, work_dir=tmp_path)
+    assert seen[-1] == sim.FULL["settings"]  # the plan itself is not changed by an earlier call
 
 
 def test_the_detector_off_run_trains_the_paper_only_mvnet():

@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 
 import numpy as np
 import torch
@@ -114,14 +115,8 @@ class FittingEngine:
     # -- public API --------------------------------------------------------------------------------
     def fit(self, frames: list[FrameObservations], progress: ProgressCallback | None = None) -> list[FitResult]:
         """Fit every frame (optimised together as one batch). Raises FitInputError on bad input."""
-        threads = self.config.torch_threads
-        previous = torch.get_num_threads()
-        if threads:
-            torch.set_num_threads(threads)
-        try:
+        with self._fit_threads():
             return self._fit(frames, progress)
-        finally:
-            torch.set_num_threads(previous)
 
     def refine(self, frames: list[FrameObservations], earlier: list[FitResult],
                progress: ProgressCallback | None = None) -> list[FitResult]:
@@ -139,12 +134,18 @@ class FittingEngine:
             if result.hand_model != self.arrays.name:
                 raise FitInputError(f"frame {i}: the earlier fit is of hand model {result.hand_model!r}, this engine "
                                     f"fits {self.arrays.name!r}")
+        with self._fit_threads():
+            return self._fit(frames, progress, earlier)
+
+    @contextmanager
+    def _fit_threads(self) -> Iterator[None]:
+        """torch's intra-op threads set to `FitConfig.torch_threads` (when given) for the duration, then restored."""
         threads = self.config.torch_threads
         previous = torch.get_num_threads()
         if threads:
             torch.set_num_threads(threads)
         try:
-            return self._fit(frames, progress, earlier)
+            yield
         finally:
             torch.set_num_threads(previous)
 

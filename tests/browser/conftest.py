@@ -87,6 +87,12 @@ def sign_in(tab: Tab, base_url: str, email: str, password: str, expect: str) -> 
     page.wait_for_selector(f"body[data-ready={expect}]", state="attached", timeout=60_000)
 
 
+def wait_for_every_view(page) -> None:
+    """The annotate page is ready once its first view has loaded; the others fill in after (by design, so the
+    annotator starts sooner). A test that reads every view's image waits for them all here."""
+    page.wait_for_function("() => window.__handloop.page.views.every((v) => v.image)", timeout=60_000)
+
+
 class _QuietHandler(SimpleHTTPRequestHandler):
     def log_message(self, *args) -> None:  # the test output is not the place for access logs
         pass

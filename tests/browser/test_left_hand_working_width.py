@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from sqlalchemy import update
 
-from tests.browser.conftest import sign_in
+from tests.browser.conftest import sign_in, wait_for_every_view
 from tests.support.annotate import ground_truth_of
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
@@ -34,6 +34,7 @@ def test_a_left_hand_at_a_working_width_is_named_and_clicked_in_full_resolution_
     page = t.page
     assert page.inner_text(".hand-side") == "left hand"
     assert page.get_attribute(".hand-side", "data-side") == "left"
+    wait_for_every_view(page)
     sizes = page.evaluate("() => window.__handloop.page.views.map((v) => [v.width, v.image.width])")
     assert all(view == 160 and image == WORKING_WIDTH for view, image in sizes), sizes
 

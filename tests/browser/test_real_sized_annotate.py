@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.browser.conftest import sign_in
+from tests.browser.conftest import sign_in, wait_for_every_view
 from tests.support.annotate import ground_truth_of
 from tests.support.live_stack import make_live_stack
 from tests.support.real_sized import FULL_WIDTH, upscaled_capture
@@ -39,6 +39,7 @@ def test_zoom_pan_and_click_on_a_2048_px_view(big_stack, tab):
     user = stack.users["annotator"]
     sign_in(t, stack.base_url, user.email, user.password, "annotate")
     page = t.page
+    wait_for_every_view(page)
     sizes = page.evaluate("() => window.__handloop.page.views.map((v) => [v.width, v.image.width])")
     assert sizes and all(view == FULL_WIDTH and image == WORKING_WIDTH for view, image in sizes), sizes
     task = page.evaluate("""() => { const p = window.__handloop.page; return {sequence_id: p.task.sequence_id,

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from tests.browser.conftest import sign_in
+from tests.browser.conftest import sign_in, wait_for_every_view
 from tests.support.annotate import ground_truth_of
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
@@ -35,6 +35,7 @@ def test_views_open_on_the_hand_keep_their_zoom_and_show_a_magnifier_and_an_outl
     user = stack.users["annotator"]
     sign_in(t, stack.base_url, user.email, user.password, "annotate")
     page = t.page
+    wait_for_every_view(page)  # the third view's mask is read below
     task = page.evaluate("() => { const p = window.__handloop.page; return {sequence_id: p.task.sequence_id,"
                          " frame_index: p.task.frame_index, views: p.views.map((v) => ({camera: v.camera}))}; }")
     gt = ground_truth_of(stack, task)

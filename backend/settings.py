@@ -154,6 +154,9 @@ class Settings(BaseSettings):
     round_mvnet_budget_s: float = Field(default=240.0, gt=0, le=7 * 24 * 3600,
                                         description="MVNet training seconds per round.")
     round_max_train_steps: int | None = Field(default=None, ge=1, description="Optional step cap per network.")
+    round_handsegnet_max_steps: int | None = Field(
+        default=None, ge=1, description="Optional step cap of HandSegNet alone, in place of round_max_train_steps "
+        "(to compare HandSegNet's training with MVNet's held fixed).")
     round_min_training_samples: int = Field(default=2, ge=1, le=1_000_000,
                                             description="A round needs at least this many accepted samples.")
     round_seed: int = Field(default=0, ge=0, description="Seeds training (plus the round index).")

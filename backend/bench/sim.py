@@ -171,14 +171,16 @@ def _detector_met(summary: dict[str, Any]) -> dict[str, bool]:
 def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = None,
         detector: str | None = None, accept_proposals_px: float | None = None, width: int | None = None,
         rounds: int | None = None, initial_every: int | None = None, round0_rest: str = DEFAULT_REST,
-        frames: int | None = None, train_steps: int | None = None) -> dict[str, Any]:
+        frames: int | None = None, train_steps: int | None = None,
+        handsegnet_steps: int | None = None) -> dict[str, Any]:
     """One run (`detector` "on" or "off") or both on the same capture and seed ("both"); None: both where the
     detector can run, else off. The record's top level is the run with the detector when it ran, else without.
     `width` (view width, pixels), `frames` (per sequence), `rounds` and `initial_every` (D_0's plan: every k-th
     training frame) replace the plan's (the detector's targets are set at 640 px); `round0_rest` is what the
     pre-annotation does with the initial set's samples the review policy does not pick ("keep", the issue's and
     the paper's treatment, or "annotate": see BootstrapConfig); `train_steps` trains each network that many steps
-    a round instead of for the time budgets (repeatable runs, to compare variants)."""
+    a round instead of for the time budgets (repeatable runs, to compare variants); `handsegnet_steps` does so for
+    HandSegNet alone, in place of `train_steps` (HandSegNet's training compared with MVNet's held fixed)."""
 
     started = time.perf_counter()
     plan = dict(QUICK if quick else FULL)
@@ -207,6 +209,11 @@ def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = 
         plan["settings"] = {**plan["settings"], "round_max_train_steps": train_steps,
                             "round_handsegnet_budget_s": STEP_COUNTED_BUDGET_S,
                             "round_mvnet_budget_s": STEP_COUNTED_BUDGET_S}
+    if handsegnet_steps is not None:
+        if not 1 <= handsegnet_steps <= MAX_TRAIN_STEPS:
+            raise ValueError(f"handsegnet_steps must be in 1..{MAX_TRAIN_STEPS}, not {handsegnet_steps}")
+        plan["settings"] = {**plan["settings"], "round_handsegnet_max_steps": handsegnet_steps,
+                            "round_handsegnet_budget_s": STEP_COUNTED_BUDGET_S}
     default_mode, why_not = detector_default()
     mode = detector or default_mode
     if mode not in DETECTOR_MODES:

@@ -264,7 +264,7 @@ def _train(ctx: WorkerContext, net: str, tset: TrainingSet, masks: list[dict[str
     init_from = warm_start_of(ctx, net, config, int(extra["round_index"]))
     if init_from is not None:
         log.info("%s of round %s starts from %s", net, extra["round_index"], init_from)
-    common = {"resume": True, "progress": progress, "seed": seed, "max_steps": ctx.settings.round_max_train_steps,
+    common = {"resume": True, "progress": progress, "seed": seed, "max_steps": round_max_steps(ctx.settings, net),
               "extra_metadata": extra, "checkpoint_every_s": 30.0, "init_from": init_from}
     if net == "handsegnet":
         dataset = build_handseg_dataset(capture, frames, hand_masks=masks)
@@ -280,6 +280,12 @@ def _train(ctx: WorkerContext, net: str, tset: TrainingSet, masks: list[dict[str
                                   detections=detections, detector_offsets=offsets)
     return train_mvnet(dataset, config, budget, folder, **common)
 
+
+def round_max_steps(settings: Any, net: str) -> int | None:
+    """The step cap of `net`'s round training: HandSegNet's own where one is set, else the one of every network."""
+    if net == "handsegnet" and settings.round_handsegnet_max_steps is not None:
+        return int(settings.round_handsegnet_max_steps)
+    return settings.round_max_train_steps
 
 
 def training_detections(ctx: WorkerContext, frames: list[Any], cameras: list[Any],

@@ -32,6 +32,9 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         train_steps: int | None = typer.Option(
             None, "--train-steps", min=1, help="Each network trains this many steps a round instead of for the time "
             "budgets: runs then repeat exactly (to compare variants); default: the budgets, as users run."),
+        handsegnet_steps: int | None = typer.Option(
+            None, "--handsegnet-steps", min=1, help="HandSegNet alone trains this many steps a round, in place of "
+            "--train-steps (with it: MVNet's steps held while HandSegNet's vary)."),
     ) -> None:
         """200-frame synthetic capture, cpu-small networks, 4 rounds through the real server and workers:
         minutes, accepted labels' vertex error, auto-accept precision, labels per human hour; with the
@@ -46,7 +49,8 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         try:
             record = run(quick=quick, emit_json=json_out, detector=detector, accept_proposals_px=accept_proposals_px,
                          width=width, rounds=rounds, initial_every=initial_every, round0_rest=round0_rest,
-                         frames=frames, train_steps=train_steps)
+                         frames=frames, train_steps=train_steps,
+                         handsegnet_steps=handsegnet_steps)
         except ValueError as exc:
             typer.echo(f"error: {exc}", err=True)
             raise typer.Exit(code=2) from exc

@@ -115,7 +115,10 @@ def test_bench_sim_refuses_a_width_or_round_count_out_of_range():
                            "round0_rest must be one of ['annotate', 'keep'], not 'discard'"),
                           (["--initial-every", "1"], "--initial-every"),
                           (["--train-steps", "0"], "--train-steps"),
-                          (["--train-steps", "1000001"], "train_steps must be in 1..1000000, not 1000001")):
+                          (["--train-steps", "1000001"], "train_steps must be in 1..1000000, not 1000001"),
+                          (["--handsegnet-steps", "0"], "--handsegnet-steps"),
+                          (["--handsegnet-steps", "1000001"],
+                           "handsegnet_steps must be in 1..1000000, not 1000001")):
         result = runner.invoke(app, ["bench", "sim", "--quick", "--detector", "off", *args])
         assert result.exit_code == 2 and message in result.output, result.output
 
@@ -203,6 +206,27 @@ def test_bench_sim_train_steps_counts_training_in_steps(monkeypatch, tmp_path):
     assert Settings.model_fields["task_time_limit_s"].default > sim.STEP_COUNTED_BUDGET_S
     sim.run(detector="on", rounds=0, emit_json=False, work_dir=tmp_path)
     assert seen[-1] == sim.FULL["settings"]  # the plan itself is not changed by an earlier call
+    # HandSegNet's own steps, with or without every network's
+    sim.run(detector="on", rounds=0, emit_json=False, work_dir=tmp_path, train_steps=600, handsegnet_steps=1300)
+    assert seen[-1] == {**sim.FULL["settings"], "round_max_train_steps": 600, "round_handsegnet_max_steps": 1300,
+                        "round_handsegnet_budget_s": sim.STEP_COUNTED_BUDGET_S,
+                        "round_mvnet_budget_s": sim.STEP_COUNTED_BUDGET_S}
+    sim.run(detector="on", rounds=0, emit_json=False, work_dir=tmp_path, handsegnet_steps=1300)
+    assert seen[-1] == {**sim.FULL["settings"], "round_handsegnet_max_steps": 1300,
+                        "round_handsegnet_budget_s": sim.STEP_COUNTED_BUDGET_S}
+
+
+def test_a_round_caps_handsegnet_by_its_own_steps_where_set():
+    from backend.settings import Settings
+    from workers.tasks.training import round_max_steps
+
+    both = Settings(round_max_train_steps=600)
+    assert (round_max_steps(both, "handsegnet"), round_max_steps(both, "mvnet")) == (600, 600)
+    own = Settings(round_max_train_steps=600, round_handsegnet_max_steps=1300)
+    assert (round_max_steps(own, "handsegnet"), round_max_steps(own, "mvnet")) == (1300, 600)
+    alone = Settings(round_handsegnet_max_steps=1300)
+    assert (round_max_steps(alone, "handsegnet"), round_max_steps(alone, "mvnet")) == (1300, None)
+    assert (round_max_steps(Settings(), "handsegnet"), round_max_steps(Settings(), "mvnet")) == (None, None)
 
 
 def test_the_detector_off_run_trains_the_paper_only_mvnet():

@@ -31,6 +31,7 @@ PREDICT_S_PER_SAMPLE = 0.3
 FIT_S_PER_SAMPLE = 0.6
 FINISH_S = 5.0  # heuristic summary, review queue, counts: a few queries
 NET_LABELS = {"handsegnet": "HandSegNet", "mvnet": "MVNet"}
+LOSS_SEPARATOR = "; loss "
 
 
 @dataclass(frozen=True)
@@ -58,6 +59,28 @@ def _fraction(job: Job) -> float:
     return min(1.0, max(0.0, float(job.progress or 0.0)))
 
 
+def train_message(net: str, step: int, seconds: float, budget_s: float, min_steps: int | None, loss: float) -> str:
+    """A train job's progress message. Its part before the loss is the round's phase detail (train_detail): the
+    steps and seconds the job counted itself, since with a step floor or cap its progress is not seconds over the
+    budget."""
+    floor = f", at least {min_steps} steps" if min_steps else ""
+    return f"training {net}: step {step}, {seconds:.0f} of {budget_s:.0f} s{floor}{LOSS_SEPARATOR}{loss:.4f}"
+
+
+def train_detail(job: Job, net: str, budget_s: float) -> str:
+    """What a train phase shows: 'done', the final state, the job's own steps and seconds (train_message), or
+    before it reports them (building its data set) the share done times the budget."""
+    done = _fraction(job)
+    if job.state == JobState.succeeded:
+        return "done"
+    if done >= 1:
+        return str(job.state)
+    prefix, message = f"training {net}: ", job.message or ""
+    if message.startswith(prefix) and LOSS_SEPARATOR in message:
+        return message[len(prefix):message.rindex(LOSS_SEPARATOR)]
+    return f"{done * budget_s:.0f} of {budget_s:.0f} s"
+
+
 def phases(session: Session, round_job: Job, settings: Settings) -> list[Phase]:
     """The round's phases now, from its jobs' rows and its result (`candidates`: the samples it predicts, known
     once the predict jobs exist; before, start_round's `candidates_estimate`)."""
@@ -74,10 +97,7 @@ def phases(session: Session, round_job: Job, settings: Settings) -> list[Phase]:
         job = trains.get(net)
         if job is None:
             continue  # launched with an existing model (or not started yet): nothing to train
-        done = _fraction(job)
-        detail = "done" if job.state == JobState.succeeded else str(job.state) if done >= 1 else \
-            f"{done * budget:.0f} of {budget:.0f} s"
-        out.append(Phase(f"train {NET_LABELS[net]}", budget, done, detail))
+        out.append(Phase(f"train {NET_LABELS[net]}", budget, _fraction(job), train_detail(job, net, budget)))
     result = round_job.result or {}
     predicts = by_kind.get(JobKind.predict.value, [])
     candidates = max(int(result.get("candidates", result.get("candidates_estimate", 1))), 1)

@@ -37,6 +37,7 @@ from workers.nets.detections import (
     detector_backed,
     learn_detector_offsets,
 )
+from workers.tasks import round_progress
 from workers.tasks.context import WorkerContext
 from workers.tasks.inputs import InputError, Rig, SampleFrame, capture_for, load_frames, read_mask, rig_of
 from workers.tasks.json_values import json_safe
@@ -255,11 +256,9 @@ def _train(ctx: WorkerContext, net: str, tset: TrainingSet, masks: list[dict[str
     frames = [f.frame for f in tset.frames]
 
     min_steps = config.handsegnet.round_min_steps if net == "handsegnet" else None
-    floor = f", at least {min_steps} steps" if min_steps else ""
 
     def progress(p: Any) -> None:
-        reporter(p.fraction, f"training {net}: step {p.step}, {p.seconds:.0f}/{budget:.0f} s{floor}, "
-                 f"loss {p.loss:.4f}")
+        reporter(p.fraction, round_progress.train_message(net, p.step, p.seconds, budget, min_steps, p.loss))
 
     init_from = warm_start_of(ctx, net, config, int(extra["round_index"]))
     if init_from is not None:

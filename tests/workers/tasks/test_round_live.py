@@ -4,6 +4,7 @@ fit, heuristic, review queue) and records D_1 = D_0 + the streams, with model ve
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
@@ -105,6 +106,9 @@ def test_a_round_cancelled_while_training_stops_its_jobs(live_stack):
             return [j for j in rows if j.progress > 0]
 
     wait_until(training, 120, "training under way", stack)
+    with stack.session_factory()() as session:  # the round shows the train job's own steps and seconds
+        message = session.get(Job, launched["job_id"]).message
+    assert re.search(r"train (HandSegNet|MVNet) \(step \d+, \d+ of 300 s", message), message
     with stack.client("admin") as http:
         cancelled = http.post(f"/api/admin/rounds/{launched['round']['id']}/cancel")
         assert cancelled.status_code == 200 and cancelled.json()["state"] == "cancelled", cancelled.text

@@ -201,9 +201,10 @@ class HandSegNetConfig:
         color_jitter: amplitude of the random gain and offset in training.
         threshold: probability above which a pixel is hand.
         round_min_steps: steps a bootstrap round's training makes at least, past its seconds budget if need be
-            (None: the budget alone). cpu-small: 1280, what a 2-core CPU with native bfloat16 makes in the
-            default 90 s; one without (AVX2, float32) makes ~830 there, and its cluttered frames, whose IoU
-            reference is HandSegNet's mask, then passed the heuristic less often (docs/benchmarks.md).
+            (None: the budget alone). cpu-small: 1650. A 2-core CPU without native bfloat16 (AVX2, float32)
+            makes ~830 in the default 90 s, one with it ~1300; the cluttered frames, whose IoU reference is
+            HandSegNet's mask, passed the heuristic 10 / 11 / 26 times by round 2 with 830 / 1300 / 1650 steps
+            (step-counted sims, docs/benchmarks.md "### HandSegNet's steps with MVNet's held").
     """
 
     widths: tuple[int, ...] = (12, 24, 32)
@@ -328,7 +329,7 @@ CONFIGS: dict[str, NetsConfig] = {
                           crop_scale=0.1, train_views=6),
         handsegnet=HandSegNetConfig(widths=(16, 32, 64), stem_stride=2, norm="batch", bf16=True, crop_px=104,
                                     crop_radius_m=0.14, batch_size=8, lr=2e-3, fine_prob=0.6, center_jitter=0.25,
-                                    cut_paste_prob=0.9, recolor=1.0, round_min_steps=1280),
+                                    cut_paste_prob=0.9, recolor=1.0, round_min_steps=1650),
     ),
     "paper": NetsConfig(
         name="paper",

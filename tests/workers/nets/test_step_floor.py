@@ -22,7 +22,8 @@ def test_without_a_floor_the_budget_or_max_steps_ends_training() -> None:
 
 def test_a_floor_holds_training_open_until_its_steps() -> None:
     # Past the budget with fewer steps than the floor: not done, the schedule follows the steps.
-    assert schedule_fraction(100.0, 640, 90.0, min_steps=1280) == pytest.approx(max(0.5, 100 / (2 * 90)))
+    assert schedule_fraction(100.0, 640, 90.0, min_steps=1280) == pytest.approx(
+        max(0.5, 100 / (MIN_STEPS_MAX_BUDGETS * 90)))
     assert schedule_fraction(120.0, 1280, 90.0, min_steps=1280) == 1.0
     # Steps past the floor before the budget: the budget ends it, as without a floor.
     assert schedule_fraction(45.0, 2000, 90.0, min_steps=1280) == 0.5
@@ -57,5 +58,5 @@ def test_bad_floors_are_refused(tiny_capture, tiny_frames, tmp_path) -> None:
 
 def test_cpu_small_rounds_give_handsegnet_a_floor_and_tiny_none() -> None:
     for name in ("cpu-small", "cpu-small-detector"):
-        assert get_config(name).handsegnet.round_min_steps == 1280
+        assert get_config(name).handsegnet.round_min_steps == 1650
     assert get_config("tiny").handsegnet.round_min_steps is None

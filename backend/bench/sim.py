@@ -44,6 +44,9 @@ SEED = 2026
 # the training task's 3 h limit): such runs repeat exactly, time-budgeted ones do not (docs/benchmarks.md).
 MAX_TRAIN_STEPS = 1_000_000
 STEP_COUNTED_BUDGET_S = 7200.0
+# run()'s step counts -> (the setting that caps the steps, the budgets set out of its way)
+STEP_COUNTED = {"train_steps": ("round_max_train_steps", ("round_handsegnet_budget_s", "round_mvnet_budget_s")),
+                "handsegnet_steps": ("round_handsegnet_max_steps", ("round_handsegnet_budget_s",))}
 TARGETS = {"minutes_max": 60.0, "accepted_vertex_mm_max": 8.0, "auto_accept_precision_min": 0.95}
 # Issue 15, with the detector: D_0 at least half from verification alone, the heuristic accepting >= 30 % of the
 # fitted samples by round 2 at >= 95 % precision, >= 100 labels per human hour, accepted labels <= 6 mm.
@@ -203,17 +206,13 @@ def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = 
     if round0_rest not in RESTS:
         raise ValueError(f"round0_rest must be one of {list(RESTS)}, not {round0_rest!r}")
     plan["round0_rest"] = round0_rest
-    if train_steps is not None:
-        if not 1 <= train_steps <= MAX_TRAIN_STEPS:
-            raise ValueError(f"train_steps must be in 1..{MAX_TRAIN_STEPS}, not {train_steps}")
-        plan["settings"] = {**plan["settings"], "round_max_train_steps": train_steps,
-                            "round_handsegnet_budget_s": STEP_COUNTED_BUDGET_S,
-                            "round_mvnet_budget_s": STEP_COUNTED_BUDGET_S}
-    if handsegnet_steps is not None:
-        if not 1 <= handsegnet_steps <= MAX_TRAIN_STEPS:
-            raise ValueError(f"handsegnet_steps must be in 1..{MAX_TRAIN_STEPS}, not {handsegnet_steps}")
-        plan["settings"] = {**plan["settings"], "round_handsegnet_max_steps": handsegnet_steps,
-                            "round_handsegnet_budget_s": STEP_COUNTED_BUDGET_S}
+    for name, steps in (("train_steps", train_steps), ("handsegnet_steps", handsegnet_steps)):
+        if steps is None:
+            continue
+        if not 1 <= steps <= MAX_TRAIN_STEPS:
+            raise ValueError(f"{name} must be in 1..{MAX_TRAIN_STEPS}, not {steps}")
+        cap, budgets = STEP_COUNTED[name]
+        plan["settings"] = {**plan["settings"], cap: steps, **dict.fromkeys(budgets, STEP_COUNTED_BUDGET_S)}
     default_mode, why_not = detector_default()
     mode = detector or default_mode
     if mode not in DETECTOR_MODES:

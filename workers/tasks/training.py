@@ -29,6 +29,7 @@ from backend.models.jobs import Job
 from backend.models.review import Round, RoundMember
 from backend.services import jobs
 from backend.services.errors import DomainError
+from backend.settings import Settings
 from workers.nets.configs import CONFIGS, get_config
 from workers.nets.detections import (
     DetectionCache,
@@ -280,7 +281,7 @@ def _train(ctx: WorkerContext, net: str, tset: TrainingSet, masks: list[dict[str
     return train_mvnet(dataset, config, budget, folder, **common)
 
 
-def round_max_steps(settings: Any, net: str) -> int | None:
+def round_max_steps(settings: Settings, net: str) -> int | None:
     """The step cap of `net`'s round training: HandSegNet's own where one is set, else the one of every network."""
     if net == "handsegnet" and settings.round_handsegnet_max_steps is not None:
         return int(settings.round_handsegnet_max_steps)

@@ -17,17 +17,19 @@ import logging
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from functools import partial
 
 import numpy as np
 import torch
 
 from workers.fitting import losses
 from workers.fitting.config import FitConfig
+from workers.fitting.frame_masks import FrameMasks, prepare_frame_masks
 from workers.fitting.gauss_newton import normal_equations
 from workers.fitting.init import Placement, observed_points_3d, rank_placements
 from workers.fitting.inputs import FitInputError, FrameObservations
 from workers.fitting.kinematics import FitKinematics
-from workers.fitting.masks import boundary_samples, cut_forearm, outside_distance_px
+from workers.fitting.masks import boundary_samples, cut_forearm
 from workers.fitting.residuals import Objective, Targets
 from workers.fitting.result import FitDiagnostics, FitResult
 from workers.fitting.solver import LMSettings, levenberg_marquardt
@@ -113,13 +115,25 @@ class FittingEngine:
         return torch.as_tensor(np.asarray(value), dtype=self.dtype, device=self.device)
 
     # -- public API --------------------------------------------------------------------------------
-    def fit(self, frames: list[FrameObservations], progress: ProgressCallback | None = None) -> list[FitResult]:
-        """Fit every frame (optimised together as one batch). Raises FitInputError on bad input."""
+    def fit(self, frames: list[FrameObservations], progress: ProgressCallback | None = None,
+            prepared: list[FrameMasks] | None = None) -> list[FitResult]:
+        """Fit every frame (optimised together as one batch). Raises FitInputError on bad input.
+
+        `prepared`: the frames' `prepare_masks`, where the caller fits them more than once; made here otherwise."""
         with self._fit_threads():
-            return self._fit(frames, progress)
+            return self._fit(frames, progress, prepared=prepared)
+
+    def prepare_masks(self, frames: list[FrameObservations]) -> list[FrameMasks]:
+        """What the fits of these frames derive from their masks alone (`FrameMasks`), for `fit` and `refine` to
+        share: a frame fitted twice pays for its distance fields and undistorted mask pixels once."""
+        H = max(c.height for c in self.cameras)
+        W = max(c.width for c in self.cameras)
+        return [prepare_frame_masks(f, self.cameras, (H, W), self.config.cut_forearm and f.masks_include_forearm)
+                for f in frames]
 
     def refine(self, frames: list[FrameObservations], earlier: list[FitResult],
-               progress: ProgressCallback | None = None) -> list[FitResult]:
+               progress: ProgressCallback | None = None,
+               prepared: list[FrameMasks] | None = None) -> list[FitResult]:
         """Continue each frame's earlier fit on changed observations of the same frame (reweighted keypoints):
         the second stage only (every parameter, silhouettes against masks cut at the earlier fit's wrist), started
         from the earlier fit's parameters; no placement, no first stage, no other starts. Raises FitInputError on
@@ -135,7 +149,7 @@ class FittingEngine:
                 raise FitInputError(f"frame {i}: the earlier fit is of hand model {result.hand_model!r}, this engine "
                                     f"fits {self.arrays.name!r}")
         with self._fit_threads():
-            return self._fit(frames, progress, earlier)
+            return self._fit(frames, progress, earlier, prepared)
 
     @contextmanager
     def _fit_threads(self) -> Iterator[None]:
@@ -150,9 +164,12 @@ class FittingEngine:
             torch.set_num_threads(previous)
 
     def _fit(self, frames: list[FrameObservations], progress: ProgressCallback | None,
-             earlier: list[FitResult] | None = None) -> list[FitResult]:
+             earlier: list[FitResult] | None = None, prepared: list[FrameMasks] | None = None) -> list[FitResult]:
         if not frames:
             raise FitInputError("no frames to fit")
+        if prepared is not None and (len(prepared) != len(frames) or any(
+                p.masks is not f.masks for p, f in zip(prepared, frames, strict=False))):
+            raise ValueError("prepared masks must be prepare_masks() of these frames' masks, one per frame, in order")
         for i, obs in enumerate(frames):
             try:
                 obs.validate(self.cameras)
@@ -170,13 +187,15 @@ class FittingEngine:
         if earlier is not None:
             start = self._earlier_vectors(earlier)
             if cfg.optimizer == "adam":
-                params, terms, silhouettes, iterations = self._fit_adam(frames, targets, None, notify, start)
+                params, terms, silhouettes, iterations = self._fit_adam(frames, targets, None, notify, prepared, start)
             else:
-                params, terms, silhouettes, iterations = self._refine_lm(frames, targets, start, notify)
+                params, terms, silhouettes, iterations = self._refine_lm(frames, targets, start, notify, prepared)
         elif cfg.optimizer == "adam":
-            params, terms, silhouettes, iterations = self._fit_adam(frames, targets, self._placements(frames), notify)
+            params, terms, silhouettes, iterations = self._fit_adam(frames, targets, self._placements(frames), notify,
+                                                                    prepared)
         else:
-            params, terms, silhouettes, iterations = self._fit_lm(frames, targets, self._placements(frames), notify)
+            params, terms, silhouettes, iterations = self._fit_lm(frames, targets, self._placements(frames), notify,
+                                                                  prepared)
         with torch.no_grad():
             out = self._forward(params)
         notify(1.0, "done")
@@ -189,7 +208,7 @@ class FittingEngine:
     _STAGE1 = ("global_orient", "transl", "coefficients")  # shape frozen while the hand is placed
     _STAGE2 = ("global_orient", "transl", "coefficients", "betas")
 
-    def _fit_lm(self, frames, targets: Targets, placements, notify):
+    def _fit_lm(self, frames, targets: Targets, placements, notify, prepared: list[FrameMasks] | None):
         """Several starts per frame through stage 1 (keypoints), the best `finalists` of them (by the full
         objective) through stage 2 (silhouettes too); the start with the lowest objective wins."""
         cfg = self.config
@@ -205,7 +224,7 @@ class FittingEngine:
         best1 = cost1.reshape(B, M).argmin(1)
         pick = torch.arange(B, device=self.device) * M + best1
         # Masks are cut at the wrist of each frame's best stage-1 model.
-        silhouettes, targets = self._silhouette_targets(frames, stage1[pick], targets)
+        silhouettes, targets = self._silhouette_targets(frames, stage1[pick], targets, prepared)
         silhouette = silhouettes is not None
         K = min(cfg.finalists, M)
         if K < M:
@@ -226,11 +245,11 @@ class FittingEngine:
         terms = self.objective.terms(solved, targets, silhouette)
         return self._params(solved), terms, silhouettes, iterations.cpu().numpy()
 
-    def _refine_lm(self, frames, targets: Targets, start: torch.Tensor, notify):
+    def _refine_lm(self, frames, targets: Targets, start: torch.Tensor, notify, prepared: list[FrameMasks] | None):
         """Stage 2 from each frame's start vector (B, P) float64."""
         cfg = self.config
         targets = targets.to(torch.float64)
-        silhouettes, targets = self._silhouette_targets(frames, start, targets)
+        silhouettes, targets = self._silhouette_targets(frames, start, targets, prepared)
         silhouette = silhouettes is not None
         solved, steps = self._solve(start, self._STAGE2, targets, cfg.full_iterations,
                                     lambda i: notify(i / max(cfg.full_iterations, 1), "refining pose and shape"),
@@ -239,6 +258,7 @@ class FittingEngine:
         return self._params(solved), terms, silhouettes, steps.cpu().numpy()
 
     def _silhouette_targets(self, frames, vectors: torch.Tensor, targets: Targets,
+                            prepared: list[FrameMasks] | None = None,
                             ) -> tuple[dict[str, torch.Tensor] | None, Targets]:
         """The silhouettes (None without masks or with silhouettes off), masks cut at the wrist of the models of
         `vectors` (B, P), and the float64 targets with them."""
@@ -247,7 +267,7 @@ class FittingEngine:
         with torch.no_grad():
             placed = self._forward(self._params(vectors))
         silhouettes = self._prepare_silhouettes(frames, placed.joints.double().cpu().numpy(),
-                                                placed.vertices.double().cpu().numpy())
+                                                placed.vertices.double().cpu().numpy(), prepared)
         return silhouettes, self._with_silhouettes(targets, silhouettes).to(torch.float64)
 
     def _earlier_vectors(self, earlier: list[FitResult]) -> torch.Tensor:
@@ -311,7 +331,8 @@ class FittingEngine:
                        coverage_cap=silhouettes["coverage_cap"])
 
     # -- Adam (the paper's optimiser) ----------------------------------------------------------------
-    def _fit_adam(self, frames, targets: Targets, placements, notify, start: torch.Tensor | None = None):
+    def _fit_adam(self, frames, targets: Targets, placements, notify, prepared: list[FrameMasks] | None,
+                  start: torch.Tensor | None = None):
         """One start per frame (the best placement); stage 1 from keypoints, stage 2 with silhouettes. Given
         `start` (B, P) (`refine`): stage 2 only, from there."""
         cfg = self.config
@@ -330,7 +351,7 @@ class FittingEngine:
             with torch.no_grad():
                 placed = self._forward(params)
             silhouettes = self._prepare_silhouettes(frames, placed.joints.double().cpu().numpy(),
-                                                    placed.vertices.double().cpu().numpy())
+                                                    placed.vertices.double().cpu().numpy(), prepared)
         iterations = iterations + self._optimise(
             [params[n] for n in self._STAGE2], params, cfg.full_iterations, clicks, click_w, kp3d, kp3d_w, silhouettes,
             lambda i: notify((first + i) / total, "fitting pose and shape"))
@@ -364,13 +385,14 @@ class FittingEngine:
         return ranked
 
     def _prepare_silhouettes(self, frames: list[FrameObservations], joints: np.ndarray, vertices: np.ndarray,
-                             ) -> dict[str, torch.Tensor]:
+                             prepared: list[FrameMasks] | None = None) -> dict[str, torch.Tensor]:
         """Wrist-cut masks -> padded outside-distance fields (B, C, H, W), boundary samples (B, C, N, 2)."""
         cfg = self.config
         B, C = len(frames), len(self.cameras)
         H = max(c.height for c in self.cameras)
         W = max(c.width for c in self.cameras)
         N = cfg.boundary_points
+        prepared = prepared or self.prepare_masks(frames)
         dist = np.zeros((B, C, H, W), dtype=np.float32)
         boundary = np.zeros((B, C, N, 2))
         normals = np.zeros((B, C, N, 2))
@@ -383,7 +405,8 @@ class FittingEngine:
             row: list[np.ndarray | None] = []
             for c, cam in enumerate(self.cameras):
                 mask = None if f.masks is None else f.masks[c]
-                if mask is None or not np.any(mask):
+                outside = prepared[b].outside_px[c]
+                if outside is None:
                     row.append(None)
                     continue
                 mask = np.asarray(mask, dtype=bool)
@@ -391,13 +414,13 @@ class FittingEngine:
                 # of the hand), and must cover the hand part, whose cut line is no real edge.
                 hand = mask
                 if cfg.cut_forearm and f.masks_include_forearm:
-                    # Hand direction: wrist joint -> middle finger base (MANO joint 4).
+                    # Hand direction: wrist joint -> middle finger base (MANO joint 4). The model's silhouette is
+                    # rendered only for a view that needs it (along the forearm: measured 36 ms a frame otherwise).
                     hand = cut_forearm(mask, cam, joints[b, 0], joints[b, 4] - joints[b, 0],
-                                       model_silhouette=model_mask(vertices[b], self.arrays.faces, cam))
+                                       model_silhouette=partial(model_mask, vertices[b], self.arrays.faces, cam),
+                                       pixels=prepared[b].pixels[c])
                 row.append(hand)
-                canvas = np.zeros((H, W), dtype=bool)
-                canvas[: cam.height, : cam.width] = mask
-                dist[b, c] = outside_distance_px(canvas)
+                dist[b, c] = outside
                 pts, nrm = boundary_samples(hand, N, rng, exclude=mask & ~hand)
                 boundary[b, c, : len(pts)], normals[b, c, : len(pts)], valid[b, c, : len(pts)] = pts, nrm, True
                 view_w[b, c] = 1.0

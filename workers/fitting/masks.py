@@ -7,6 +7,9 @@ model (or of the triangulated wrist click), see `cut_forearm`.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
 
@@ -18,9 +21,31 @@ from workers.geometry.projection import undistort_pixels
 MIN_CUT_ANGLE_DEG = 25.0
 
 
+@dataclass(frozen=True)
+class MaskPixels:
+    """A mask's pixels and where they look: what `cut_forearm` needs of a mask whatever the hand's pose, so a fit
+    that cuts the same mask twice (a first fit and its continuation) undistorts its pixels once.
+
+    Attributes:
+        rows, cols: (N,) int, the mask's pixels (np.nonzero order).
+        ideal_px: (N, 2) float64, those pixels (x, y) with the lens distortion removed (same K).
+    """
+
+    rows: np.ndarray
+    cols: np.ndarray
+    ideal_px: np.ndarray
+
+
+def mask_pixels(mask: np.ndarray, camera: Camera) -> MaskPixels:
+    """The (H, W) bool mask's pixels and their undistorted positions in the camera (`MaskPixels`)."""
+    rows, cols = np.nonzero(mask)
+    return MaskPixels(rows, cols, undistort_pixels(np.stack([cols, rows], 1).astype(np.float64), camera))
+
+
 def cut_forearm(mask: np.ndarray, camera: Camera, wrist_world: np.ndarray, hand_dir_world: np.ndarray,
                 margin_m: float = 0.004, body_radius_m: float = 0.028,
-                model_silhouette: np.ndarray | None = None, near_model_px: float = 15.0) -> np.ndarray:
+                model_silhouette: np.ndarray | Callable[[], np.ndarray] | None = None, near_model_px: float = 15.0,
+                pixels: MaskPixels | None = None) -> np.ndarray:
     """Remove the forearm from a hand+forearm mask.
 
     Each mask pixel's viewing ray is followed to where it enters a cylinder of `body_radius_m` around
@@ -37,8 +62,10 @@ def cut_forearm(mask: np.ndarray, camera: Camera, wrist_world: np.ndarray, hand_
         body_radius_m: radius of the cylinder standing in for the wrist and forearm surface, metres
             (tuned on rendered hand and forearm cylinders: 2-3.5 cm keep >= 90 % of the hand and cut
             >= 98 % of the forearm in all eight views of the default rig).
-        model_silhouette: (H, W) bool silhouette of the current hand estimate, for degenerate views.
+        model_silhouette: (H, W) bool silhouette of the current hand estimate, for degenerate views, or a function
+            that renders it: it is called only for such a view (most views need no rendering).
         near_model_px: how far from that silhouette mask pixels are kept, pixels at 320 px width.
+        pixels: `mask_pixels(mask, camera)` where the caller has it already; computed here otherwise.
     Returns:
         (H, W) bool, the hand part of the mask.
     """
@@ -53,11 +80,12 @@ def cut_forearm(mask: np.ndarray, camera: Camera, wrist_world: np.ndarray, hand_
     if angle < MIN_CUT_ANGLE_DEG:
         if model_silhouette is None:
             return mask.copy()
+        silhouette = model_silhouette() if callable(model_silhouette) else model_silhouette
         radius = max(1, round(near_model_px * camera.width / 320))
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
-        return mask & cv2.dilate(model_silhouette.astype(np.uint8), kernel).astype(bool)
-    v, u = np.nonzero(mask)
-    ideal = undistort_pixels(np.stack([u, v], 1).astype(np.float64), camera)
+        return mask & cv2.dilate(silhouette.astype(np.uint8), kernel).astype(bool)
+    pixels = pixels or mask_pixels(mask, camera)
+    v, u, ideal = pixels.rows, pixels.cols, pixels.ideal_px
     rays_cam = np.linalg.solve(camera.K, np.concatenate([ideal, np.ones((len(u), 1))], 1).T)  # (3, N)
     rays = (camera.R.T @ rays_cam).T
     rays /= np.linalg.norm(rays, axis=1, keepdims=True)  # (N, 3) unit world directions

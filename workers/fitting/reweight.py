@@ -77,9 +77,10 @@ def fit_reweighted(engine: FittingEngine, frames: list[FrameObservations],
         return None if progress is None else (lambda f, m: progress(offset + share * f, m))
 
     cameras = list(engine.cameras)
-    first = engine.fit(frames, progress=part(0.0, FIRST_FIT_SHARE))
+    prepared = engine.prepare_masks(frames)  # the reweighted frames keep their masks: both fits share these
+    first = engine.fit(frames, progress=part(0.0, FIRST_FIT_SHARE), prepared=prepared)
     second = [residual_reweighted(obs, result.keypoints, cameras) for obs, result in zip(frames, first, strict=True)]
-    refined = engine.refine(second, first, progress=part(FIRST_FIT_SHARE, 1.0 - FIRST_FIT_SHARE))
+    refined = engine.refine(second, first, progress=part(FIRST_FIT_SHARE, 1.0 - FIRST_FIT_SHARE), prepared=prepared)
     # The diagnostics count the work of both fits (solver steps, seconds per frame).
     out = []
     for a, b in zip(first, refined, strict=True):

@@ -35,17 +35,36 @@ class Triangulation:
 
 
 def _dlt_point(P: np.ndarray, uv: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """P (C,3,4), undistorted pixels uv (C,2), weights w (C,) -> (3,) world point by weighted DLT."""
+    """P (..., C, 3, 4), undistorted pixels uv (..., C, 2), weights w (..., C) -> (..., 3) world points by weighted
+    DLT, one per leading index (batched: numpy's SVD of a stack equals its SVDs one by one)."""
     rows = np.concatenate([
-        uv[:, 0:1] * P[:, 2] - P[:, 0],
-        uv[:, 1:2] * P[:, 2] - P[:, 1],
-    ])  # (2C, 4)
+        uv[..., 0:1] * P[..., 2, :] - P[..., 0, :],
+        uv[..., 1:2] * P[..., 2, :] - P[..., 1, :],
+    ], axis=-2)  # (..., 2C, 4)
     # Normalise each row so a view's weight is not scaled by its focal length or depth.
-    rows /= np.linalg.norm(rows[:, :3], axis=1, keepdims=True) + 1e-12
-    rows *= np.concatenate([w, w])[:, None]
+    rows /= np.linalg.norm(rows[..., :3], axis=-1, keepdims=True) + 1e-12
+    rows *= np.concatenate([w, w], axis=-1)[..., None]
     _, _, vt = np.linalg.svd(rows)
-    X = vt[-1]
-    return X[:3] / X[3]
+    X = vt[..., -1, :]
+    return X[..., :3] / X[..., 3:4]
+
+
+def _pair_hypothesis_errors(P: np.ndarray, ideal: np.ndarray, observed: np.ndarray, cameras: list[Camera],
+                     pixels: np.ndarray) -> list[np.ndarray]:
+    """The reprojection errors of every point's two-view hypotheses (a DLT from each pair of its observed views), all
+    points in one batch (point by point this was most of a frame's lifting time). P (C, 3, 4); ideal and pixels
+    (C, N, 2); observed (C, N) bool. Returns per point n the errors (H_n, C) of its H_n pairs (in
+    itertools.combinations order) in every view, inf where unobserved or behind a camera."""
+    C, N = observed.shape
+    pairs = [np.asarray(list(combinations(np.flatnonzero(observed[:, n]), 2)), dtype=np.int64).reshape(-1, 2)
+             for n in range(N)]
+    point = np.repeat(np.arange(N), [len(p) for p in pairs])  # (T,) the point of each hypothesis
+    if not len(point):
+        return [np.zeros((0, C)) for _ in range(N)]
+    views = np.concatenate(pairs)  # (T, 2)
+    hypotheses = _dlt_point(P[views], ideal[views, point[:, None]], np.ones(views.shape))  # (T, 3)
+    errors = _reprojection_errors(hypotheses, cameras, pixels[:, point])
+    return np.split(errors, np.cumsum([len(p) for p in pairs])[:-1])
 
 
 def triangulate(pixels: np.ndarray, cameras: list[Camera], weights: np.ndarray | None = None,
@@ -87,13 +106,11 @@ def triangulate(pixels: np.ndarray, cameras: list[Camera], weights: np.ndarray |
     inliers = np.zeros((C, N), dtype=bool)
     error = np.full(N, np.nan)
     median = np.full(N, np.nan)
+    hypothesis_errors = _pair_hypothesis_errors(P, ideal, observed, cameras, pixels)
     for n in range(N):
-        views = np.flatnonzero(observed[:, n])
-        if len(views) < 2:
+        if observed[:, n].sum() < 2:
             continue
-        pairs = np.asarray(list(combinations(views, 2)))  # (H, 2) two-view hypotheses
-        hypotheses = np.stack([_dlt_point(P[p], ideal[p, n], np.ones(2)) for p in pairs])
-        err = _reprojection_errors(hypotheses, cameras, pixels[:, n])  # (H, C)
+        err = hypothesis_errors[n]  # (H, C), one row per two-view hypothesis
         inl_h = observed[None, :, n] & (err < outlier_px)
         count = inl_h.sum(axis=1)
         mean_err = np.where(inl_h, err, 0).sum(axis=1) / np.maximum(count, 1)
@@ -143,9 +160,10 @@ def refine_point(X: np.ndarray, P: np.ndarray, uv: np.ndarray, w: np.ndarray, it
 
 
 def _reprojection_errors(X: np.ndarray, cameras: list[Camera], observed_px: np.ndarray) -> np.ndarray:
-    """Points (H, 3), observed pixels (C, 2) (NaN allowed) -> (H, C) pixel errors (inf where
-    unobserved or behind the camera)."""
+    """Points (H, 3), observed pixels (C, 2), or (C, H, 2) one set per point (NaN allowed) -> (H, C) pixel errors
+    (inf where unobserved or behind the camera)."""
     projected, depth = project_points(X, cameras)  # (C, H, 2), (C, H)
-    err = np.linalg.norm(projected - observed_px[:, None, :], axis=2).T
+    observed = observed_px[:, None, :] if observed_px.ndim == 2 else observed_px
+    err = np.linalg.norm(projected - observed, axis=2).T
     err[~np.isfinite(err) | (depth.T <= 0)] = np.inf
     return err

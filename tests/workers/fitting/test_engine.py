@@ -167,3 +167,25 @@ def test_refine_continues_an_earlier_fit_from_its_parameters(hand, rig, known_fr
         engine.refine(frames, [placed])
     with pytest.raises(FitInputError, match="hand model"):
         engine.refine(frames[1:], [dataclasses.replace(placed, hand_model="another")])
+
+
+def test_masks_prepared_once_fit_as_masks_each_fit_prepares(hand, rig, known_frames):
+    """`fit` and `refine` given `prepare_masks` of their frames (as `fit_reweighted` shares them between its two fits)
+    fit exactly as they do preparing the masks themselves; masks of other frames are refused."""
+    frames = [dataclasses.replace(f, masks_include_forearm=True) for f in known_frames[0]]  # cut at the wrist
+    engine = FittingEngine(hand, rig, FitConfig(full_iterations=8))
+    prepared = engine.prepare_masks(frames)
+    for p, f in zip(prepared, frames, strict=True):
+        assert p.masks is f.masks
+        assert [o is None for o in p.outside_px] == [m is None or not m.any() for m in f.masks]
+        assert [q is None for q in p.pixels] == [o is None for o in p.outside_px]  # undistorted for the cut
+    first = engine.fit(frames, prepared=prepared)
+    for a, b in zip(first, engine.fit(frames), strict=True):
+        assert np.array_equal(a.vertices, b.vertices)
+        assert np.array_equal(a.diagnostics.iou_per_view, b.diagnostics.iou_per_view, equal_nan=True)
+    for a, b in zip(engine.refine(frames, first, prepared=prepared), engine.refine(frames, first), strict=True):
+        assert np.array_equal(a.vertices, b.vertices)
+    with pytest.raises(ValueError, match="prepare_masks"):
+        engine.fit(frames[:1], prepared=prepared[1:])
+    with pytest.raises(ValueError, match="prepare_masks"):
+        engine.refine(frames, first, prepared=prepared[:1])

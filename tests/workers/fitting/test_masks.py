@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from workers.fitting.masks import MIN_CUT_ANGLE_DEG, boundary_points, cut_forearm, outside_distance_px
+from workers.fitting.masks import MIN_CUT_ANGLE_DEG, boundary_points, cut_forearm, mask_pixels, outside_distance_px
 from workers.geometry.rig import default_rig
 from workers.rendering import rasterize
 
@@ -41,6 +41,45 @@ def test_view_along_the_forearm_is_left_uncut():
     mask = np.zeros((camera.height, camera.width), dtype=bool)
     mask[100:150, 100:150] = True
     assert np.array_equal(cut_forearm(mask, camera, np.zeros(3), axis), mask)
+
+
+def test_the_model_silhouette_is_rendered_only_for_a_view_along_the_forearm():
+    """A function in place of the silhouette is called for a view the cut cannot serve, and only there."""
+    along = default_rig()[7]
+    axis = -along.center_world / np.linalg.norm(along.center_world)
+    mask = np.zeros((along.height, along.width), dtype=bool)
+    mask[100:150, 100:150] = True
+    silhouette = np.zeros_like(mask)
+    silhouette[110:130, 110:130] = True
+    calls: list[int] = []
+
+    def render() -> np.ndarray:
+        calls.append(1)
+        return silhouette
+
+    assert np.array_equal(cut_forearm(mask, along, np.zeros(3), axis, model_silhouette=render),
+                          cut_forearm(mask, along, np.zeros(3), axis, model_silhouette=silhouette))
+    assert len(calls) == 1
+    across = default_rig()[0]
+    hand_v, hand_f = _cylinder(0.0, 0.17, 0.035)
+    arm = rasterize(hand_v, hand_f, [across], with_bary=False)[0].face_ids >= 0
+    cut_forearm(arm, across, np.zeros(3), ARM_ROTATION @ np.array([1.0, 0, 0]), model_silhouette=render)
+    assert len(calls) == 1
+
+
+@pytest.mark.parametrize("camera_index", [0, 3])
+def test_a_cut_from_prepared_pixels_equals_one_that_prepares_them(camera_index):
+    camera = default_rig()[camera_index]
+    hand_v, hand_f = _cylinder(0.0, 0.17, 0.035)
+    arm_v, arm_f = _cylinder(-0.6, -0.002, 0.03)
+    mask = rasterize(np.concatenate([hand_v, arm_v]), np.concatenate([hand_f, arm_f + len(hand_v)]), [camera],
+                     with_bary=False)[0].face_ids >= 0
+    axis = ARM_ROTATION @ np.array([1.0, 0, 0])
+    pixels = mask_pixels(mask, camera)
+    assert len(pixels.rows) == mask.sum() and pixels.ideal_px.shape == (mask.sum(), 2)
+    cut = cut_forearm(mask, camera, np.zeros(3), axis, pixels=pixels)
+    assert np.array_equal(cut, cut_forearm(mask, camera, np.zeros(3), axis))
+    assert 0 < cut.sum() < mask.sum()
 
 
 def test_distance_field_and_boundary():

@@ -69,7 +69,11 @@ class _RecordingEngine:
         self.answers = answers
         self.calls: list[list[FrameObservations]] = []
 
-    def fit(self, frames, progress=None):
+    def prepare_masks(self, frames):
+        return [object() for _ in frames]
+
+    def fit(self, frames, progress=None, prepared=None):
+        self.prepared = [prepared]
         self.calls.append(frames)
         if progress is not None:
             progress(0.0, "start")
@@ -77,9 +81,12 @@ class _RecordingEngine:
         n = len(self.calls)
         return [_Answer(self.answers[n - 1], _Diagnostics(iterations=10 * n, seconds=0.1 * n)) for _ in frames]
 
-    def refine(self, frames, earlier, progress=None):
+    def refine(self, frames, earlier, progress=None, prepared=None):
         self.refined_from = earlier
-        return self.fit(frames, progress)
+        first_prepared = self.prepared
+        answer = self.fit(frames, progress, prepared)
+        self.prepared = first_prepared + self.prepared
+        return answer
 
 
 def test_a_detector_frame_is_fitted_again_with_the_first_fits_residuals():
@@ -98,5 +105,6 @@ def test_a_detector_frame_is_fitted_again_with_the_first_fits_residuals():
     assert engine.calls[1][0].click_weights[0, 4] < 0.8 / 2  # the far detection pulls less the second time
     assert results[0].keypoints is second_answer  # the second fit is the answer
     assert [r.keypoints for r in engine.refined_from] == [keypoints]  # it continues the first
+    assert engine.prepared[0] is engine.prepared[1] and len(engine.prepared[0]) == 1  # both fits share the masks
     assert results[0].diagnostics == _Diagnostics(iterations=10 + 20, seconds=pytest.approx(0.1 + 0.2))  # both fits
     assert seen == pytest.approx([0.0, FIRST_FIT_SHARE, FIRST_FIT_SHARE, 1.0])  # progress over both fits

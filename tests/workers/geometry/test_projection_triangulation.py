@@ -71,6 +71,29 @@ def test_outlier_view_is_rejected():
     assert 1000 * np.linalg.norm(naive.points_world - points, axis=1).mean() > 2 * error_mm.mean()
 
 
+@pytest.mark.parametrize("refine", [False, True])
+def test_points_triangulated_together_equal_points_triangulated_alone(refine):
+    """All points' two-view hypotheses go through one batch: no point's views, outliers or weights may reach
+    another's. Each point here has its own missing views, outlier views and weights."""
+    rng = np.random.default_rng(7)
+    points = _points(8, n=12)
+    pixels, _ = project_points(points, RIG)
+    pixels = pixels + rng.normal(0, 0.7, pixels.shape)
+    weights = rng.uniform(0.2, 1.0, pixels.shape[:2])
+    for n in range(12):
+        views = rng.choice(len(RIG), size=n % 4, replace=False)
+        pixels[views[: len(views) // 2], n] += rng.uniform(30, 80, 2)  # outlier views
+        weights[views[len(views) // 2:], n] = 0.0  # views that did not see the point
+    pixels[:7, 11] = np.nan  # a point seen by one view only: not triangulated
+    together = triangulate(pixels, RIG, weights, refine=refine)
+    assert together.valid[:11].all() and not together.valid[11]
+    for n in range(12):
+        alone = triangulate(pixels[:, n: n + 1], RIG, weights[:, n: n + 1], refine=refine)
+        assert np.array_equal(alone.points_world[0], together.points_world[n], equal_nan=True)
+        assert np.array_equal(alone.inliers[:, 0], together.inliers[:, n])
+    assert 1000 * np.linalg.norm(together.points_world[:11] - points[:11], axis=1).max() < 5.0  # outliers out
+
+
 def test_weights_missing_views_and_too_few_views():
     points = _points(4, n=3)
     pixels, _ = project_points(points, RIG)

@@ -46,11 +46,16 @@ def observed_points_3d(obs: FrameObservations, cameras: list[Camera]) -> tuple[n
         w = np.ones(21) if obs.keypoint_3d_weights is None else np.asarray(obs.keypoint_3d_weights, float)
         ok = np.isfinite(kp).all(1) & (w > 0)
         targets[ok], weights[ok] = kp[ok], w[ok]
-    clicks = np.where(obs.click_weights[..., None] > 0, obs.clicks_px, np.nan)
-    tri = triangulate(clicks, cameras, obs.click_weights)
-    use = tri.valid & (weights == 0)
-    targets[use] = tri.points_world[use]
-    weights[use] = tri.inliers[:, use].sum(0) / len(cameras)
+    # Only the keypoints without a 3D one are triangulated (points triangulate independently of each other): a
+    # detector's frame comes with its lift, so mostly none are.
+    missing = np.flatnonzero(weights == 0)
+    if not len(missing):
+        return targets, weights
+    clicks = np.where(obs.click_weights[:, missing, None] > 0, obs.clicks_px[:, missing], np.nan)
+    tri = triangulate(clicks, cameras, obs.click_weights[:, missing])
+    use = missing[tri.valid]
+    targets[use] = tri.points_world[tri.valid]
+    weights[use] = tri.inliers[:, tri.valid].sum(0) / len(cameras)
     return targets, weights
 
 

@@ -24,7 +24,7 @@ import torch
 
 from workers.fitting import losses
 from workers.fitting.config import FitConfig
-from workers.fitting.frame_masks import FrameMasks, prepare_frame_masks
+from workers.fitting.frame_masks import PreparedMasks, prepare_masks
 from workers.fitting.gauss_newton import normal_equations
 from workers.fitting.init import Placement, observed_points_3d, rank_placements
 from workers.fitting.inputs import FitInputError, FrameObservations
@@ -116,24 +116,21 @@ class FittingEngine:
 
     # -- public API --------------------------------------------------------------------------------
     def fit(self, frames: list[FrameObservations], progress: ProgressCallback | None = None,
-            prepared: list[FrameMasks] | None = None) -> list[FitResult]:
+            prepared: PreparedMasks | None = None) -> list[FitResult]:
         """Fit every frame (optimised together as one batch). Raises FitInputError on bad input.
 
         `prepared`: the frames' `prepare_masks`, where the caller fits them more than once; made here otherwise."""
         with self._fit_threads():
             return self._fit(frames, progress, prepared=prepared)
 
-    def prepare_masks(self, frames: list[FrameObservations]) -> list[FrameMasks]:
-        """What the fits of these frames derive from their masks alone (`FrameMasks`), for `fit` and `refine` to
-        share: a frame fitted twice pays for its distance fields and undistorted mask pixels once."""
-        H = max(c.height for c in self.cameras)
-        W = max(c.width for c in self.cameras)
-        return [prepare_frame_masks(f, self.cameras, (H, W), self.config.cut_forearm and f.masks_include_forearm)
-                for f in frames]
+    def prepare_masks(self, frames: list[FrameObservations]) -> PreparedMasks:
+        """What the fits of these frames derive from their masks alone (`PreparedMasks`), for `fit` and `refine` to
+        share: frames fitted twice pay for their distance fields and undistorted mask pixels once."""
+        return prepare_masks(frames, self.cameras, self.config.cut_forearm)
 
     def refine(self, frames: list[FrameObservations], earlier: list[FitResult],
                progress: ProgressCallback | None = None,
-               prepared: list[FrameMasks] | None = None) -> list[FitResult]:
+               prepared: PreparedMasks | None = None) -> list[FitResult]:
         """Continue each frame's earlier fit on changed observations of the same frame (reweighted keypoints):
         the second stage only (every parameter, silhouettes against masks cut at the earlier fit's wrist), started
         from the earlier fit's parameters; no placement, no first stage, no other starts. Raises FitInputError on
@@ -164,12 +161,11 @@ class FittingEngine:
             torch.set_num_threads(previous)
 
     def _fit(self, frames: list[FrameObservations], progress: ProgressCallback | None,
-             earlier: list[FitResult] | None = None, prepared: list[FrameMasks] | None = None) -> list[FitResult]:
+             earlier: list[FitResult] | None = None, prepared: PreparedMasks | None = None) -> list[FitResult]:
         if not frames:
             raise FitInputError("no frames to fit")
-        if prepared is not None and (len(prepared) != len(frames) or any(
-                p.masks is not f.masks for p, f in zip(prepared, frames, strict=False))):
-            raise ValueError("prepared masks must be prepare_masks() of these frames' masks, one per frame, in order")
+        if prepared is not None and not prepared.matches(frames):
+            raise ValueError("prepared masks must be prepare_masks() of these frames' masks, in order")
         for i, obs in enumerate(frames):
             try:
                 obs.validate(self.cameras)
@@ -208,7 +204,7 @@ class FittingEngine:
     _STAGE1 = ("global_orient", "transl", "coefficients")  # shape frozen while the hand is placed
     _STAGE2 = ("global_orient", "transl", "coefficients", "betas")
 
-    def _fit_lm(self, frames, targets: Targets, placements, notify, prepared: list[FrameMasks] | None):
+    def _fit_lm(self, frames, targets: Targets, placements, notify, prepared: PreparedMasks | None):
         """Several starts per frame through stage 1 (keypoints), the best `finalists` of them (by the full
         objective) through stage 2 (silhouettes too); the start with the lowest objective wins."""
         cfg = self.config
@@ -245,7 +241,7 @@ class FittingEngine:
         terms = self.objective.terms(solved, targets, silhouette)
         return self._params(solved), terms, silhouettes, iterations.cpu().numpy()
 
-    def _refine_lm(self, frames, targets: Targets, start: torch.Tensor, notify, prepared: list[FrameMasks] | None):
+    def _refine_lm(self, frames, targets: Targets, start: torch.Tensor, notify, prepared: PreparedMasks | None):
         """Stage 2 from each frame's start vector (B, P) float64."""
         cfg = self.config
         targets = targets.to(torch.float64)
@@ -258,7 +254,7 @@ class FittingEngine:
         return self._params(solved), terms, silhouettes, steps.cpu().numpy()
 
     def _silhouette_targets(self, frames, vectors: torch.Tensor, targets: Targets,
-                            prepared: list[FrameMasks] | None = None,
+                            prepared: PreparedMasks | None = None,
                             ) -> tuple[dict[str, torch.Tensor] | None, Targets]:
         """The silhouettes (None without masks or with silhouettes off), masks cut at the wrist of the models of
         `vectors` (B, P), and the float64 targets with them."""
@@ -331,7 +327,7 @@ class FittingEngine:
                        coverage_cap=silhouettes["coverage_cap"])
 
     # -- Adam (the paper's optimiser) ----------------------------------------------------------------
-    def _fit_adam(self, frames, targets: Targets, placements, notify, prepared: list[FrameMasks] | None,
+    def _fit_adam(self, frames, targets: Targets, placements, notify, prepared: PreparedMasks | None,
                   start: torch.Tensor | None = None):
         """One start per frame (the best placement); stage 1 from keypoints, stage 2 with silhouettes. Given
         `start` (B, P) (`refine`): stage 2 only, from there."""
@@ -385,15 +381,12 @@ class FittingEngine:
         return ranked
 
     def _prepare_silhouettes(self, frames: list[FrameObservations], joints: np.ndarray, vertices: np.ndarray,
-                             prepared: list[FrameMasks] | None = None) -> dict[str, torch.Tensor]:
+                             prepared: PreparedMasks | None = None) -> dict[str, torch.Tensor]:
         """Wrist-cut masks -> padded outside-distance fields (B, C, H, W), boundary samples (B, C, N, 2)."""
         cfg = self.config
         B, C = len(frames), len(self.cameras)
-        H = max(c.height for c in self.cameras)
-        W = max(c.width for c in self.cameras)
         N = cfg.boundary_points
         prepared = prepared or self.prepare_masks(frames)
-        dist = np.zeros((B, C, H, W), dtype=np.float32)
         boundary = np.zeros((B, C, N, 2))
         normals = np.zeros((B, C, N, 2))
         valid = np.zeros((B, C, N), dtype=bool)
@@ -404,12 +397,10 @@ class FittingEngine:
             rng = np.random.default_rng(cfg.seed)
             row: list[np.ndarray | None] = []
             for c, cam in enumerate(self.cameras):
-                mask = None if f.masks is None else f.masks[c]
-                outside = prepared[b].outside_px[c]
-                if outside is None:
+                if not prepared.has_mask[b, c]:
                     row.append(None)
                     continue
-                mask = np.asarray(mask, dtype=bool)
+                mask = np.asarray(f.masks[c], dtype=bool)  # has_mask: the frame has masks
                 # The model must lie inside the whole silhouette (forearm included: it may hide part
                 # of the hand), and must cover the hand part, whose cut line is no real edge.
                 hand = mask
@@ -418,15 +409,14 @@ class FittingEngine:
                     # rendered only for a view that needs it (along the forearm: measured 36 ms a frame otherwise).
                     hand = cut_forearm(mask, cam, joints[b, 0], joints[b, 4] - joints[b, 0],
                                        model_silhouette=partial(model_mask, vertices[b], self.arrays.faces, cam),
-                                       pixels=prepared[b].pixels[c])
+                                       pixels=prepared.pixels[b][c])
                 row.append(hand)
-                dist[b, c] = outside
                 pts, nrm = boundary_samples(hand, N, rng, exclude=mask & ~hand)
                 boundary[b, c, : len(pts)], normals[b, c, : len(pts)], valid[b, c, : len(pts)] = pts, nrm, True
                 view_w[b, c] = 1.0
             cut_masks.append(row)
         return {
-            "outside": self._tensor(dist),
+            "outside": self._tensor(prepared.outside_px),  # shared, not copied: read only
             "boundary": self._tensor(boundary),
             "normals": self._tensor(normals),
             "valid": torch.as_tensor(valid, device=self.device),

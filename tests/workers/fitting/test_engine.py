@@ -170,15 +170,16 @@ def test_refine_continues_an_earlier_fit_from_its_parameters(hand, rig, known_fr
 
 
 def test_masks_prepared_once_fit_as_masks_each_fit_prepares(hand, rig, known_frames):
-    """`fit` and `refine` given `prepare_masks` of their frames (as `fit_reweighted` shares them between its two fits)
+    """`fit` and `refine` given `prepare_masks` of their frames (as `fit_reweighted` shares it between its two fits)
     fit exactly as they do preparing the masks themselves; masks of other frames are refused."""
     frames = [dataclasses.replace(f, masks_include_forearm=True) for f in known_frames[0]]  # cut at the wrist
     engine = FittingEngine(hand, rig, FitConfig(full_iterations=8))
     prepared = engine.prepare_masks(frames)
-    for p, f in zip(prepared, frames, strict=True):
-        assert p.masks is f.masks
-        assert [o is None for o in p.outside_px] == [m is None or not m.any() for m in f.masks]
-        assert [q is None for q in p.pixels] == [o is None for o in p.outside_px]  # undistorted for the cut
+    assert prepared.matches(frames) and not prepared.matches(frames[::-1])
+    assert prepared.outside_px.shape == (2, len(rig), max(c.height for c in rig), max(c.width for c in rig))
+    has_mask = [[m is not None and m.any() for m in f.masks] for f in frames]
+    assert prepared.has_mask.tolist() == has_mask
+    assert [[p is not None for p in row] for row in prepared.pixels] == has_mask  # undistorted for the cut
     first = engine.fit(frames, prepared=prepared)
     for a, b in zip(first, engine.fit(frames), strict=True):
         assert np.array_equal(a.vertices, b.vertices)
@@ -186,6 +187,6 @@ def test_masks_prepared_once_fit_as_masks_each_fit_prepares(hand, rig, known_fra
     for a, b in zip(engine.refine(frames, first, prepared=prepared), engine.refine(frames, first), strict=True):
         assert np.array_equal(a.vertices, b.vertices)
     with pytest.raises(ValueError, match="prepare_masks"):
-        engine.fit(frames[:1], prepared=prepared[1:])
+        engine.fit(frames[:1], prepared=prepared)
     with pytest.raises(ValueError, match="prepare_masks"):
-        engine.refine(frames, first, prepared=prepared[:1])
+        engine.refine(frames[::-1], first[::-1], prepared=prepared)

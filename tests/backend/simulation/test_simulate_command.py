@@ -150,6 +150,30 @@ def test_bench_sim_runs_d0_alone_with_zero_rounds(monkeypatch, tmp_path):
     assert record["detector_targets_met"]["heuristic_share_by_round_2"] is False  # no round 1 or 2 to accept in
 
 
+def _round(index: int, evaluated: int, accepted: int) -> dict:
+    return {"index": index, "added": {"heuristic": accepted, "manual": 0, "annotated": 0},
+            "round_job": {"heuristic": {"evaluated": evaluated, "accepted": accepted}}}
+
+
+@pytest.mark.parametrize(("round_1", "round_2", "met"), [(25, 6, True), (20, 9, False)])
+def test_the_heuristic_target_counts_its_acceptances_by_round_2(round_1, round_2, met):
+    """The issue's ">= 30 % of the remaining fitted samples by round 2": rounds 1 and 2's acceptances over the 100
+    samples fitted in round 1, not round 2's share of its own 70 fits (which falls as round 1 takes the easy ones);
+    round 3 does not count."""
+    from backend.bench import sim
+
+    summary = {**_d0_summary(0.6, 150.0, 4), "accepted_vertex_mm": 4.5, "auto_accept_precision": 1.0}
+    summary["rounds"] += [_round(1, 100, round_1), _round(2, 70, round_2), _round(3, 60, 30)]
+    values = sim.detector_values(summary)
+    assert values["heuristic_share_by_round_2"] == pytest.approx((round_1 + round_2) / 100)
+    assert values["heuristic_share_round_2"] == pytest.approx(round_2 / 70)
+    met_now = sim._detector_met(summary)
+    assert met_now["heuristic_share_by_round_2"] is met
+    assert met_now["d0_verified_share"] and met_now["accepted_vertex_mm"] and met_now["auto_accept_precision"]
+    one_round = {**summary, "rounds": summary["rounds"][:2]}  # a run of one round: by its last round
+    assert sim.detector_values(one_round)["heuristic_share_by_round_2"] == pytest.approx(round_1 / 100)
+
+
 def test_bench_sim_passes_the_round_0_plan_to_the_simulation(monkeypatch, tmp_path):
     """--initial-every, --round0-rest (default keep) and --frames reach the simulation (its config, its initial
     set's spacing and the capture's frames per sequence)."""

@@ -50,7 +50,7 @@ def _dlt_point(P: np.ndarray, uv: np.ndarray, w: np.ndarray) -> np.ndarray:
 
 
 def _pair_hypothesis_errors(P: np.ndarray, ideal: np.ndarray, observed: np.ndarray, cameras: list[Camera],
-                     pixels: np.ndarray) -> list[np.ndarray]:
+                            pixels: np.ndarray) -> list[np.ndarray]:
     """The reprojection errors of every point's two-view hypotheses (a DLT from each pair of its observed views), all
     points in one batch (point by point this was most of a frame's lifting time). P (C, 3, 4); ideal and pixels
     (C, N, 2); observed (C, N) bool. Returns per point n the errors (H_n, C) of its H_n pairs (in

@@ -6,8 +6,10 @@ A synthetic capture (default 640 px, 8 sequences x 12 frames, a seed no test use
 sequences; the last two of them (other subjects) are held out whole, and every 4th frame of the others is held out
 too ("same sequences": the loop's case, where MVNet predicts the unlabelled frames of the sequences it was trained
 on). Every frame is detected once (chroma-key masks, cached beside the capture). Measured against ground truth,
-per keypoint, on each held-out set: (a) the detector's lifted keypoints, (b) each configuration's untrained MVNet
-(its readout of the detector's unprojected maps: the U-Net's head starts at zero), (c) the same MVNet after N
+per keypoint, on each held-out set: (a) the detector's lifted keypoints (`lift`), moved by the keypoint offsets
+learned from the training frames (`lift_corrected`) and by those and the pose term (`lift_pose_corrected`), (b) each
+configuration's untrained MVNet (its readout of the detector's unprojected maps: the U-Net's head starts at zero),
+(c) the same MVNet after N
 training steps on the remaining frames (each step count trained from scratch, the cosine schedule over N).
 Keys per set: median / mean / p90 keypoint error (mm), the fraction of keypoints within 10 mm, and the median
 over frames of the largest keypoint error (the heuristic's "max 3D distance" compares per keypoint at 10 mm), and
@@ -269,13 +271,18 @@ def run(*, data_dir: Path | None = None, width: int = 640, sequences: int = 8, f
         lifted = np.stack([d.points_world for d in found])
         record["lift"][key] = keypoint_stats(1000 * np.linalg.norm(lifted - labels[key], axis=-1))
     offsets = learn_detector_offsets(detections["train"], labels["train"])
+    pose_offsets = learn_detector_offsets(detections["train"], labels["train"], pose=True)
     record["lift_corrected"] = {  # the lift moved by the keypoint offsets learned from the training frames' labels
         key: keypoint_stats(1000 * np.linalg.norm(offsets.apply(np.stack([d.points_world for d in found]))
+                                                  - labels[key], axis=-1)) for key, found in detections.items()}
+    record["lift_pose_corrected"] = {  # and by the pose term after them (keypoint_offsets.PoseCorrection)
+        key: keypoint_stats(1000 * np.linalg.norm(pose_offsets.apply(np.stack([d.points_world for d in found]))
                                                   - labels[key], axis=-1)) for key, found in detections.items()}
     record["keypoint_offsets_mm"] = np.round(1000 * offsets.offsets_m, 2).tolist()
     for name in configs:
         config = parsed[name]
-        use = offsets if config.mvnet.detector_offsets else None
+        use = (pose_offsets if config.mvnet.detector_pose_correction else offsets) if config.mvnet.detector_offsets \
+            else None
         sets = {k: build_mvnet_dataset(capture, v, config.mvnet, detections=detections[k], detector_offsets=use)
                 for k, v in (("train", train), *held.items())}
         torch.manual_seed(seed)

@@ -173,7 +173,8 @@ def run(*, quick: bool = False, data_dir: Path | None = None, out_dir: Path | No
         offsets = None
         if det_config.mvnet.detector_offsets:  # learned from the training frames' labels, as a round does
             offsets = learn_detector_offsets(train_detections, np.stack([load_ground_truth(f).keypoints_3d
-                                                                         for f in train_frames]))
+                                                                         for f in train_frames]),
+                                             pose=det_config.mvnet.detector_pose_correction)
         with tqdm(total=len(train_frames), desc="crops (detector)", file=sys.stderr) as bar:
             datasets["detector"] = build_mvnet_dataset(capture, train_frames, det_config.mvnet,
                                                        detections=train_detections, detector_offsets=offsets,

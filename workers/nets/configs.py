@@ -79,6 +79,9 @@ class MVNetConfig:
             offsets learned from the training labels (workers.detector.keypoint_offsets: the detector's keypoint
             convention against the hand model's); the offsets are part of the weights (a buffer), so prediction
             applies what training learned.
+        detector_pose_correction: with detector_offsets, also a correction that depends on the lifted hand's pose
+            (keypoint_offsets.PoseCorrection, ridge regression in the palm's frame), learned where the round has
+            enough labelled frames (POSE_MIN_FRAMES) and saved with the weights like the offsets.
         detector_window_m: detector-backed only, prediction only (not part of the weights): the readout looks for
             each keypoint's peak within this distance (metres) of its lifted, offset-corrected detector keypoint
             (predict.window_scores), so the network refines the lift and a volume peaking elsewhere reads as unsure;
@@ -119,6 +122,7 @@ class MVNetConfig:
     detector_residual: DetectorResidual = "views"
     unet_image_features: bool = True
     detector_offsets: bool = False
+    detector_pose_correction: bool = False
     detector_window_m: float = 0.0
 
     def __post_init__(self) -> None:
@@ -140,6 +144,10 @@ class MVNetConfig:
             raise ValueError(f"detector_offsets must be true or false, got {self.detector_offsets!r}")
         if self.detector_offsets and self.heatmap_source != "detector":
             raise ValueError("detector_offsets needs heatmap_source='detector' (they correct the detector's keypoints)")
+        if not isinstance(self.detector_pose_correction, bool):
+            raise ValueError(f"detector_pose_correction must be true or false, got {self.detector_pose_correction!r}")
+        if self.detector_pose_correction and not self.detector_offsets:
+            raise ValueError("detector_pose_correction needs detector_offsets=True (it corrects what they leave)")
         window = self.detector_window_m
         if isinstance(window, bool) or not isinstance(window, (int, float)) or not math.isfinite(window) or window < 0:
             raise ValueError(f"detector_window_m must be a finite distance >= 0 in metres, got {window!r}")
@@ -269,9 +277,10 @@ def detector_backed_variant(config: NetsConfig, grid_size: int = 24, grid_side_m
     the agreement residual before 2026-12-03 09:10), the 3D U-Net on the detector's maps alone: no 2D CNN, no
     2D head, no 2D-only warm-up; and the detector's keypoint offsets learned from the labels (since 2026-12-03
     18:40: held-out error 6.16 -> 4.13 mm median after 600 steps, docs/benchmarks.md "Detector keypoint
-    offsets"); and the readout within 3 cm of each lifted keypoint (since 2026-12-03 22:10: the round-1 network of
-    the sim on 80 green-screen frames, mean error 17.3 -> 14.3 mm, median unchanged, docs/benchmarks.md "MVNet's
-    readout window"))."""
+    offsets") and, since 2026-12-05, a pose-dependent correction after them (held-out largest keypoint error of a
+    frame 28 -> 17.5 mm, docs/benchmarks.md "A pose-dependent correction"); and the readout within 3 cm of each lifted
+    keypoint (since 2026-12-03 22:10: the round-1 network of the sim on 80 green-screen frames, mean error 17.3 ->
+    14.3 mm, median unchanged, docs/benchmarks.md "MVNet's readout window"))."""
     sigma_map_px = 1.0
     # the maps' width in metres at the hand (one map pixel spans 2 crop_radius_m / feature_px) in voxels
     sigma_voxels = sigma_map_px * (2 * config.mvnet.crop_radius_m / config.mvnet.feature_px) / (grid_side_m / grid_size)
@@ -282,7 +291,7 @@ def detector_backed_variant(config: NetsConfig, grid_size: int = 24, grid_side_m
                     detector_sigma_px=round(sigma_map_px * math.sqrt(2 / 3), 4),
                     grid_size=grid_size, grid_side_m=grid_side_m, sigma_voxels=round(sigma_voxels, 3),
                     detector_residual="likelihood", unet_image_features=False, aux_2d_weight=0.0,
-                    detector_offsets=True, detector_window_m=DETECTOR_WINDOW_M)
+                    detector_offsets=True, detector_pose_correction=True, detector_window_m=DETECTOR_WINDOW_M)
     return replace(config, name=f"{config.name}-detector", mvnet=mvnet)
 
 
@@ -316,6 +325,8 @@ def config_digest(config: MVNetConfig | HandSegNetConfig) -> str:
         arch["unet_image_features"] = False
     if data.get("detector_offsets"):  # absent where False: earlier digests stay as they were
         arch["detector_offsets"] = True
+    if data.get("detector_pose_correction"):  # absent where False: earlier digests stay as they were
+        arch["detector_pose_correction"] = True
     return hashlib.sha1(json.dumps(arch, sort_keys=True).encode()).hexdigest()[:12]
 
 
@@ -365,7 +376,7 @@ def paper_only(config: NetsConfig) -> NetsConfig:
     return replace(config, name=f"{config.name}-paper-only",
                    mvnet=replace(mv, heatmap_source="learned", aux_2d_weight=mv.aux_2d_weight or 1.0,
                                  detector_residual="views", unet_image_features=True,
-                                 detector_offsets=False, detector_window_m=0.0))
+                                 detector_offsets=False, detector_pose_correction=False, detector_window_m=0.0))
 
 
 def get_config(name: str, **mvnet_overrides: Any) -> NetsConfig:

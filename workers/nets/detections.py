@@ -107,14 +107,16 @@ class FrameDetections:
             return cls(data["keypoints_px"], data["scores"], data["points_world"], data["confidence"])
 
 
-def learn_detector_offsets(detections: Sequence[FrameDetections], labels_m: np.ndarray) -> KeypointOffsets:
+def learn_detector_offsets(detections: Sequence[FrameDetections], labels_m: np.ndarray, *,
+                           pose: bool = False) -> KeypointOffsets:
     """The detector's keypoint offsets learned from M labelled frames: their detections and labels (M, 21, 3)
-    metres, world frame (workers.detector.keypoint_offsets.fit_keypoint_offsets)."""
+    metres, world frame (workers.detector.keypoint_offsets.fit_keypoint_offsets; `pose`: with its pose term)."""
     if len(detections) != len(labels_m):
         raise ValueError(f"got {len(detections)} detections for {len(labels_m)} labels")
     if not len(detections):
         return KeypointOffsets.none()
-    return fit_keypoint_offsets(np.stack([d.points_world for d in detections]), np.asarray(labels_m, np.float64))
+    return fit_keypoint_offsets(np.stack([d.points_world for d in detections]), np.asarray(labels_m, np.float64),
+                                pose=pose)
 
 
 def stack_detections(detections: Sequence[FrameDetections]) -> tuple[np.ndarray, np.ndarray]:

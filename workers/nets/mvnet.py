@@ -13,7 +13,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from workers.detector.keypoint_offsets import KeypointOffsets
+from workers.detector.keypoint_offsets import KeypointOffsets, PoseCorrection
 from workers.handmodel.keypoints import NUM_KEYPOINTS
 from workers.nets.blocks import conv_block, max_pool_2x2, unet_pass
 from workers.nets.configs import MVNetConfig
@@ -146,6 +146,13 @@ class MVNet(nn.Module):
             # has it (MPS has no float64), and 1e-7 m is far below what the detector resolves.
             self.register_buffer("detector_offsets_m", torch.zeros(num_keypoints, 3, dtype=torch.float32))
             self.register_buffer("detector_offsets_frames", torch.zeros(num_keypoints, dtype=torch.int64))
+        if config.detector_pose_correction:  # keypoint_offsets.PoseCorrection, float32 as above; 0 frames: none
+            flat = 3 * num_keypoints
+            self.register_buffer("detector_pose_mean", torch.zeros(flat, dtype=torch.float32))
+            self.register_buffer("detector_pose_weights", torch.zeros(flat, flat, dtype=torch.float32))
+            self.register_buffer("detector_pose_bias", torch.zeros(flat, dtype=torch.float32))
+            self.register_buffer("detector_pose_leverage", torch.zeros(flat, flat, dtype=torch.float32))
+            self.register_buffer("detector_pose_frames", torch.zeros((), dtype=torch.int64))
         self.register_buffer("rgb_mean", torch.tensor(RGB_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("rgb_std", torch.tensor(RGB_STD).view(1, 3, 1, 1), persistent=False)
 
@@ -153,14 +160,31 @@ class MVNet(nn.Module):
         """The detector keypoint offsets this network was trained with (None where its configuration has none)."""
         if not self.config.detector_offsets:
             return None
+        pose = None
+        if self.config.detector_pose_correction and int(self.detector_pose_frames) > 0:
+            pose = PoseCorrection(*(b.detach().cpu().numpy().astype(np.float64) for b in
+                                    (self.detector_pose_mean, self.detector_pose_weights, self.detector_pose_bias,
+                                     self.detector_pose_leverage)), frames_used=int(self.detector_pose_frames))
         return KeypointOffsets(self.detector_offsets_m.detach().cpu().numpy().astype(np.float64),
-                               self.detector_offsets_frames.detach().cpu().numpy().astype(np.int64))
+                               self.detector_offsets_frames.detach().cpu().numpy().astype(np.int64), pose)
 
     def set_keypoint_offsets(self, offsets: KeypointOffsets | None) -> None:
         """Record the offsets the training data was corrected with (None: no correction)."""
         offsets = offsets or KeypointOffsets.none()
         self.detector_offsets_m.copy_(torch.as_tensor(offsets.offsets_m, dtype=torch.float32))
         self.detector_offsets_frames.copy_(torch.as_tensor(offsets.frames_used, dtype=torch.int64))
+        if self.config.detector_pose_correction:
+            pose = offsets.pose
+            for name, value in (("mean", None if pose is None else pose.mean),
+                                ("weights", None if pose is None else pose.weights),
+                                ("bias", None if pose is None else pose.bias),
+                                ("leverage", None if pose is None else pose.leverage)):
+                buffer = getattr(self, f"detector_pose_{name}")
+                buffer.copy_(torch.zeros_like(buffer) if value is None else torch.as_tensor(value, dtype=torch.float32))
+            self.detector_pose_frames.fill_(0 if pose is None else pose.frames_used)
+        elif offsets.pose is not None:
+            raise ValueError("these offsets have a pose correction but the configuration has no "
+                             "detector_pose_correction to keep it")
 
     def encode_views(self, crops: torch.Tensor) -> torch.Tensor:
         """crops (B, C, S, S, 3) uint8 or float in [0, 1] -> features (B, C, F, h, h); F = 0 (an empty tensor)

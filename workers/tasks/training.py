@@ -274,7 +274,7 @@ def _train(ctx: WorkerContext, net: str, tset: TrainingSet, masks: list[dict[str
         reporter(0.0, f"{net}: detecting keypoints in {len(frames)} samples (cached per frame)", force=True)
         detections = training_detections(ctx, frames, list(tset.rig.cameras), masks)
     if config.mvnet.detector_offsets and detections is not None:
-        offsets = learn_detector_offsets(detections, tset.keypoints_3d)
+        offsets = learn_detector_offsets(detections, tset.keypoints_3d, pose=config.mvnet.detector_pose_correction)
         common["extra_metadata"] = {**extra, "detector_offsets": offsets.summary()}
     dataset = build_mvnet_dataset(capture, frames, config.mvnet, keypoints_3d=tset.keypoints_3d, hand_masks=masks,
                                   detections=detections, detector_offsets=offsets)

@@ -79,7 +79,12 @@ def test_mvnet_precision_overrides_and_confidence_ranking():
     config = parse_config("cpu-small-detector:detector_residual=likelihood,detector_sigma_px=0.8")
     assert config.mvnet.detector_residual == "likelihood" and config.mvnet.detector_sigma_px == 0.8
     assert parse_config("cpu-small-detector").mvnet.detector_offsets is True  # the default
-    assert parse_config("cpu-small-detector:detector_offsets=False").mvnet.detector_offsets is False
+    assert parse_config("cpu-small-detector").mvnet.detector_pose_correction is True  # the default
+    assert parse_config("cpu-small-detector:detector_pose_correction=false").mvnet.detector_pose_correction is False
+    without = parse_config("cpu-small-detector:detector_offsets=False,detector_pose_correction=False").mvnet
+    assert without.detector_offsets is False and without.detector_pose_correction is False
+    with pytest.raises(ValueError, match="detector_pose_correction needs detector_offsets"):
+        parse_config("cpu-small-detector:detector_offsets=False")
     errors = np.array([[2.0] * 21, [5.0] * 21, [20.0] * 21, [30.0] * 21])
     ranked = confidence_ranking(np.array([[0.9] * 21, [0.8] * 21, [0.5] * 21, [0.4] * 21]), errors)
     assert ranked["spearman_frame"] == -1.0 and ranked["spearman_keypoint"] < -0.9

@@ -1,8 +1,11 @@
 """Learned keypoint offsets (workers/detector/keypoint_offsets.py): a convention difference expressed in each
 bone's frame is recovered from labelled frames of hands in every orientation and flexion, despite gross outliers;
-keypoints without a frame stay where they are; too few frames learn nothing; bad input is refused."""
+keypoints without a frame stay where they are; too few frames learn nothing; bad input is refused. The pose term:
+an error that follows the hand's pose is learned in the palm's frame, whatever the hand's place and orientation."""
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -10,9 +13,13 @@ import pytest
 from workers.detector.keypoint_offsets import (
     MIN_FRAMES,
     PARENT,
+    POSE_LEVERAGE_SCALE,
+    POSE_MIN_FRAMES,
     KeypointOffsets,
     bone_frames,
     fit_keypoint_offsets,
+    fit_pose_correction,
+    palm_frame,
 )
 
 
@@ -101,3 +108,69 @@ def test_bad_input_is_refused():
         fit_keypoint_offsets(lifted, labels)
     with pytest.raises(ValueError, match="points must be"):
         bone_frames(np.zeros((21, 2)))
+
+
+def thumb_error(points: np.ndarray) -> np.ndarray:
+    """A detector-like error that follows the pose: the thumb's joints pulled towards the index finger's tip by a
+    share of their distance to it, seen in the palm's frame; (n, 21, 3) metres."""
+    origin, rotation = palm_frame(points)
+    local = np.einsum("nji,nkj->nki", rotation, points - origin[:, None])
+    error = np.zeros_like(local)
+    error[:, 1:5] = 0.25 * (local[:, 8:9] - local[:, 1:5])
+    return np.einsum("nij,nkj->nki", rotation, error)
+
+
+def test_an_error_that_follows_the_pose_is_learned_in_the_palm_frame():
+    rng = np.random.default_rng(4)
+    lifted = hands(300, rng)
+    labels = lifted + thumb_error(lifted)
+    held = hands(20, rng)
+    target = held + thumb_error(held)
+    before = np.linalg.norm(held - target, axis=-1)
+    constant = fit_keypoint_offsets(lifted, labels)
+    assert constant.pose is None
+    learned = fit_keypoint_offsets(lifted, labels, pose=True)
+    assert learned.pose is not None and learned.pose.frames_used == 300
+    with_constant = np.linalg.norm(constant.apply(held) - target, axis=-1)[:, 1:5].mean()
+    with_pose = np.linalg.norm(learned.apply(held) - target, axis=-1)[:, 1:5].mean()
+    assert with_pose < 0.3 * with_constant, (before[:, 1:5].mean(), with_constant, with_pose)
+    assert with_constant < before[:, 1:5].mean()
+    assert learned.summary()["pose_frames"] == 300 and constant.summary()["pose_frames"] == 0
+    # The same hand turned and moved is corrected by the same move, turned with it.
+    turn, move = random_rotation(rng), np.array([0.1, -0.2, 0.4])
+    np.testing.assert_allclose(learned.apply(held @ turn.T + move), learned.apply(held) @ turn.T + move, atol=1e-12)
+
+
+def test_a_pose_unlike_the_labelled_ones_gets_less_of_the_correction():
+    rng = np.random.default_rng(6)
+    lifted = hands(60, rng)
+    pose = fit_pose_correction(lifted, lifted + thumb_error(lifted))
+    unshrunk = replace(pose, leverage=np.zeros_like(pose.leverage))
+    near, far = hands(1, rng), 1.6 * hands(1, rng)  # a hand 1.6 times the labelled ones' size: far from their poses
+    for hand, most in ((near, 1.0), (far, 0.2)):
+        rotation = palm_frame(hand)[1][0]
+        constant = pose.bias.reshape(21, 3) @ rotation.T  # the correction at the mean pose is not scaled
+        full, shrunk = unshrunk.apply(hand)[0] - hand[0] - constant, pose.apply(hand)[0] - hand[0] - constant
+        centred = ((hand[0] - hand[0, 0]) @ rotation).reshape(-1) - pose.mean
+        scale = 1 / (1 + centred @ pose.leverage @ centred / POSE_LEVERAGE_SCALE)
+        assert 0 < scale <= most, scale
+        np.testing.assert_allclose(shrunk, scale * full, atol=1e-12)
+        assert np.abs(full).max() > 1e-3
+
+
+def test_the_pose_term_needs_enough_whole_frames_and_leaves_missing_points():
+    rng = np.random.default_rng(5)
+    lifted = hands(POSE_MIN_FRAMES + 5, rng)
+    labels = lifted + thumb_error(lifted)
+    lifted[:6, 12] = np.nan  # frames with a keypoint missing do not count
+    assert fit_pose_correction(lifted, labels) is None
+    assert fit_keypoint_offsets(lifted, labels, pose=True).pose is None
+    pose = fit_pose_correction(lifted[1:], labels[1:], min_frames=POSE_MIN_FRAMES - 1)
+    assert pose is not None and pose.frames_used == POSE_MIN_FRAMES - 1
+    one = hands(1, rng)
+    one[0, 16] = np.nan  # the ring tip: the others are corrected, it stays missing
+    moved = pose.apply(one)
+    assert np.isnan(moved[0, 16]).all() and np.isfinite(np.delete(moved[0], 16, axis=0)).all()
+    assert not np.allclose(moved[0, 1:5], one[0, 1:5])
+    one[0, 0] = np.nan  # no wrist: no palm frame, nothing moves
+    np.testing.assert_array_equal(pose.apply(one), one)

@@ -12,7 +12,7 @@ import torch
 
 from workers.capture.reader import load_frame_images, load_ground_truth
 from workers.detector import DetectorUnavailableError
-from workers.detector.keypoint_offsets import KeypointOffsets
+from workers.detector.keypoint_offsets import KeypointOffsets, PoseCorrection
 from workers.geometry.projection import project_points
 from workers.geometry.rig import default_rig
 from workers.nets.checkpoints import CheckpointError, load_model
@@ -313,6 +313,34 @@ def test_maps_only_network_learns_the_detectors_bias_and_round_trips(tiny_captur
     np.testing.assert_allclose(_error_mm(model, dataset), trained_mm, atol=1e-4)
     with pytest.raises(CheckpointError):  # another digest: refused
         load_model(result.checkpoint, "mvnet", replace(TINY_AGREEMENT, detector_residual="views"))
+
+
+def test_the_pose_correction_travels_with_the_weights(tmp_path):
+    """detector_pose_correction=True: the pose term is saved with the weights and read back as it was set (float32);
+    a network without it reads none, refuses to keep one, and the option needs the offsets."""
+    config = replace(TINY_DETECTOR, detector_offsets=True, detector_pose_correction=True)
+    assert config_digest(config) != config_digest(replace(config, detector_pose_correction=False))
+    rng = np.random.default_rng(0)
+    pose = PoseCorrection(rng.normal(0, 0.05, 63), rng.normal(0, 0.1, (63, 63)), rng.normal(0, 0.005, 63),
+                          rng.normal(0, 100, (63, 63)), 42)
+    offsets = KeypointOffsets(rng.normal(0, 0.005, (21, 3)), np.full(21, 42), pose)
+    model = MVNet(config)
+    assert model.keypoint_offsets().pose is None  # untrained: nothing learned
+    model.set_keypoint_offsets(offsets)
+    torch.save(model.state_dict(), tmp_path / "weights.pt")
+    loaded = MVNet(config)
+    loaded.load_state_dict(torch.load(tmp_path / "weights.pt"))
+    read = loaded.keypoint_offsets().pose
+    assert read is not None and read.frames_used == 42
+    for name in ("mean", "weights", "bias", "leverage"):
+        np.testing.assert_allclose(getattr(read, name), getattr(pose, name), rtol=1e-6, atol=1e-6)
+    loaded.set_keypoint_offsets(KeypointOffsets(offsets.offsets_m, offsets.frames_used))  # a round with too few labels
+    assert loaded.keypoint_offsets().pose is None and not loaded.detector_pose_weights.any()
+    plain = MVNet(replace(config, detector_pose_correction=False))
+    with pytest.raises(ValueError, match="no detector_pose_correction"):
+        plain.set_keypoint_offsets(offsets)
+    with pytest.raises(ValueError, match="detector_pose_correction needs detector_offsets"):
+        replace(TINY_DETECTOR, detector_pose_correction=True)
 
 
 def test_learned_keypoint_offsets_move_the_maps_and_travel_with_the_weights(tiny_capture, tiny_frames, tmp_path):

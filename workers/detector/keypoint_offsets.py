@@ -42,6 +42,12 @@ POSE_LEVERAGE_SCALE = 0.5
 POSE_MIN_SPREAD_M = 1e-5
 
 
+def palm_normal(points: np.ndarray) -> np.ndarray:
+    """(..., 21, 3) keypoints -> (..., 3) the palm's normal (index MCP - wrist) x (pinky MCP - wrist), not unit."""
+    wrist = points[..., WRIST, :]
+    return np.cross(points[..., INDEX_MCP, :] - wrist, points[..., PINKY_MCP, :] - wrist)
+
+
 def bone_frames(points_m: np.ndarray) -> np.ndarray:
     """Per keypoint an orthonormal frame attached to the bone leading into it.
 
@@ -58,8 +64,7 @@ def bone_frames(points_m: np.ndarray) -> np.ndarray:
     with np.errstate(invalid="ignore", divide="ignore"):
         along = p - p[..., PARENT, :]
         along = along / np.linalg.norm(along, axis=-1, keepdims=True)
-        normal = np.cross(p[..., INDEX_MCP, :] - p[..., WRIST, :], p[..., PINKY_MCP, :] - p[..., WRIST, :])
-        normal = np.broadcast_to(normal[..., None, :], along.shape)
+        normal = np.broadcast_to(palm_normal(p)[..., None, :], along.shape)
         side = normal - (normal * along).sum(-1, keepdims=True) * along
         side = side / np.linalg.norm(side, axis=-1, keepdims=True)
         third = np.cross(along, side)
@@ -83,7 +88,7 @@ def palm_frame(points_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         origin = p[..., WRIST, :]
         first = p[..., MIDDLE_MCP, :] - origin
         first = first / np.linalg.norm(first, axis=-1, keepdims=True)
-        normal = np.cross(p[..., INDEX_MCP, :] - origin, p[..., PINKY_MCP, :] - origin)
+        normal = palm_normal(p)
         normal = normal - (normal * first).sum(-1, keepdims=True) * first
         normal = normal / np.linalg.norm(normal, axis=-1, keepdims=True)
         rotation = np.stack([first, normal, np.cross(normal, first)], axis=-1)
@@ -138,6 +143,9 @@ def fit_pose_correction(points_m: np.ndarray, labels_m: np.ndarray, ridge: float
     frames with a missing keypoint are left out. None where fewer than `min_frames` remain."""
     points = np.asarray(points_m, dtype=np.float64)
     labels = np.asarray(labels_m, dtype=np.float64)
+    if points.ndim != 3 or points.shape != labels.shape or points.shape[1:] != (NUM_KEYPOINTS, 3):
+        raise ValueError(f"points and labels must both be (N, {NUM_KEYPOINTS}, 3), got {points.shape} and "
+                         f"{labels.shape}")
     origin, rotation = palm_frame(points)
     local = np.einsum("nji,nkj->nki", rotation, points - origin[:, None])
     target = np.einsum("nji,nkj->nki", rotation, labels - origin[:, None]) - local

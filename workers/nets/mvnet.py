@@ -175,12 +175,12 @@ class MVNet(nn.Module):
         self.detector_offsets_frames.copy_(torch.as_tensor(offsets.frames_used, dtype=torch.int64))
         if self.config.detector_pose_correction:
             pose = offsets.pose
-            for name, value in (("mean", None if pose is None else pose.mean),
-                                ("weights", None if pose is None else pose.weights),
-                                ("bias", None if pose is None else pose.bias),
-                                ("leverage", None if pose is None else pose.leverage)):
+            for name in ("mean", "weights", "bias", "leverage"):
                 buffer = getattr(self, f"detector_pose_{name}")
-                buffer.copy_(torch.zeros_like(buffer) if value is None else torch.as_tensor(value, dtype=torch.float32))
+                if pose is None:
+                    buffer.zero_()
+                else:
+                    buffer.copy_(torch.as_tensor(getattr(pose, name), dtype=torch.float32))
             self.detector_pose_frames.fill_(0 if pose is None else pose.frames_used)
         elif offsets.pose is not None:
             raise ValueError("these offsets have a pose correction but the configuration has no "

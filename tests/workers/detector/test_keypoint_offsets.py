@@ -108,6 +108,8 @@ def test_bad_input_is_refused():
         fit_keypoint_offsets(lifted, labels)
     with pytest.raises(ValueError, match="points must be"):
         bone_frames(np.zeros((21, 2)))
+    with pytest.raises(ValueError, match="must both be"):
+        fit_pose_correction(lifted, lifted[:, :20])
 
 
 def thumb_error(points: np.ndarray) -> np.ndarray:

@@ -4,13 +4,14 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 import tempfile
 from pathlib import Path
 
 import typer
 
-FORMAT_HELP = "anipose|easymocap|opencv|panoptic|multical|jarvis|colmap"
+FORMAT_HELP = "anipose|pose2sim|caliscope|easymocap|opencv|panoptic|multical|jarvis|colmap"
 
 
 def _image_size(value: str | None) -> tuple[int, int] | None:
@@ -48,8 +49,11 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         path: Path = typer.Argument(..., help="The format's file, or the folder (EasyMocap, COLMAP, OpenCV, JARVIS)."),
         from_format: str = typer.Option(..., "--from", help=FORMAT_HELP),
         out: Path = typer.Option(..., "--out", help="handloop calibration.json to write."),
-        units: str | None = typer.Option(None, "--units", help="The file's length unit: m, mm or cm "
+        units: str | None = typer.Option(None, "--units", help="The file's length unit: m, cm, mm or in "
                                                                "(default: the format's usual one)."),
+        scale: float | None = typer.Option(None, "--scale", help="Metres per file unit, e.g. the calibration "
+                                                                 "board's square size in metres for a file in board "
+                                                                 "squares; replaces --units (give one of the two)."),
         image_size: str | None = typer.Option(None, "--image-size", help="WIDTHxHEIGHT for formats that store "
                                                                          "no image size (JARVIS, old EasyMocap)."),
         cameras: int | None = typer.Option(None, "--cameras", min=1, help="Refuse unless the rig has this many."),
@@ -65,8 +69,15 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
 
         if from_format not in FORMATS:
             raise typer.BadParameter(f"--from must be one of {', '.join(FORMATS)}, not {from_format!r}")
-        if units is not None and units not in ("m", "mm", "cm"):
-            raise typer.BadParameter(f"--units must be m, mm or cm, not {units!r}")
+        from workers.rigs.formats.common import UNITS_TO_M, describe_unit
+
+        if units is not None and units not in UNITS_TO_M:
+            raise typer.BadParameter(f"--units must be one of {', '.join(UNITS_TO_M)}, not {units!r}")
+        if scale is not None and units is not None:
+            raise typer.BadParameter("give --units or --scale, not both: --scale is the file unit's size in metres "
+                                     "and replaces --units")
+        if scale is not None and not (math.isfinite(scale) and scale > 0):
+            raise typer.BadParameter(f"--scale must be a positive number of metres per file unit, not {scale!r}")
         if out.exists() and not force:
             typer.echo(f"error: {out} exists; pass --force to overwrite it", err=True)
             raise typer.Exit(code=2)
@@ -74,7 +85,7 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         if camera_type is not None and from_format != "panoptic":
             raise typer.BadParameter("--camera-type applies to --from panoptic only")
         try:
-            conversion = convert(from_format, path, unit=units, image_size=_image_size(image_size),
+            conversion = convert(from_format, path, unit=units, scale=scale, image_size=_image_size(image_size),
                                  check_geometry=geometry_check, expect_cameras=cameras, **options)
         except FormatError as exc:
             typer.echo(f"error: {exc}", err=True)
@@ -84,8 +95,10 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
             write_atomically(out, (Path(tmp) / "calibration.json").read_text())
         for note in conversion.notes:
             typer.echo(f"note: {note}", err=True)
+        span_line, distance_line = conversion.extent.lines()
         typer.echo(f"wrote {out}: {len(conversion.cameras)} cameras ({', '.join(c.name for c in conversion.cameras)}),"
-                   f" read in {units or default_unit(from_format)}, rig span {conversion.span_m:.3f} m")
+                   f" read in {describe_unit(units or default_unit(from_format), scale)}, {span_line}")
+        typer.echo(distance_line)
 
     @calibration.command("check")
     def check_cmd(

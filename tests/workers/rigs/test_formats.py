@@ -222,6 +222,7 @@ def test_non_finite_numbers_are_refused(tmp_path: Path) -> None:
 
 def test_centimetres_are_read_with_units_cm(tmp_path: Path) -> None:
     path = rig_files.write_anipose(default_rig(None), tmp_path / "calibration.toml", scale=100.0)
-    with pytest.raises(FormatError, match=r"span 173.2 m .*--units cm \(a 1.73 m rig\)"):
+    with pytest.raises(FormatError,
+                       match=r"span 173.2 m, .*--units cm \(a 1.73 m rig, cameras 0.864..0.868 m from its centre\)"):
         convert("anipose", path)
     _assert_same(convert("anipose", path, unit="cm").cameras, default_rig(None), tol=1e-9)

@@ -12,9 +12,10 @@ from pathlib import Path
 from types import ModuleType
 
 from workers.rigs.formats.common import UNITS_TO_M, Conversion, FormatError, build_rig
+from workers.rigs.formats.sniff import mismatch
 from workers.rigs.sanity import check_aim
 
-FORMATS = ("anipose", "easymocap", "opencv", "panoptic", "multical", "jarvis", "colmap")
+FORMATS = ("anipose", "pose2sim", "caliscope", "easymocap", "opencv", "panoptic", "multical", "jarvis", "colmap")
 
 __all__ = ["FORMATS", "UNITS_TO_M", "Conversion", "FormatError", "convert", "default_unit"]
 
@@ -26,30 +27,44 @@ def _module(fmt: str) -> ModuleType:
 
 
 def default_unit(fmt: str) -> str:
-    """The length unit a format's files normally use ("m", "cm" or "mm")."""
+    """The length unit a format's files normally use (a key of UNITS_TO_M)."""
     return _module(fmt).DEFAULT_UNIT
 
 
-def convert(fmt: str, path: Path, *, unit: str | None = None, image_size: tuple[int, int] | None = None,
-            check_geometry: bool = True, expect_cameras: int | None = None, **options: object) -> Conversion:
+def convert(fmt: str, path: Path, *, unit: str | None = None, scale: float | None = None,
+            image_size: tuple[int, int] | None = None, check_geometry: bool = True, expect_cameras: int | None = None,
+            **options: object) -> Conversion:
     """Read a calibration in format `fmt` as handloop cameras (metres, R world -> camera).
 
     Args:
         fmt: one of FORMATS.
         path: the format's file or folder.
-        unit: the file's length unit (default: the format's usual one, see each module's DEFAULT_UNIT).
+        unit: the file's length unit, a key of UNITS_TO_M (default: the format's usual one, see each module's
+            DEFAULT_UNIT).
+        scale: metres per file unit (e.g. the calibration board's square size in metres for a file in board
+            squares); replaces `unit`, so give one or the other.
         image_size: (width, height) pixels for formats that store none.
         check_geometry: refuse a camera that does not see the point the others look at.
         expect_cameras: refuse a rig with another number of cameras.
         options: format-specific reader options (panoptic: camera_type).
     Raises:
-        FormatError: naming the file, the camera and the field at fault.
+        FormatError: naming the file, the camera and the field at fault; for a file that fails to read and looks
+            like another format, naming that format.
     """
+    if unit is not None and scale is not None:
+        raise FormatError(f"{path}: give the file's unit or a scale, not both (--scale is metres per file unit and "
+                          "replaces --units)")
 
     module = _module(fmt)
-    raws, notes = module.read(Path(path), **options)
+    try:
+        raws, notes = module.read(Path(path), **options)
+    except FormatError as exc:
+        other = mismatch(fmt, Path(path))
+        if other is None:
+            raise
+        raise FormatError(f"{other} (read as {fmt}: {exc})") from None
     conversion = build_rig(raws, unit=unit or module.DEFAULT_UNIT, source=str(path), image_size=image_size,
-                           notes=notes)
+                           notes=notes, scale=scale)
     if expect_cameras is not None and len(conversion.cameras) != expect_cameras:
         raise FormatError(f"{path}: {len(conversion.cameras)} cameras "
                           f"{[c.name for c in conversion.cameras]}, expected {expect_cameras}: camera count mismatch")

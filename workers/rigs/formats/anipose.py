@@ -1,4 +1,4 @@
-"""Anipose / aniposelib `calibration.toml` (also Pose2Sim and sleap-anipose).
+"""Anipose / aniposelib `calibration.toml` (also sleap-anipose; Pose2Sim's own writer: see pose2sim.py).
 
 Layout (aniposelib `CameraGroup.dump`): one table per camera (`[cam_0]`, `[cam_1]`, ...) with `name`,
 `size` = [width, height] pixels, `matrix` (3x3 K, pixels), `distortions` (OpenCV k1 k2 p1 p2 k3; four
@@ -10,9 +10,10 @@ calibration chose (aniposelib: the first camera's, unless the rig was re-centred
 
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
+from typing import Any
 
+from workers.rigs.formats import tomlfile
 from workers.rigs.formats.common import FormatError, RawCamera, as_matrix, as_vector, rodrigues
 
 DEFAULT_UNIT = "m"
@@ -21,12 +22,11 @@ _KEYS = ("name", "size", "matrix", "distortions", "rotation", "translation")
 
 def read(path: Path) -> tuple[list[RawCamera], list[str]]:
     """The cameras of an aniposelib calibration.toml, in table order; translations in the file's unit."""
-    try:
-        data = tomllib.loads(Path(path).read_text())
-    except FileNotFoundError:
-        raise FormatError(f"{path}: file not found") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise FormatError(f"{path}: not valid TOML ({exc})") from None
+    return read_tables(path, tomlfile.load(path)), []
+
+
+def read_tables(path: Path, data: dict[str, Any]) -> list[RawCamera]:
+    """The aniposelib camera tables of a parsed TOML file (every table but [metadata])."""
     raws = []
     for key, table in data.items():
         if key == "metadata" or not isinstance(table, dict):
@@ -45,4 +45,4 @@ def read(path: Path) -> tuple[list[RawCamera], list[str]]:
             R=rodrigues(as_matrix(table["rotation"], (3,), where, "rotation")),
             t=as_matrix(table["translation"], (3,), where, "translation"),
             width=width, height=height, model="fisheye" if fisheye else "opencv", supported=not fisheye))
-    return raws, []
+    return raws

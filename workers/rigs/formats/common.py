@@ -17,12 +17,16 @@ import numpy as np
 
 from workers.capture.schema import ID_PATTERN
 from workers.geometry.camera import CalibrationError, Camera
+from workers.rigs.extent import RigExtent, rig_extent
 
-UNITS_TO_M: dict[str, float] = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+UNITS_TO_M: dict[str, float] = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254}
 # OpenCV's coefficient order beyond k1 k2 p1 p2 k3, and the model each group belongs to.
 _EXTRA_COEFFICIENTS = ("k4", "k5", "k6", "s1", "s2", "s3", "s4", "tau_x", "tau_y")
 ORTHONORMAL_TOL = 1e-6
-TYPICAL_SPAN_M = 2.0
+TYPICAL_DISTANCE_M = 1.0  # a hand-capture camera's usual distance to the hand
+# A hand-capture rig: cameras span 5 cm..30 m, and where the optical axes meet, each camera is this far from that point.
+MIN_SPAN_M, MAX_SPAN_M = 0.05, 30.0
+MIN_DISTANCE_M, MAX_DISTANCE_M = 0.2, 8.0
 MAX_FOV_DEG = 170.0  # wider than this is a fisheye or a focal length in millimetres, not pixels
 
 
@@ -63,11 +67,13 @@ class Conversion:
     Attributes:
         cameras: handloop cameras, in the file's order.
         span_m: largest distance between two camera centres, metres.
+        extent: the span and each camera's distance to the rig's centre, metres.
         notes: non-fatal remarks (a world frame on one camera, dropped all-zero coefficients, ...).
     """
 
     cameras: list[Camera]
     span_m: float
+    extent: RigExtent
     notes: list[str] = field(default_factory=list)
 
 
@@ -160,33 +166,53 @@ def _five_coefficients(raw: RawCamera, where: str, notes: list[str]) -> np.ndarr
     return out
 
 
-def _rig_span(centres: np.ndarray) -> float:
-    if len(centres) < 2:
-        return 0.0
-    return float(max(np.linalg.norm(a - b) for i, a in enumerate(centres) for b in centres[i + 1:]))
+def implausible(extent: RigExtent) -> str | None:
+    """Why a rig of this extent (metres) is no hand-capture rig, or None when it could be one."""
+    if extent.span > 0.0 and not MIN_SPAN_M <= extent.span <= MAX_SPAN_M:
+        return f"the cameras span {extent.span:.4g} m, outside {MIN_SPAN_M}..{MAX_SPAN_M} m"
+    if extent.centre_is_focus:
+        far = {n: d for n, d in extent.distances.items() if not MIN_DISTANCE_M <= d <= MAX_DISTANCE_M}
+        if far:
+            return ("camera(s) " + ", ".join(f"{n} {d:.4g} m" for n, d in far.items()) + " from the point the "
+                    f"cameras look at (the hand), outside {MIN_DISTANCE_M}..{MAX_DISTANCE_M} m")
+    return None
 
 
-def check_units(span_m: float, unit: str, source: str, min_span_m: float = 0.05, max_span_m: float = 30.0) -> None:
-    """Refuse a rig whose size does not fit a hand-capture rig: the length unit was read wrong."""
-    if span_m == 0.0 or min_span_m <= span_m <= max_span_m:
+def describe_unit(unit: str, scale: float | None) -> str:
+    """How the file's lengths were read, for messages: "mm" or "--scale 0.044 m per file unit"."""
+    return f"--scale {scale:.6g} m per file unit" if scale is not None else unit
+
+
+def check_units(extent: RigExtent, unit: str, source: str, scale: float | None = None) -> None:
+    """Refuse a rig (`extent` in metres, read in `unit`, or with `scale` metres per file unit) whose size does not fit
+    a hand-capture rig: the length unit was read wrong. The hint names only the units that give a plausible rig
+    (closest to cameras ~1 m from the hand first) and always --scale, for files in board squares."""
+    problem = implausible(extent)
+    if problem is None:
         return
-    spans = {u: span_m * s / UNITS_TO_M[unit] for u, s in UNITS_TO_M.items() if u != unit}
-    # most likely first: the span closest (in ratio) to a typical 2 m rig
-    guesses = sorted((u for u, s in spans.items() if min_span_m <= s <= max_span_m),
-                     key=lambda u: abs(math.log(spans[u] / TYPICAL_SPAN_M)))
-    hint = ("; pass " + " or ".join(f"--units {u} (a {spans[u]:.3g} m rig)" for u in guesses)) if guesses else ""
-    raise FormatError(f"{source}: the cameras span {span_m:.4g} m when the file is read in {unit!r}, outside "
-                      f"{min_span_m}..{max_span_m} m for a hand-capture rig: the length unit is wrong "
-                      f"(millimetres read as metres?){hint}")
+    per_unit = scale if scale is not None else UNITS_TO_M[unit]
+    candidates = {u: extent.scaled(s / per_unit) for u, s in UNITS_TO_M.items() if scale is not None or u != unit}
+    fits = sorted((u for u, e in candidates.items() if implausible(e) is None),
+                  key=lambda u: abs(math.log(np.median(list(candidates[u].distances.values())) / TYPICAL_DISTANCE_M)))
+    units = " or ".join(f"--units {u} (a {candidates[u].span:.3g} m rig, cameras "
+                        f"{min(candidates[u].distances.values()):.3g}..{max(candidates[u].distances.values()):.3g} m "
+                        "from its centre)" for u in fits)
+    metres_per_unit = ("--scale METRES_PER_FILE_UNIT (e.g. the calibration board's square size in metres if the file "
+                       "is in board squares)")
+    hint = (f"pass {units}, or {metres_per_unit}" if fits else
+            f"no unit ({', '.join(UNITS_TO_M)}) gives a plausible rig: pass {metres_per_unit}")
+    raise FormatError(f"{source}: read in {describe_unit(unit, scale)}, {problem} for a hand-capture rig: the length "
+                      f"unit is wrong; {hint}")
 
 
 def build_rig(raws: list[RawCamera], *, unit: str, source: str, image_size: tuple[int, int] | None = None,
-              notes: list[str] | None = None) -> Conversion:
+              notes: list[str] | None = None, scale: float | None = None) -> Conversion:
     """Validate raw cameras and convert them to handloop cameras in metres.
 
     Args:
         raws: from a format reader, translations in `unit`.
-        unit: "m", "cm" or "mm": the file's length unit.
+        unit: one of UNITS_TO_M (m, cm, mm, in): the file's length unit.
+        scale: metres per file unit (e.g. a board square's size in metres); replaces `unit` when given.
         source: the file, for messages.
         image_size: (width, height) for cameras whose format stores no size.
         notes: the reader's remarks, extended here.
@@ -194,7 +220,9 @@ def build_rig(raws: list[RawCamera], *, unit: str, source: str, image_size: tupl
         FormatError: naming the camera and field (rotation, focal length, distortion, size, units, names).
     """
     if unit not in UNITS_TO_M:
-        raise FormatError(f"{source}: unknown unit {unit!r}; use one of {sorted(UNITS_TO_M)}")
+        raise FormatError(f"{source}: unknown unit {unit!r}; use one of {list(UNITS_TO_M)}")
+    if scale is not None and not (math.isfinite(scale) and scale > 0):
+        raise FormatError(f"{source}: --scale must be a positive number of metres per file unit, not {scale!r}")
     if not raws:
         raise FormatError(f"{source}: no cameras found")
     notes = list(notes or [])
@@ -202,7 +230,7 @@ def build_rig(raws: list[RawCamera], *, unit: str, source: str, image_size: tupl
     repeated = sorted({n for n in names if names.count(n) > 1})
     if repeated:
         raise FormatError(f"{source}: camera name(s) {repeated} appear more than once")
-    scale = UNITS_TO_M[unit]
+    metres_per_unit = scale if scale is not None else UNITS_TO_M[unit]
     cameras = []
     for raw in raws:
         where = f"{source}: camera {raw.name!r}"
@@ -218,7 +246,7 @@ def build_rig(raws: list[RawCamera], *, unit: str, source: str, image_size: tupl
         dist = _five_coefficients(raw, where, notes)
         K = as_matrix(raw.K, (3, 3), where, "K")
         R = as_matrix(raw.R, (3, 3), where, "R")
-        t = as_matrix(raw.t, (3,), where, "t") * scale
+        t = as_matrix(raw.t, (3,), where, "t") * metres_per_unit
         _check_rotation(R, where)
         if K[0, 0] <= 0 or K[1, 1] <= 0:
             raise FormatError(f"{where}: field 'K' has non-positive focal lengths ({K[0, 0]:.6g}, {K[1, 1]:.6g})")
@@ -234,10 +262,10 @@ def build_rig(raws: list[RawCamera], *, unit: str, source: str, image_size: tupl
             cameras.append(Camera(raw.name, int(width), int(height), K, dist, R, t))
         except CalibrationError as exc:
             raise FormatError(f"{source}: {exc}") from None
-    span = _rig_span(np.stack([c.center_world for c in cameras]))
-    check_units(span, unit, source)
+    extent = rig_extent(cameras)
+    check_units(extent, unit, source, scale)
     for cam in cameras:
         if np.allclose(cam.R, np.eye(3), atol=1e-9) and np.allclose(cam.t, 0.0, atol=1e-12):
             notes.append(f"camera {cam.name!r}: R = I and t = 0, so the world frame is this camera's frame "
                          "(z forward, y down), not a rig-centred frame with z up")
-    return Conversion(cameras=cameras, span_m=span, notes=notes)
+    return Conversion(cameras=cameras, span_m=extent.span, extent=extent, notes=notes)

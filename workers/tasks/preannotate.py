@@ -39,6 +39,7 @@ from workers.capture.reader import load_frame_images
 from workers.capture.schema import CaptureError
 from workers.detector.types import DetectorInputError, DetectorUnavailableError, Handedness, LiftedKeypoints
 from workers.geometry.camera import Camera
+from workers.rigs.hand_scale import estimate_hand_scale, hand_scale_of_views
 from workers.tasks.context import WorkerContext
 from workers.tasks.detection_inputs import SOURCE, detection_record, lifted_count, masks_for
 from workers.tasks.detector_masks import record_hand_masks
@@ -120,8 +121,22 @@ def _detect_sample(ctx: WorkerContext, frame: SampleFrame, rig: Rig, handedness:
     if lifted_n < MIN_LIFTED_KEYPOINTS:
         found = sum(v is not None for v in record["views"])
         return None, (f"no hand to fit: the detector found it in {found} of {len(rig.cameras)} views and lifted "
-                      f"{lifted_n} of {NUM_KEYPOINTS} keypoints (at least {MIN_LIFTED_KEYPOINTS} needed)")
+                      f"{lifted_n} of {NUM_KEYPOINTS} keypoints (at least {MIN_LIFTED_KEYPOINTS} needed)"
+                      + _scale_problem(lifted, wrig.cameras))
+    size = estimate_hand_scale(lifted.points_world[None])
+    if size.verdict in ("too large", "too small"):
+        return None, f"no hand to fit: {size.message()}"
     return record, ""
+
+
+def _scale_problem(lifted: LiftedKeypoints, cameras: Sequence[Camera]) -> str:
+    """"; <why>" when the views' detections triangulate (plain DLT, no metric threshold) to a hand of no human
+    size: the calibration's length unit is wrong, which is why the lift (metric thresholds) failed; else ""."""
+    views = [None if v is None else v.keypoints_px for v in lifted.views]
+    if sum(v is not None for v in views) < 2:
+        return ""
+    size = hand_scale_of_views(views, cameras)
+    return f"; {size.message()}" if size.verdict in ("too large", "too small") else ""
 
 
 def _queue_detector_fit(ctx: WorkerContext, job_id: int, sample_id: int, record: dict[str, Any]) -> int | None:

@@ -169,3 +169,40 @@ def write_colmap(cameras: list[Camera], folder: Path, model: str = "OPENCV") -> 
     (folder / "cameras.txt").write_text("\n".join(cam_lines) + "\n")
     (folder / "images.txt").write_text("\n".join(img_lines) + "\n")
     return folder
+
+
+def write_caliscope(cameras: list[Camera], path: Path, layout: str = "camera_array", matrix_rotation: bool = False,
+                    ignore: str | None = None, unposed: str | None = None) -> Path:
+    """caliscope's CameraArray.to_toml ([cameras.N], Rodrigues rotation) or, `layout` "config", its older config.toml
+    ([cam_N] beside [charuco] and settings); `matrix_rotation` writes 3x3 rotations (older files); `ignore` marks
+    that camera ignore = true; `unposed` leaves that camera's rotation and translation out. cam_id = list index."""
+    lines = ["CreationDate = 2023-05-06T11:12:27.631355", "camera_count = 0", ""] if layout == "config" else []
+    for i, cam in enumerate(cameras):
+        lines += [f"[cameras.{i}]" if layout == "camera_array" else f"[cam_{i}]", f"cam_id = {i}", "rotation_count = 0",
+                  "error = 0.19", f"ignore = {'true' if cam.name == ignore else 'false'}",
+                  f"size = [{cam.width}, {cam.height}]", f"matrix = {_toml_list(cam.K.tolist())}",
+                  f"distortions = {_toml_list(cam.dist)}"]
+        if cam.name != unposed:
+            rotation = cam.R.tolist() if matrix_rotation else _rvec(cam.R)
+            lines += [f"translation = {_toml_list(cam.t)}", f"rotation = {_toml_list(rotation)}"]
+        lines += ["exposure = -7", "grid_count = 24", "fisheye = false", ""]
+    if layout == "config":
+        lines += ["[capture_volume]", "stage = 2", "", "[charuco]", "columns = 4", "rows = 5", 'units = "inch"',
+                  "square_size_override_cm = 5.4", ""]
+    path.write_text("\n".join(lines))
+    return path
+
+
+def write_pose2sim(cameras: list[Camera], path: Path) -> Path:
+    """Pose2Sim/calibration.py toml_write: [<name>] tables, float sizes, four coefficients k1 k2 p1 p2, metres."""
+    lines = []
+    for cam in cameras:
+        r, t, d, K = ([repr(float(v)) for v in a.ravel()] for a in (_rvec(cam.R), cam.t, cam.dist, cam.K))
+        lines += [f"[{cam.name}]", f'name = "{cam.name}"', f"size = [ {float(cam.width)}, {float(cam.height)}]",
+                  f"matrix = [ [ {K[0]}, 0.0, {K[2]}], [ 0.0, {K[4]}, {K[5]}], [ 0.0, 0.0, 1.0]]",
+                  f"distortions = [ {d[0]}, {d[1]}, {d[2]}, {d[3]}]",
+                  f"rotation = [ {r[0]}, {r[1]}, {r[2]}]", f"translation = [ {t[0]}, {t[1]}, {t[2]}]",
+                  "fisheye = false", ""]
+    lines += ["[metadata]", "adjusted = false", "error = 0.0", ""]
+    path.write_text("\n".join(lines))
+    return path

@@ -46,3 +46,68 @@ def test_convert_bad_options(tmp_path: Path) -> None:
                                  str(tmp_path / "exists.json")])
     assert result.exit_code == 2 and "pass --force" in result.output
     assert (tmp_path / "exists.json").read_text() == "{}"
+
+
+def _focus_distances(cameras) -> list[float]:
+    """Each camera's distance to the least-squares meeting point of the optical axes (computed here, not by
+    workers.rigs)."""
+    rows, rhs = [], []
+    for cam in cameras:
+        c, d = -cam.R.T @ cam.t, cam.R[2]
+        P = np.eye(3) - np.outer(d, d)
+        rows.append(P)
+        rhs.append(P @ c)
+    focus = np.linalg.lstsq(np.concatenate(rows), np.concatenate(rhs), rcond=None)[0]
+    return [float(np.linalg.norm(-cam.R.T @ cam.t - focus)) for cam in cameras]
+
+
+def _convert(src: Path, out: Path, *args: str):
+    return CliRunner().invoke(app, ["calibration", "convert", "--from", "anipose", str(src), "--out", str(out), *args])
+
+
+def test_inches_print_the_span_and_each_cameras_distance_to_the_rigs_centre(tmp_path: Path) -> None:
+    rig = default_rig(None)
+    src = rig_files.write_anipose(rig, tmp_path / "calibration.toml", scale=1 / 0.0254)
+    result = _convert(src, tmp_path / "calibration.json", "--units", "in")
+    assert result.exit_code == 0, result.output
+    np.testing.assert_allclose(load_calibration(tmp_path / "calibration.json")[3].t, rig[3].t, atol=1e-9)
+    span = max(np.linalg.norm(a.center_world - b.center_world) for a in rig for b in rig)
+    assert f"read in in, rig span {span:.3f} m" in result.output
+    distances = ", ".join(f"{c.name} {d:.3f} m" for c, d in zip(rig, _focus_distances(rig), strict=True))
+    assert f"camera distance to the rig's centre (the common focus of the optical axes): {distances}\n" in result.output
+
+
+def test_board_squares_need_scale_and_the_hint_proposes_only_plausible_units(tmp_path: Path) -> None:
+    rig = default_rig(None)  # cameras 0.87 m from the centre; the file in 4.4 cm board squares
+    src = rig_files.write_anipose(rig, tmp_path / "calibration.toml", scale=1 / 0.044)
+    out = tmp_path / "calibration.json"
+    for args in ([], ["--units", "cm"]):
+        result = _convert(src, out, *args)
+        assert result.exit_code == 2 and not out.exists(), result.output
+        hint = result.output.replace("\n", " ")
+        assert "for a hand-capture rig: the length unit is wrong" in hint
+        assert f"--units in (a {np.sqrt(3) * 0.0254 / 0.044:.3g} m rig" in hint and "--units cm" not in hint.split("pass", 1)[1]
+        assert "--units mm" not in hint and "--scale METRES_PER_FILE_UNIT" in hint
+    result = _convert(src, out, "--scale", "0.044")
+    assert result.exit_code == 0, result.output
+    assert "read in --scale 0.044 m per file unit, rig span 1.732 m" in result.output
+    np.testing.assert_allclose(load_calibration(out)[5].t, rig[5].t, atol=1e-9)
+
+
+def test_no_unit_fits_so_only_scale_is_proposed(tmp_path: Path) -> None:
+    src = rig_files.write_anipose(default_rig(None), tmp_path / "calibration.toml", scale=0.1)  # 10 m units
+    result = _convert(src, tmp_path / "calibration.json")
+    assert result.exit_code == 2
+    assert "no unit (m, cm, mm, in) gives a plausible rig: pass --scale" in result.output.replace("\n", " ")
+
+
+def test_units_and_scale_are_exclusive_and_scale_is_positive(tmp_path: Path) -> None:
+    src = rig_files.write_anipose(default_rig(None), tmp_path / "calibration.toml")
+    out = tmp_path / "calibration.json"
+    result = _convert(src, out, "--units", "m", "--scale", "1")
+    assert result.exit_code == 2 and "give --units or --scale, not both" in result.output
+    result = _convert(src, out, "--scale", "0")
+    assert result.exit_code == 2 and "--scale must be a positive number" in result.output
+    result = _convert(src, out, "--units", "ft")
+    assert result.exit_code == 2 and "--units must be one of m, cm, mm, in" in result.output
+    assert not out.exists()

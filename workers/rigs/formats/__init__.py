@@ -62,7 +62,7 @@ def convert(fmt: str, path: Path, *, unit: str | None = None, scale: float | Non
         other = mismatch(fmt, Path(path))
         if other is None:
             raise
-        raise FormatError(f"{other} (read as {fmt}: {exc})") from None
+        raise FormatError(f"{other} (read as {fmt}: {str(exc).removeprefix(f'{path}: ')})") from None
     conversion = build_rig(raws, unit=unit or module.DEFAULT_UNIT, source=str(path), image_size=image_size,
                            notes=notes, scale=scale)
     if expect_cameras is not None and len(conversion.cameras) != expect_cameras:

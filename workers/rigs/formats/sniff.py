@@ -66,4 +66,4 @@ def mismatch(fmt: str, path: Path) -> str | None:
     found = looks_like(path)
     if found is None or _SAME.get(found[0], found[0]) == _SAME.get(fmt, fmt):
         return None
-    return f"{path}: this looks like {found[1]}, not a {fmt} file: use --from {found[0]}"
+    return f"{path}: this looks like {found[1]}, not {fmt}'s layout: use --from {found[0]}"

@@ -86,7 +86,8 @@ def test_board_squares_need_scale_and_the_hint_proposes_only_plausible_units(tmp
         assert result.exit_code == 2 and not out.exists(), result.output
         hint = result.output.replace("\n", " ")
         assert "for a hand-capture rig: the length unit is wrong" in hint
-        assert f"--units in (a {np.sqrt(3) * 0.0254 / 0.044:.3g} m rig" in hint and "--units cm" not in hint.split("pass", 1)[1]
+        assert f"--units in (a {np.sqrt(3) * 0.0254 / 0.044:.3g} m rig" in hint
+        assert "--units cm" not in hint.split("pass", 1)[1]
         assert "--units mm" not in hint and "--scale METRES_PER_FILE_UNIT" in hint
     result = _convert(src, out, "--scale", "0.044")
     assert result.exit_code == 0, result.output

@@ -66,7 +66,7 @@ def test_the_hand_gives_the_board_squares_size(tmp_path: Path) -> None:
                 pixels[c, f] = view.keypoints_px
     size = estimate_hand_scale(triangulate_keypoints(pixels, board))
     print(f"\nhandpose3d: {size.message('board squares')}")
-    assert size.verdict == "too large" and 0.02 < size.factor < 0.1  # board squares of 2..10 cm
+    assert size.verdict == "too large" and size.factor == pytest.approx(0.048, abs=0.002)  # docs/calibration.md
     assert ADULT_HAND_LENGTH_M[0] <= size.hand_length * size.factor <= ADULT_HAND_LENGTH_M[1]
 
     result = runner.invoke(app, ["calibration", "convert", "--from", "anipose", str(src), "--out", str(out),
@@ -74,7 +74,9 @@ def test_the_hand_gives_the_board_squares_size(tmp_path: Path) -> None:
     assert result.exit_code == 0, result.output
     span = float(re.search(r"rig span ([0-9.]+) m", result.output).group(1))
     print(f"handpose3d: --scale {size.factor:.4g} -> rig span {span} m")
-    assert 0.3 <= span <= 1.0
+    assert 0.3 <= span <= 1.0 and span == pytest.approx(0.598, abs=0.025)  # docs/calibration.md
+    distances = re.search(r"cam0 ([0-9.]+) m, cam1 ([0-9.]+) m", result.output).groups()
+    assert [float(d) for d in distances] == pytest.approx([0.72, 0.82], abs=0.04)
     metric = load_calibration(out)
     for f in range(len(FRAMES)):
         frame_views = [views[0][f], views[1][f]]

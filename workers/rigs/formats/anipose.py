@@ -2,7 +2,8 @@
 
 Layout (aniposelib `CameraGroup.dump`): one table per camera (`[cam_0]`, `[cam_1]`, ...) with `name`,
 `size` = [width, height] pixels, `matrix` (3x3 K, pixels), `distortions` (OpenCV k1 k2 p1 p2 k3; four
-fisheye coefficients when `fisheye = true`), `rotation` (Rodrigues vector, radians, world -> camera) and
+fisheye coefficients when `fisheye = true`), `rotation` (Rodrigues vector, radians, world -> camera; a 3x3 matrix,
+as hand-edited files hold, is read too) and
 `translation` (world -> camera, in the calibration board's unit: whatever `square_length` was given in,
 often millimetres). A `[metadata]` table is ignored. Pixel convention: OpenCV's. World frame: the one the
 calibration chose (aniposelib: the first camera's, unless the rig was re-centred). Read with tomllib.
@@ -14,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from workers.rigs.formats import tomlfile
-from workers.rigs.formats.common import FormatError, RawCamera, as_matrix, as_vector, rodrigues
+from workers.rigs.formats.common import FormatError, RawCamera, as_matrix, as_vector, rotation_field
 
 DEFAULT_UNIT = "m"
 _KEYS = ("name", "size", "matrix", "distortions", "rotation", "translation")
@@ -42,7 +43,7 @@ def read_tables(path: Path, data: dict[str, Any]) -> list[RawCamera]:
         raws.append(RawCamera(
             name=name, K=as_matrix(table["matrix"], (3, 3), where, "matrix"),
             dist=as_vector(table["distortions"], where, "distortions"),
-            R=rodrigues(as_matrix(table["rotation"], (3,), where, "rotation")),
+            R=rotation_field(table["rotation"], where, "rotation"),
             t=as_matrix(table["translation"], (3,), where, "translation"),
             width=width, height=height, model="fisheye" if fisheye else "opencv", supported=not fisheye))
     return raws

@@ -84,3 +84,13 @@ def test_an_unrecognised_file_keeps_the_readers_message(tmp_path: Path) -> None:
     with pytest.raises(FormatError, match=r"\[cam_0\]: missing field\(s\) \['size', 'matrix'") as info:
         convert("anipose", path)
     assert "looks like" not in str(info.value)
+
+
+def test_anipose_reads_a_rotation_matrix_too(tmp_path: Path) -> None:
+    cameras = default_rig(None)
+    path = rig_files.write_anipose(cameras, tmp_path / "calibration.toml")
+    lines = path.read_text().splitlines()
+    rotations = iter(cameras)
+    path.write_text("\n".join(f"rotation = {next(rotations).R.tolist()}" if line.startswith("rotation = ") else line
+                              for line in lines))
+    _assert_same(convert("anipose", path).cameras, cameras)

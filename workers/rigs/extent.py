@@ -1,8 +1,10 @@
 """How big a converted rig is: its span and each camera's distance to the rig's centre.
 
 The centre is the common focus of the optical axes (sanity.common_focus: the point the cameras look at, where
-the hand is), else (parallel axes) the centroid of the camera centres. A wrong length unit scales all of these
-by the same factor, so they are what `calibration convert` prints and what `formats.common.check_units` judges.
+the hand is) when the axes converge on a point in front of every camera, else (near-parallel axes, as in a
+stereo pair, whose "focus" may lie anywhere along them) the centroid of the camera centres. A wrong length
+unit scales all of these by the same factor, so they are what `calibration convert` prints and what
+`formats.common.check_units` judges.
 """
 
 from __future__ import annotations
@@ -13,6 +15,8 @@ import numpy as np
 
 from workers.geometry.camera import Camera
 from workers.rigs.sanity import common_focus
+
+MIN_CONVERGENCE_DEG = 10.0  # optical axes closer to parallel than this have no well-placed focus
 
 
 @dataclass(frozen=True)
@@ -49,6 +53,10 @@ def rig_extent(cameras: list[Camera]) -> RigExtent:
     centres = np.stack([c.center_world for c in cameras])
     span = float(max((np.linalg.norm(a - b) for i, a in enumerate(centres) for b in centres[i + 1:]), default=0.0))
     focus = common_focus(cameras)
+    axes = np.stack([c.R[2] for c in cameras])
+    widest = float(np.degrees(np.arccos(np.clip((axes @ axes.T).min(), -1.0, 1.0))))
+    if focus is not None and (widest < MIN_CONVERGENCE_DEG or any((c.R @ focus + c.t)[2] <= 0 for c in cameras)):
+        focus = None
     centre = focus if focus is not None else centres.mean(axis=0)
     distances = {c.name: float(np.linalg.norm(x - centre)) for c, x in zip(cameras, centres, strict=True)}
     return RigExtent(span, centre, focus is not None, distances)

@@ -54,6 +54,9 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         scale: float | None = typer.Option(None, "--scale", help="Metres per file unit, e.g. the calibration "
                                                                  "board's square size in metres for a file in board "
                                                                  "squares; replaces --units (give one of the two)."),
+        unknown_scale: bool = typer.Option(False, "--unknown-scale", help="The file's length unit is unknown (e.g. "
+                                           "board squares of unknown size): convert as read; `handloop calibration "
+                                           "check` on the assembled capture measures the scale from the hand."),
         image_size: str | None = typer.Option(None, "--image-size", help="WIDTHxHEIGHT for formats that store "
                                                                          "no image size (JARVIS, old EasyMocap)."),
         cameras: int | None = typer.Option(None, "--cameras", min=1, help="Refuse unless the rig has this many."),
@@ -85,7 +88,8 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         if camera_type is not None and from_format != "panoptic":
             raise typer.BadParameter("--camera-type applies to --from panoptic only")
         try:
-            conversion = convert(from_format, path, unit=units, scale=scale, image_size=_image_size(image_size),
+            conversion = convert(from_format, path, unit=units, scale=scale, unknown_scale=unknown_scale,
+                                 image_size=_image_size(image_size),
                                  check_geometry=geometry_check, expect_cameras=cameras, **options)
         except FormatError as exc:
             typer.echo(f"error: {exc}", err=True)

@@ -95,6 +95,19 @@ def test_board_squares_need_scale_and_the_hint_proposes_only_plausible_units(tmp
     np.testing.assert_allclose(load_calibration(out)[5].t, rig[5].t, atol=1e-9)
 
 
+def test_an_unknown_unit_converts_as_read_with_a_note_naming_the_check(tmp_path: Path) -> None:
+    rig = default_rig(None)
+    src = rig_files.write_anipose(rig, tmp_path / "calibration.toml", scale=1 / 0.044)  # 4.4 cm board squares
+    out = tmp_path / "calibration.json"
+    refused = _convert(src, out)
+    assert refused.exit_code == 2 and "--unknown-scale" in refused.output.replace("\n", " ")
+    result = _convert(src, out, "--unknown-scale")
+    assert result.exit_code == 0, result.output
+    note = result.output.replace("\n", " ")
+    assert "the unit is unknown (--unknown-scale): read in m" in note and "calibration check CAPTURE" in note
+    np.testing.assert_allclose(load_calibration(out)[5].t, rig[5].t / 0.044, atol=1e-9)  # as read, unscaled
+
+
 def test_no_unit_fits_so_only_scale_is_proposed(tmp_path: Path) -> None:
     src = rig_files.write_anipose(default_rig(None), tmp_path / "calibration.toml", scale=0.1)  # 10 m units
     result = _convert(src, tmp_path / "calibration.json")

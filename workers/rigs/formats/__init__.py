@@ -31,7 +31,7 @@ def default_unit(fmt: str) -> str:
     return _module(fmt).DEFAULT_UNIT
 
 
-def convert(fmt: str, path: Path, *, unit: str | None = None, scale: float | None = None,
+def convert(fmt: str, path: Path, *, unit: str | None = None, scale: float | None = None, unknown_scale: bool = False,
             image_size: tuple[int, int] | None = None, check_geometry: bool = True, expect_cameras: int | None = None,
             **options: object) -> Conversion:
     """Read a calibration in format `fmt` as handloop cameras (metres, R world -> camera).
@@ -43,6 +43,7 @@ def convert(fmt: str, path: Path, *, unit: str | None = None, scale: float | Non
             DEFAULT_UNIT).
         scale: metres per file unit (e.g. the calibration board's square size in metres for a file in board
             squares); replaces `unit`, so give one or the other.
+        unknown_scale: keep a rig of implausible size (noted) for the calibration check to measure its scale.
         image_size: (width, height) pixels for formats that store none.
         check_geometry: refuse a camera that does not see the point the others look at.
         expect_cameras: refuse a rig with another number of cameras.
@@ -64,7 +65,7 @@ def convert(fmt: str, path: Path, *, unit: str | None = None, scale: float | Non
             raise
         raise FormatError(f"{other} (read as {fmt}: {str(exc).removeprefix(f'{path}: ')})") from None
     conversion = build_rig(raws, unit=unit or module.DEFAULT_UNIT, source=str(path), image_size=image_size,
-                           notes=notes, scale=scale)
+                           notes=notes, scale=scale, unknown_scale=unknown_scale)
     if expect_cameras is not None and len(conversion.cameras) != expect_cameras:
         raise FormatError(f"{path}: {len(conversion.cameras)} cameras "
                           f"{[c.name for c in conversion.cameras]}, expected {expect_cameras}: camera count mismatch")

@@ -183,6 +183,10 @@ def describe_unit(unit: str, scale: float | None) -> str:
     return f"--scale {scale:.6g} m per file unit" if scale is not None else unit
 
 
+UNKNOWN_SCALE_HINT = ("or, when the file's unit is unknown, --unknown-scale (converted as read; after `capture "
+                      "assemble`, `handloop calibration check` measures the scale from the hand)")
+
+
 def check_units(extent: RigExtent, unit: str, source: str, scale: float | None = None) -> None:
     """Refuse a rig (`extent` in metres, read in `unit`, or with `scale` metres per file unit) whose size does not fit
     a hand-capture rig: the length unit was read wrong. The hint names only the units that give a plausible rig
@@ -199,20 +203,22 @@ def check_units(extent: RigExtent, unit: str, source: str, scale: float | None =
                         "from its centre)" for u in fits)
     metres_per_unit = ("--scale METRES_PER_FILE_UNIT (e.g. the calibration board's square size in metres if the file "
                        "is in board squares)")
-    hint = (f"pass {units}, or {metres_per_unit}" if fits else
-            f"no unit ({', '.join(UNITS_TO_M)}) gives a plausible rig: pass {metres_per_unit}")
+    hint = (f"pass {units}, or {metres_per_unit}, {UNKNOWN_SCALE_HINT}" if fits else
+            f"no unit ({', '.join(UNITS_TO_M)}) gives a plausible rig: pass {metres_per_unit}, {UNKNOWN_SCALE_HINT}")
     raise FormatError(f"{source}: read in {describe_unit(unit, scale)}, {problem} for a hand-capture rig: the length "
                       f"unit is wrong; {hint}")
 
 
 def build_rig(raws: list[RawCamera], *, unit: str, source: str, image_size: tuple[int, int] | None = None,
-              notes: list[str] | None = None, scale: float | None = None) -> Conversion:
+              notes: list[str] | None = None, scale: float | None = None, unknown_scale: bool = False) -> Conversion:
     """Validate raw cameras and convert them to handloop cameras in metres.
 
     Args:
         raws: from a format reader, translations in `unit`.
         unit: one of UNITS_TO_M (m, cm, mm, in): the file's length unit.
         scale: metres per file unit (e.g. a board square's size in metres); replaces `unit` when given.
+        unknown_scale: the file's unit is unknown: a rig of implausible size is kept (with a note) instead of
+            refused, for `handloop calibration check` to measure the scale from the hand.
         source: the file, for messages.
         image_size: (width, height) for cameras whose format stores no size.
         notes: the reader's remarks, extended here.
@@ -263,7 +269,13 @@ def build_rig(raws: list[RawCamera], *, unit: str, source: str, image_size: tupl
         except CalibrationError as exc:
             raise FormatError(f"{source}: {exc}") from None
     extent = rig_extent(cameras)
-    check_units(extent, unit, source, scale)
+    if unknown_scale:
+        problem = implausible(extent)
+        notes.append(f"the unit is unknown (--unknown-scale): read in {describe_unit(unit, scale)}"
+                     + (f", {problem}" if problem else "") + "; after `handloop capture assemble`, `handloop "
+                     "calibration check CAPTURE` measures the scale from the hand and gives the --scale to use")
+    else:
+        check_units(extent, unit, source, scale)
     for cam in cameras:
         if np.allclose(cam.R, np.eye(3), atol=1e-9) and np.allclose(cam.t, 0.0, atol=1e-12):
             notes.append(f"camera {cam.name!r}: R = I and t = 0, so the world frame is this camera's frame "

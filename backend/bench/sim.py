@@ -150,13 +150,14 @@ def _simulate(capture: Path, work: Path, plan: dict[str, Any], detector: bool,
 
 
 def simulate(capture: Path, work: Path, plan: dict[str, Any], *, detector: bool, annotator: AnnotatorConfig,
-             reviewer: ReviewerConfig | None = None, label: str | None = None) -> dict[str, Any]:
+             reviewer: ReviewerConfig | None = None, label: str | None = None, leave: bool = True) -> dict[str, Any]:
     """One bootstrap simulation of `plan` (see `plan_for`) on the capture, in `work`, with these simulated people;
-    the summary (`BootstrapSimulation.summary`, with a `stopped` where a round could not start or finish)."""
+    the summary (`BootstrapSimulation.summary`, with a `stopped` where a round could not start or finish). `label`
+    and `leave`: the progress bar's, over rounds."""
     config = BootstrapConfig(rounds=plan["rounds"], detector=detector, round0_rest=plan["round0_rest"],
                              annotator=annotator, reviewer=reviewer or ReviewerConfig())
     label = label or f"bootstrap, detector {'on' if detector else 'off'}"
-    with tqdm(total=plan["rounds"] + 1, unit="round", desc=label, file=sys.stderr, leave=False) as bar:
+    with tqdm(total=plan["rounds"] + 1, unit="round", desc=label, file=sys.stderr, leave=leave) as bar:
         def on_round(report) -> None:
             bar.set_postfix(D=report.dataset_size, hours=f"{report.human_hours_cumulative:.2f}")
             bar.update(1)

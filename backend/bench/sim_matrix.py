@@ -312,11 +312,14 @@ def run(*, cells: list[Cell], seeds: tuple[int, ...], out_dir: Path | None = Non
     out_dir = Path(out_dir) if out_dir else get_settings().data_dir.resolve() / "bench" / "sim-matrix"
     out_dir.mkdir(parents=True, exist_ok=True)
     results_path = out_dir / "matrix.json"
-    people = {name: asdict(AnnotatorConfig(**noise)) for name, noise in PEOPLE.items()}
+    def unseeded(config: Any) -> dict[str, Any]:  # the people's seed is the run's
+        return {k: v for k, v in asdict(config).items() if k != "seed"}
+
+    people = {name: unseeded(AnnotatorConfig(**noise)) for name, noise in PEOPLE.items()}
     config = json.loads(json.dumps({  # as the results file holds it, to compare on --resume
         "plan": {k: v for k, v in base.items() if k not in ("settings", "width")}, "stack_settings": base["settings"],
         "detector": detector, "quick": quick, "people": people, "proposals": PROPOSALS,
-        "reviewer": asdict(ReviewerConfig())}))
+        "reviewer": unseeded(ReviewerConfig())}))
     results = _load_results(results_path, config, resume)
     todo = [(c, s) for c in cells for s in seeds if run_key(c, s) not in results["runs"]]
     with tqdm(total=len(cells) * len(seeds), initial=len(cells) * len(seeds) - len(todo), unit="run",
@@ -330,7 +333,8 @@ def run(*, cells: list[Cell], seeds: tuple[int, ...], out_dir: Path | None = Non
             if work.exists():  # an interrupted run of this matrix: its stack's database cannot be reused
                 shutil.rmtree(work)
             summary = sim.simulate(capture, work, plan, detector=detector == "on", annotator=cell.annotator(seed),
-                               reviewer=ReviewerConfig(seed=seed), label=f"{cell.name} seed {seed}")
+                               reviewer=ReviewerConfig(seed=seed), label=f"{cell.name} seed {seed}",
+                                   leave=False)
             results["runs"][run_key(cell, seed)] = {**run_record(cell, seed, summary, work),
                                                     "commit": git_commit(), "finished_at": time.time()}
             _write_atomically(results_path, results)

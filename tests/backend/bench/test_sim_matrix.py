@@ -43,7 +43,7 @@ def fakes(monkeypatch, tmp_path):
     """The simulation and the capture replaced; the calls (cell width, seed, people, detector) recorded."""
     calls = []
 
-    def fake_simulate(capture, work, plan, *, detector, annotator, reviewer, label):
+    def fake_simulate(capture, work, plan, *, detector, annotator, reviewer, label, leave):
         calls.append({"width": plan["width"], "rounds": plan["rounds"], "seed": annotator.seed,
                       "reviewer_seed": reviewer.seed, "detector": detector, "label": label,
                       "settings": plan["settings"], "capture": capture})
@@ -140,7 +140,7 @@ def test_an_interrupted_matrix_keeps_its_finished_runs_and_resumes_the_rest(fake
 
 
 def test_a_stopped_run_counts_in_its_cell(fakes, tmp_path, monkeypatch):
-    def stopped(capture, work, plan, *, detector, annotator, reviewer, label):
+    def stopped(capture, work, plan, *, detector, annotator, reviewer, label, leave):
         summary = fake_summary(annotator.seed, annotator)
         summary.update(rounds=summary["rounds"][:1], rounds_completed=0, dataset_size=10, human_hours=0.1,
                        labels_per_human_hour=100.0, auto_accept_precision=None,

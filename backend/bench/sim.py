@@ -25,6 +25,7 @@ from backend.services.preannotation import DEFAULT_REST, RESTS
 from backend.settings import get_settings
 from backend.simulation.annotator import AnnotatorConfig
 from backend.simulation.bootstrap import BootstrapConfig
+from backend.simulation.reviewer import ReviewerConfig
 from backend.simulation.runner import ServerOptions, run_simulation
 from workers.capture import CaptureError, read_capture
 from workers.synth.generator import generate_capture
@@ -125,11 +126,11 @@ def by_kind_line(row: dict[str, Any]) -> str:
     return " | ".join(parts)
 
 
-def _capture(root: Path, sequences: int, frames: int, width: int) -> Path:
-    """The benchmark's capture, synthesised once and reused (synthesis is not part of the measurement)."""
+def synthetic_capture(root: Path, sequences: int, frames: int, width: int, seed: int = SEED) -> Path:
+    """The benchmark's capture (`handloop synth` with `seed`), synthesised once and reused (synthesis is not part of
+    the measurement)."""
 
-
-    out = root / f"sim-capture-s{sequences}-f{frames}-w{width}-seed{SEED}"
+    out = root / f"sim-capture-s{sequences}-f{frames}-w{width}-seed{seed}"
     if out.exists():
         try:
             read_capture(out, check_images=False)
@@ -137,17 +138,26 @@ def _capture(root: Path, sequences: int, frames: int, width: int) -> Path:
         except CaptureError as exc:
             log.warning("re-creating the benchmark capture: %s", exc)
     with tqdm(total=sequences * frames, unit="frame", desc="synthesising", file=sys.stderr) as bar:
-        generate_capture(out, SynthConfig(num_sequences=sequences, frames_per_sequence=frames, seed=SEED,
+        generate_capture(out, SynthConfig(num_sequences=sequences, frames_per_sequence=frames, seed=seed,
                                           width_px=width), force=True, progress=bar.update)
     return out
 
 
 def _simulate(capture: Path, work: Path, plan: dict[str, Any], detector: bool,
               accept_proposals_px: float | None) -> dict[str, Any]:
+    return simulate(capture, work, plan, detector=detector,
+                    annotator=AnnotatorConfig(accept_proposals_within_px=accept_proposals_px))
+
+
+def simulate(capture: Path, work: Path, plan: dict[str, Any], *, detector: bool, annotator: AnnotatorConfig,
+             reviewer: ReviewerConfig | None = None, label: str | None = None, leave: bool = True) -> dict[str, Any]:
+    """One bootstrap simulation of `plan` (see `plan_for`) on the capture, in `work`, with these simulated people;
+    the summary (`BootstrapSimulation.summary`, with a `stopped` where a round could not start or finish). `label`
+    and `leave`: the progress bar's, over rounds."""
     config = BootstrapConfig(rounds=plan["rounds"], detector=detector, round0_rest=plan["round0_rest"],
-                             annotator=AnnotatorConfig(accept_proposals_within_px=accept_proposals_px))
-    label = f"bootstrap, detector {'on' if detector else 'off'}"
-    with tqdm(total=plan["rounds"] + 1, unit="round", desc=label, file=sys.stderr) as bar:
+                             annotator=annotator, reviewer=reviewer or ReviewerConfig())
+    label = label or f"bootstrap, detector {'on' if detector else 'off'}"
+    with tqdm(total=plan["rounds"] + 1, unit="round", desc=label, file=sys.stderr, leave=leave) as bar:
         def on_round(report) -> None:
             bar.set_postfix(D=report.dataset_size, hours=f"{report.human_hours_cumulative:.2f}")
             bar.update(1)
@@ -184,21 +194,11 @@ def _detector_met(summary: dict[str, Any]) -> dict[str, bool]:
             "auto_accept_precision": precision is not None and precision >= t["auto_accept_precision_min"]}
 
 
-def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = None,
-        detector: str | None = None, accept_proposals_px: float | None = None, width: int | None = None,
-        rounds: int | None = None, initial_every: int | None = None, round0_rest: str = DEFAULT_REST,
-        frames: int | None = None, train_steps: int | None = None,
-        handsegnet_steps: int | None = None) -> dict[str, Any]:
-    """One run (`detector` "on" or "off") or both on the same capture and seed ("both"); None: both where the
-    detector can run, else off. The record's top level is the run with the detector when it ran, else without.
-    `width` (view width, pixels), `frames` (per sequence), `rounds` and `initial_every` (D_0's plan: every k-th
-    training frame) replace the plan's (the detector's targets are set at 640 px); `round0_rest` is what the
-    pre-annotation does with the initial set's samples the review policy does not pick ("keep", the issue's and
-    the paper's treatment, or "annotate": see BootstrapConfig); `train_steps` trains each network that many steps
-    a round instead of for the time budgets (repeatable runs, to compare variants); `handsegnet_steps` does so for
-    HandSegNet alone, in place of `train_steps` (HandSegNet's training compared with MVNet's held fixed)."""
+def plan_for(*, quick: bool = False, width: int | None = None, frames: int | None = None, rounds: int | None = None,
+             initial_every: int | None = None, round0_rest: str = DEFAULT_REST, train_steps: int | None = None,
+             handsegnet_steps: int | None = None) -> dict[str, Any]:
+    """The run's plan: FULL or QUICK with these replaced (see `run`); ValueError naming a value out of range."""
 
-    started = time.perf_counter()
     plan = dict(QUICK if quick else FULL)
     if width is not None:
         if not MIN_WIDTH_PX <= width <= MAX_WIDTH_PX:
@@ -226,13 +226,34 @@ def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = 
             raise ValueError(f"{name} must be in 1..{MAX_TRAIN_STEPS}, not {steps}")
         cap, budgets = STEP_COUNTED[name]
         plan["settings"] = {**plan["settings"], cap: steps, **dict.fromkeys(budgets, STEP_COUNTED_BUDGET_S)}
+    return plan
+
+
+def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = None,
+        detector: str | None = None, accept_proposals_px: float | None = None, width: int | None = None,
+        rounds: int | None = None, initial_every: int | None = None, round0_rest: str = DEFAULT_REST,
+        frames: int | None = None, train_steps: int | None = None,
+        handsegnet_steps: int | None = None) -> dict[str, Any]:
+    """One run (`detector` "on" or "off") or both on the same capture and seed ("both"); None: both where the
+    detector can run, else off. The record's top level is the run with the detector when it ran, else without.
+    `width` (view width, pixels), `frames` (per sequence), `rounds` and `initial_every` (D_0's plan: every k-th
+    training frame) replace the plan's (the detector's targets are set at 640 px); `round0_rest` is what the
+    pre-annotation does with the initial set's samples the review policy does not pick ("keep", the issue's and
+    the paper's treatment, or "annotate": see BootstrapConfig); `train_steps` trains each network that many steps
+    a round instead of for the time budgets (repeatable runs, to compare variants); `handsegnet_steps` does so for
+    HandSegNet alone, in place of `train_steps` (HandSegNet's training compared with MVNet's held fixed)."""
+
+    started = time.perf_counter()
+    plan = plan_for(quick=quick, width=width, frames=frames, rounds=rounds, initial_every=initial_every,
+                    round0_rest=round0_rest, train_steps=train_steps, handsegnet_steps=handsegnet_steps)
     default_mode, why_not = detector_default()
     mode = detector or default_mode
     if mode not in DETECTOR_MODES:
         raise ValueError(f"detector must be one of {DETECTOR_MODES}, not {mode!r}")
     if mode in ("on", "both") and why_not is not None:
         raise ValueError(f"--detector {mode} needs the pretrained detector: {why_not}")
-    capture = _capture(get_settings().data_dir.resolve() / "bench", plan["sequences"], plan["frames"], plan["width"])
+    capture = synthetic_capture(get_settings().data_dir.resolve() / "bench", plan["sequences"], plan["frames"],
+                                plan["width"])
     work = Path(work_dir) if work_dir else Path(tempfile.mkdtemp(prefix="handloop-bench-sim-"))
     load_before = os.getloadavg()
     runs: dict[str, dict[str, Any]] = {}

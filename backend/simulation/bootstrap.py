@@ -242,41 +242,58 @@ class BootstrapSimulation:
         started = time.perf_counter()
         team = self.prepare(capture_dir, initial_every)
         reports: list[RoundReport] = []
-        failure = None
+        stopped: dict[str, Any] | None = None  # {"round", "reason"} where the run ends before its last round
         for index in range(self.config.rounds + 1):
             round_started = time.perf_counter()
             job_info = None
             try:
                 if index > 0:
-                    launched = self.admin.launch_round(note=f"bootstrap simulation round {index}")
+                    try:
+                        launched = self.admin.launch_round(note=f"bootstrap simulation round {index}")
+                    except ApiError as exc:
+                        if exc.status != 409:
+                            raise
+                        # The server refused to open the round (e.g. nothing accepted yet): D_index does not exist,
+                        # so there is no round to measure; the rounds so far are the run.
+                        stopped = {"round": index, "reason": str(exc)}
+                        break
                     job = self.run_round(launched["job_id"])
                     job_info = {k: job.get(k) for k in ("id", "state", "message", "error")}
                     job_info["heuristic"] = (job.get("result") or {}).get("heuristic")  # evaluated, accepted
                     if job["state"] != "succeeded":
-                        failure = (f"round {index}: the round job ended '{job['state']}': "
-                                   f"{job.get('error') or job['message']}")
-                        reports.append(self._report(index, job_info, round_started, None))
+                        stopped = {"round": index, "reason": f"the round job ended '{job['state']}': "
+                                                             f"{job.get('error') or job['message']}"}
+                        self._report_stopped_round(reports, index, job_info, round_started)
                         break
                     self.wait_for_workers()
                     self.admin.build_review_queue()  # the round job built it; this adds fits that finished later
                 elif self.detector_on:
                     job = self.preannotate()  # reported as the round's `preannotation`, not as a round job
                     if job["state"] != "succeeded":
-                        failure = (f"round 0: the pre-annotation job ended '{job['state']}': "
-                                   f"{job.get('error') or job['message']}")
-                        reports.append(self._report(index, job_info, round_started, None))
+                        stopped = {"round": 0, "reason": f"the pre-annotation job ended '{job['state']}': "
+                                                         f"{job.get('error') or job['message']}"}
+                        self._report_stopped_round(reports, index, job_info, round_started)
                         break
                 work = team.work_until_done(index, self.wait_for_workers)
             except (ApiError, SimulationTimeoutError) as exc:
                 # The rounds measured so far are still worth reporting; say where and why it stopped.
-                failure = f"round {index}: {exc}"
-                reports.append(self._report(index, job_info, round_started, None))
+                stopped = {"round": index, "reason": str(exc)}
+                self._report_stopped_round(reports, index, job_info, round_started)
                 break
             reports.append(self._report(index, job_info, round_started, work))
             self._announce(reports[-1])
-        if failure:
-            log.error("%s", failure)
-        return self.summary(reports, time.perf_counter() - started, failure)
+        if stopped:
+            log.error("stopped in round %d: %s", stopped["round"], stopped["reason"])
+        return self.summary(reports, time.perf_counter() - started, stopped)
+
+    def _report_stopped_round(self, reports: list[RoundReport], index: int, job_info: dict[str, Any] | None,
+                              started: float) -> None:
+        """The round the run stopped in, where the server can still report it; a round it never opened (its
+        exports answer 404) has nothing to report."""
+        try:
+            reports.append(self._report(index, job_info, started, None))
+        except ApiError as exc:
+            log.warning("round %d is not reported: %s", index, exc)
 
     def _announce(self, report: RoundReport) -> None:
         log.info("D_%d: %d samples (+%d: %s), %.2f human hours, accepted %.2f mm", report.index, report.dataset_size,
@@ -350,8 +367,9 @@ class BootstrapSimulation:
             round_job=job, minutes=(time.perf_counter() - started) / 60, bookkeeping_ok=bookkeeping_ok,
             preannotation=self.preannotation if index == 0 else None)
 
-    def summary(self, reports: list[RoundReport], seconds: float, failure: str | None) -> dict[str, Any]:
-        """The run's figures: per round, and over the run (the keys `handloop bench sim` reports)."""
+    def summary(self, reports: list[RoundReport], seconds: float, stopped: dict[str, Any] | None) -> dict[str, Any]:
+        """The run's figures: per round, and over the run (the keys `handloop bench sim` reports). `stopped`:
+        {"round": index, "reason": text} where the run ended before its last round, else None."""
         members = self.admin.dataset()["samples"]
         self._fit_errors(members)
         heuristic = [self._errors[m["fit"]["id"]][0] for m in members
@@ -376,7 +394,8 @@ class BootstrapSimulation:
                 "human_hours_for_the_same_labels": size * PAPER_FULL_ANNOTATION_S / 3600.0},
             "minutes": seconds / 60,
             "bookkeeping_ok": all(r.bookkeeping_ok for r in reports),
-            "failure": failure,
+            "failure": None if stopped is None else f"round {stopped['round']}: {stopped['reason']}",
+            "stopped": stopped,
             "detector": self.detector_on,
             "d0_verified_share": reports[0].verified_share if reports else None,
             "config": {"rounds": self.config.rounds, "annotators": self.config.annotators,

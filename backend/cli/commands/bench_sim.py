@@ -69,3 +69,8 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
             typer.echo(f"minutes {record['minutes']:.1f}  accepted {record['accepted_vertex_mm']} mm  "
                        f"auto-accept precision {record['auto_accept_precision']}  "
                        f"labels/h {record['labels_per_human_hour']}")
+        for simulated in (record, record.get("detector_off") or {}):
+            stopped = simulated.get("stopped")
+            if stopped:  # the run ended cleanly before its last round; the record says where and why
+                typer.echo(f"detector {'on' if simulated.get('detector') else 'off'}: stopped in round "
+                           f"{stopped['round']}: {stopped['reason']}", err=True)

@@ -121,7 +121,7 @@ def test_bootstrap_books_add_up_round_by_round(env_with, sqlite_url, capture_dir
 
     rounds = summary["rounds"]
     assert [r["index"] for r in rounds] == [0, 1, 2] and summary["rounds_completed"] == 2
-    assert summary["bookkeeping_ok"] and summary["failure"] is None
+    assert summary["bookkeeping_ok"] and summary["failure"] is None and summary["stopped"] is None
     # D_0: the four initial frames (0 and 3 of both training sequences), clicked, fitted 2 mm off, verified.
     assert summary["initial_set"] == 4
     assert rounds[0]["added"] == {"heuristic": 0, "manual": 0, "annotated": 4} and rounds[0]["dataset_size"] == 4
@@ -323,3 +323,40 @@ def test_annotators_who_accept_the_detectors_proposals_click_less(env_with, sqli
     assert accepting["clicks"] < plain["clicks"] / 2 and accepting_hours < plain_hours
     assert accepting_hours * 3600 == pytest.approx(accepting["clicks"] * 2 + accepting["verifications"] * 5
                                                    + accepting["proposal_views"] * 1.0)
+
+
+def test_a_round_that_cannot_start_stops_the_run_cleanly_and_says_why(env_with, sqlite_url, capture_dir, tmp_path):
+    """Nothing accepted in round 0 (the reviewers reject the fake workers' 2 mm fits): the server refuses round 1's
+    launch (409). The run stops there with the rounds measured so far, `stopped` saying where and why; no request
+    for a round the server never opened (its dataset export answers 404)."""
+    env = env_with(sqlite_url, tmp_path / "data")
+    admin = ApiClient(env.client, token_of(env, Role.admin))
+    sim = BootstrapSimulation(env.client, admin, BootstrapConfig(
+        rounds=2, annotator=AnnotatorConfig(max_mask_corrections=0),
+        reviewer=ReviewerConfig(accept_below_mm=1.0, error_rate=0.0)))
+    workers = FakeWorkers(env, sim)
+    sim.wait_for_workers = workers.fit_submissions
+    sim.run_round = workers.round
+    summary = sim.run(capture_dir, initial_every=3)
+    assert [r["index"] for r in summary["rounds"]] == [0] and summary["rounds"][0]["dataset_size"] == 0
+    assert summary["rounds_completed"] == 0 and summary["dataset_size"] == 0 and summary["bookkeeping_ok"]
+    stopped = summary["stopped"]
+    assert stopped["round"] == 1 and "cannot launch a round yet" in stopped["reason"], stopped
+    assert "0 accepted so far" in stopped["reason"] and summary["failure"] == f"round 1: {stopped['reason']}"
+    assert workers.predicted_mm == []  # no round job ran
+    json.dumps(summary)
+
+
+def test_a_run_that_ends_early_for_any_reason_says_where_in_stopped(env_with, sqlite_url, capture_dir, tmp_path):
+    env = env_with(sqlite_url, tmp_path / "data")
+    admin = ApiClient(env.client, token_of(env, Role.admin))
+    sim = BootstrapSimulation(env.client, admin, BootstrapConfig(rounds=2, annotator=AnnotatorConfig(
+        max_mask_corrections=0)))
+    sim.wait_for_workers = FakeWorkers(env, sim).fit_submissions
+
+    def stuck_round(job_id: int) -> dict:
+        raise SimulationTimeoutError(f"job {job_id} (round) still running after 3600 s")
+
+    sim.run_round = stuck_round
+    summary = sim.run(capture_dir, initial_every=3)
+    assert summary["stopped"]["round"] == 1 and summary["stopped"]["reason"].endswith("still running after 3600 s")

@@ -140,7 +140,7 @@ def test_bench_sim_runs_d0_alone_with_zero_rounds(monkeypatch, tmp_path):
         seen.update(rounds=plan["rounds"], detector=detector, px=accept_proposals_px)
         return _d0_summary(0.25, 50.0, 18)
 
-    monkeypatch.setattr(sim, "_capture", lambda root, *a: tmp_path)
+    monkeypatch.setattr(sim, "synthetic_capture", lambda root, *a: tmp_path)
     monkeypatch.setattr(sim, "_simulate", fake_simulate)
     monkeypatch.setattr(sim, "detector_default", lambda: ("both", None))
     record = sim.run(detector="on", rounds=0, accept_proposals_px=4.0, emit_json=False, work_dir=tmp_path)
@@ -190,7 +190,7 @@ def test_bench_sim_passes_the_round_0_plan_to_the_simulation(monkeypatch, tmp_pa
         seen.update(frames=frames)
         return tmp_path
 
-    monkeypatch.setattr(sim, "_capture", fake_capture)
+    monkeypatch.setattr(sim, "synthetic_capture", fake_capture)
     monkeypatch.setattr(sim, "run_simulation", fake_run_simulation)
     monkeypatch.setattr(sim, "detector_default", lambda: ("both", None))
     record = sim.run(detector="on", rounds=0, initial_every=4, round0_rest="annotate", emit_json=False,
@@ -216,7 +216,7 @@ def test_bench_sim_train_steps_counts_training_in_steps(monkeypatch, tmp_path):
         seen.append(dict(plan["settings"]))
         return _d0_summary(0.6, 150.0, 4)
 
-    monkeypatch.setattr(sim, "_capture", lambda root, *a: tmp_path)
+    monkeypatch.setattr(sim, "synthetic_capture", lambda root, *a: tmp_path)
     monkeypatch.setattr(sim, "_simulate", fake_simulate)
     monkeypatch.setattr(sim, "detector_default", lambda: ("both", None))
     record = sim.run(detector="on", rounds=0, emit_json=False, work_dir=tmp_path, train_steps=1000)
@@ -261,3 +261,24 @@ def test_the_detector_off_run_trains_the_paper_only_mvnet():
     assert stack_overrides(BootstrapConfig(detector=True), ServerOptions())["mvnet_detector"] is True
     explicit = ServerOptions(settings={"mvnet_detector": False, "nets_config": "tiny"})
     assert stack_overrides(BootstrapConfig(detector=True), explicit) == {"mvnet_detector": False, "nets_config": "tiny"}
+
+
+def test_bench_sim_reports_a_run_that_stopped_and_ends_with_its_json_line(monkeypatch, tmp_path):
+    """A run whose round 1 could not start (nothing accepted in round 0): the record says where and why, the command
+    ends cleanly (exit 0, as for targets missed) with the JSON as its last stdout line."""
+    from backend.bench import sim
+
+    reason = "POST /api/admin/rounds -> 409: cannot launch a round yet: ... 0 accepted so far, at least 1 needed."
+
+    def fake_simulate(capture, work, plan, detector, accept_proposals_px):
+        return {**_d0_summary(None, None, 0), "dataset_size": 0, "human_hours": 0.1, "bookkeeping_ok": True,
+                "stopped": {"round": 1, "reason": reason}, "failure": f"round 1: {reason}", "detector": detector}
+
+    monkeypatch.setattr(sim, "synthetic_capture", lambda root, *a: tmp_path)
+    monkeypatch.setattr(sim, "_simulate", fake_simulate)
+    monkeypatch.setattr(sim, "detector_default", lambda: ("both", None))
+    result = runner.invoke(app, ["bench", "sim", "--quick", "--json", "--detector", "on"])
+    assert result.exit_code == 0, result.output[-3000:]
+    record = json.loads(result.stdout.strip().splitlines()[-1])
+    assert record["stopped"] == {"round": 1, "reason": reason} and record["targets_met"]["rounds"] is False
+    assert f"detector on: stopped in round 1: {reason}" in result.stderr

@@ -42,9 +42,11 @@ def view_hands(model: LandmarkModel, image: np.ndarray, searches: list[list[Star
 
 
 def hand_of_side(hands: list[ViewKeypoints], handedness: Handedness) -> ViewKeypoints | None:
-    """One view's hand of `handedness` by the model's own handedness: the most present one of that side; where none
-    is of that side, the first hand (a photograph of one hand gives that hand whatever its side); None for none."""
-    if not hands:
-        return None
-    of_side = [h for h in hands if h.model_side == handedness]
-    return max(of_side, key=lambda h: h.presence) if of_side else hands[0]
+    """One view's hand of `handedness` by the model's own handedness (`right_score`): of several hands the one it
+    finds most right-handed for "right", least for "left" (relative, not against 0.5: its handedness is weak on some
+    views, docs/detector.md); a single hand whatever its side; None for none."""
+    scored = [h for h in hands if np.isfinite(h.right_score)]
+    if len(hands) < 2 or not scored:
+        return hands[0] if hands else None
+    pick = max if handedness == "right" else min
+    return pick(scored, key=lambda h: h.right_score)

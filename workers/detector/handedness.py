@@ -66,11 +66,12 @@ def lifted_side(lifted: LiftedKeypoints) -> Handedness | None:
 
 def side_disagreement(sides: Iterable[Handedness | None], declared: Handedness, *, min_frames: int = 3,
                       fraction: float = 2 / 3) -> str | None:
-    """A sentence where the frames of a sequence say its hand is the other side than `declared` (at least
-    `min_frames` frames decided and `fraction` of them the other side), else None."""
+    """A sentence where the frames of a sequence say its hand is the other side than `declared` (the side the
+    detector was asked for: the capture's, unless a job named one), at least `min_frames` frames deciding and
+    `fraction` of them the other side; else None."""
     decided = [s for s in sides if s is not None]
     other = sum(s != declared for s in decided)
     if len(decided) < min_frames or other < fraction * len(decided):
         return None
     return (f"the detected hand looks like a {'left' if declared == 'right' else 'right'} hand in {other} of "
-            f"{len(decided)} frames, but the sequence is declared {declared}: check the capture's hand side")
+            f"{len(decided)} frames, but a {declared} hand was asked for: check the capture's hand side")

@@ -100,6 +100,6 @@ def test_one_hand_per_view_is_kept_as_it_is() -> None:
 
 def test_a_sequence_of_the_other_side_is_noted() -> None:
     assert side_disagreement(["left"] * 5 + ["right", None], "right") is not None
-    assert "declared right" in side_disagreement(["left"] * 3, "right")
+    assert "a right hand was asked for" in side_disagreement(["left"] * 3, "right")
     assert side_disagreement(["left", "left", "right", "right"], "right") is None
     assert side_disagreement(["left", "left", None], "right") is None  # too few frames say anything

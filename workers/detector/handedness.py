@@ -4,7 +4,7 @@ Chirality: the thumb lies on the palm's side and the fingers curl towards it. Wi
 (pinky MCP - wrist), a right hand's thumb tip and fingertips lie on +n's side, a left hand's on -n's. Measured on
 200 poses of the built-in hand's pose sampler per side: the thumb tip alone on the right side in 100 % of right and
 99.5 % of left poses. The model's handedness from single views is much weaker on the built-in hand's renders (a right
-hand read right in 4 of 7 views of one frame), so a lifted hand's chirality decides where it is clear.
+hand read right in 3 of 7 views of one frame), so a lifted hand's chirality decides where it is clear.
 """
 
 from __future__ import annotations

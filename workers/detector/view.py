@@ -3,7 +3,8 @@
 The search per view: the start crop (from a mask, the palm detector, or the other views' lift) is shown at 4
 rotations and the one with the highest presence is kept; its keypoints then give a tighter crop turned so wrist ->
 middle MCP points up, which is run again, as shown and mirrored. The two refined runs are averaged (weighted by their
-presence); the refined crop replaces the start crop only where its presence is not lower.
+presence); the refined crop replaces the start crop only where its presence is not lower. `hand_searches` gives
+one list of start crops per hand that may be in view (palms, mask blobs); hands.py runs them all.
 """
 
 from __future__ import annotations

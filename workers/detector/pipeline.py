@@ -14,7 +14,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from workers.detector.association import choose_hand
+from workers.detector.association import choose_hand, hand_groups
 from workers.detector.crops import Crop
 from workers.detector.hands import hand_of_side, view_hands
 from workers.detector.landmark_model import LandmarkModel, landmark_model
@@ -131,9 +131,16 @@ def detect_frame(images: Sequence[np.ndarray], cameras: Sequence[Camera],
     model, palms = landmark_model(), palm_detector()
     candidates = [view_hands(model, image, hand_searches(image, mask, palms), handedness)
                   for image, mask in zip(images, mask_list, strict=True)]
-    views = choose_hand(candidates, cameras, handedness)
+    return _lift_with_second_look(model, images, cameras, choose_hand(candidates, cameras, handedness), candidates,
+                                  handedness)
+
+
+def _lift_with_second_look(model: LandmarkModel, images: Sequence[np.ndarray], cameras: Sequence[Camera],
+                           views: list[ViewKeypoints | None], candidates: Sequence[Sequence[ViewKeypoints]],
+                           handedness: Handedness) -> LiftedKeypoints:
+    """Lift one hand's views; views that found nothing, or a hand the others disagree with, look again where the
+    others put it (`_second_look`), and the hand is lifted again where one changed."""
     lifted = lift(views, cameras)
-    # Views that found nothing, or a hand the others disagree with, look again where the others put it.
     doubtful = [c for c, v in enumerate(views) if v is None or lifted.inliers[:, c].sum() < MIN_INLIER_KEYPOINTS]
     if doubtful and sum(v is not None for v in views) >= 2:
         changed = False
@@ -145,6 +152,32 @@ def detect_frame(images: Sequence[np.ndarray], cameras: Sequence[Camera],
         if changed:
             lifted = lift(views, cameras)
     return lifted
+
+
+def detect_frame_hands(images: Sequence[np.ndarray], cameras: Sequence[Camera],
+                       masks: Sequence[np.ndarray | None] | None = None) -> list[tuple[Handedness | None,
+                                                                                         LiftedKeypoints]]:
+    """Every hand of one multi-view frame seen in two views or more, each lifted on its own: (its side, None where
+    unclear; its lift), most views first. A detection belongs to one hand only (groups sharing one with a larger
+    group are left out). Arguments and errors as `detect_frame`. Every detection is read as a right hand (the shown
+    and mirrored readings are averaged either way); a hand's second look reads it as its side.
+    """
+    mask_list = _check_inputs(images, cameras, masks)
+    model, palms = landmark_model(), palm_detector()
+    candidates = [view_hands(model, image, hand_searches(image, mask, palms))
+                  for image, mask in zip(images, mask_list, strict=True)]
+    taken: set[tuple[int, int]] = set()
+    out: list[tuple[Handedness | None, LiftedKeypoints]] = []
+    for group in hand_groups(candidates, cameras):
+        nodes = set(group.members.items())
+        if len(nodes) < 2 or nodes & taken:
+            continue
+        taken |= nodes
+        views: list[ViewKeypoints | None] = [candidates[c][group.members[c]] if c in group.members else None
+                                             for c in range(len(cameras))]
+        out.append((group.side, _lift_with_second_look(model, images, cameras, views, candidates,
+                                                       group.side or "right")))
+    return out
 
 
 def detect_image(image: np.ndarray, box_px: Sequence[float] | None = None, *,

@@ -9,7 +9,7 @@ import pytest
 from tests.support.two_hands import TwoHandFrame, render_two_hands
 from workers.detector import detect_frame
 from workers.detector.handedness import lifted_side
-from workers.detector.pipeline import detect_image, detect_image_hands
+from workers.detector.pipeline import detect_frame_hands, detect_image, detect_image_hands
 from workers.geometry.camera import Camera
 
 OTHER = {"right": "left", "left": "right"}
@@ -67,3 +67,15 @@ def test_a_two_hand_photograph_gives_the_hand_of_each_side(two_hands: tuple[list
         assert _median_px(view.keypoints_px, own) < min(0.3 * np.ptp(own, axis=0).max(),
                                                         _median_px(view.keypoints_px, other)), side
     assert found["right"].right_score > found["left"].right_score
+
+
+@pytest.mark.usefixtures("require_detector")
+def test_every_hand_of_a_frame_is_lifted_with_its_side(two_hands: tuple[list[Camera], list[TwoHandFrame]]) -> None:
+    """The building block for one sample per hand: both hands of a frame, each lifted near its truth."""
+    cameras, frames = two_hands
+    frame = frames[0]
+    hands = detect_frame_hands(frame.images, cameras, frame.masks)
+    assert [side for side, _ in hands[:2]] in (["right", "left"], ["left", "right"])
+    for side, lifted in hands[:2]:
+        err_mm = 1000 * np.linalg.norm(lifted.points_world - frame.keypoints_3d[side], axis=1)
+        assert np.nanmedian(err_mm) < 25.0 and np.isfinite(err_mm).sum() >= 15, (side, err_mm)

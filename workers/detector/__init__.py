@@ -1,7 +1,8 @@
 """Pretrained 2D hand keypoints (MediaPipe's hand landmark model) and their multi-view lifting.
 
 Part of the compute core: no database, no web. The public entry points:
-- `detect_frame(images, cameras, masks=None, *, handedness="right") -> LiftedKeypoints`
+- `detect_frame(images, cameras, masks=None, *, handedness="right") -> LiftedKeypoints`: the hand of that side,
+  the same in every view, where several hands are in view (docs/detector.md, "Several hands in view")
 - `detector_status() -> str | None`: None when the model files are present and verified, else why not.
 """
 

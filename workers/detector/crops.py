@@ -96,16 +96,33 @@ def crop_from_mask(mask: np.ndarray, scale: float, min_side_px: float = 16.0) ->
 
     None when the mask is empty. The largest connected component keeps stray chroma-key specks out of the box.
     """
+    windows = mask_windows(mask, scale, min_side_px, max_count=1)
+    return windows[0] if windows else None
+
+
+def mask_windows(mask: np.ndarray, scale: float, min_side_px: float = 16.0, *, min_area_fraction: float = 0.2,
+                 max_count: int = 4) -> list[tuple[float, float, float]]:
+    """(H, W) bool mask -> (x, y, side) squares around its blobs, largest first, `scale` times each one's longer side.
+
+    Only blobs of at least `min_area_fraction` of the largest one's area count (chroma-key specks do not; a second
+    hand with its forearm does); at most `max_count`.
+    """
     mask = np.asarray(mask, dtype=bool)
     if not mask.any():
-        return None
+        return []
     count, _, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
     if count < 2:
-        return None
-    best = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
-    x, y, w, h = (float(v) for v in stats[best, :4])
-    side = max(w, h, min_side_px) * scale
-    return x + (w - 1) / 2, y + (h - 1) / 2, side
+        return []
+    areas = stats[1:, cv2.CC_STAT_AREA]
+    order = 1 + np.argsort(-areas, kind="stable")
+    out = []
+    for blob in order[:max_count]:
+        if stats[blob, cv2.CC_STAT_AREA] < min_area_fraction * areas.max():
+            break
+        x, y, w, h = (float(v) for v in stats[blob, :4])
+        side = max(w, h, min_side_px) * scale
+        out.append((x + (w - 1) / 2, y + (h - 1) / 2, side))
+    return out
 
 
 def crop_from_keypoints(keypoints_px: np.ndarray, scale: float) -> tuple[float, float, float]:

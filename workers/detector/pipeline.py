@@ -1,7 +1,10 @@
-"""detect_frame: every view's keypoints, a second look where a view found nothing or disagrees, and the lift.
+"""detect_frame: every hand in every view, the hand of the side asked for chosen consistently over the views, a
+second look where a view found nothing or disagrees, and the lift. detect_image: the same for one photograph.
 
-Where a view finds no hand from its mask or the palm detector, or one that the lift does not use (an inlier for
-fewer than MIN_INLIER_KEYPOINTS keypoints), the keypoints lifted from the other views give a window: their
+Several hands in view (#36): each view's hands (`hands.view_hands`) are grouped across views by the cameras'
+epipolar geometry and the group of the side asked for is kept (`association.choose_hand`); views with one hand each
+read as before. Where a view finds no hand from its mask or the palm detector, or one that the lift does not use (an
+inlier for fewer than MIN_INLIER_KEYPOINTS keypoints), the keypoints lifted from the other views give a window: their
 projection into that view, turned upright by the projected wrist -> middle MCP.
 """
 
@@ -11,13 +14,15 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from workers.detector.association import choose_hand, hand_groups
 from workers.detector.crops import Crop
+from workers.detector.hands import hand_of_side, view_hands
 from workers.detector.landmark_model import LandmarkModel, landmark_model
 from workers.detector.lifting import lift
 from workers.detector.model_files import loaded_detector_status as detector_status  # noqa: F401  (re-exported: the workers' check, runtime imported)
 from workers.detector.palm import palm_detector
 from workers.detector.types import DetectorInputError, Handedness, LiftedKeypoints, ViewKeypoints
-from workers.detector.view import StartCrop, detect_view, refined_crop, start_crops
+from workers.detector.view import MAX_HANDS, StartCrop, detect_view, hand_searches, refined_crop
 from workers.geometry.camera import Camera
 from workers.geometry.projection import project_points
 
@@ -27,6 +32,9 @@ MIN_LIFTED = 12
 MIN_INLIER_KEYPOINTS = 3
 # Side of the window around a user's box (handloop detect --box) over the box's longer side.
 BOX_SCALE = 1.2
+# A second look's detection (or another hand of the view) counts only this near the projection of the lifted hand
+# (median keypoint distance over the projected hand's size): farther, it is the other hand.
+SECOND_LOOK_FRACTION = 0.3
 
 
 def check_image(image: np.ndarray, where: str) -> np.ndarray:
@@ -75,9 +83,11 @@ def projected_keypoints(lifted: LiftedKeypoints, camera: Camera) -> np.ndarray |
 
 
 def _second_look(model: LandmarkModel, image: np.ndarray, camera: Camera, view: ViewKeypoints | None,
-                 lifted: LiftedKeypoints, handedness: Handedness) -> ViewKeypoints | None:
+                 others: Sequence[ViewKeypoints], lifted: LiftedKeypoints, handedness: Handedness
+                 ) -> ViewKeypoints | None:
     """A new detection in the window the other views' lift gives (turned upright by the projected wrist -> middle MCP),
-    kept when it lies nearer that projection than `view` does; otherwise `view`."""
+    or another of the view's hands (`others`), kept when it lies nearer that projection than `view` does and within
+    SECOND_LOOK_FRACTION of the projected hand's size of it; otherwise `view`."""
     expected = projected_keypoints(lifted, camera)
     if expected is None:
         return view
@@ -86,11 +96,14 @@ def _second_look(model: LandmarkModel, image: np.ndarray, camera: Camera, view: 
     if not (-0.5 <= cx <= camera.width - 0.5 and -0.5 <= cy <= camera.height - 0.5):
         return view  # the hand is outside this view
     again = detect_view(model, image, [StartCrop(crop, False, "lifted"), StartCrop(crop, True, "lifted")], handedness)
-    if again is None:
+    limit = SECOND_LOOK_FRACTION * max(float(np.ptp(expected, axis=0).max()), 1.0)
+    found = [v for v in (again, *others) if v is not None and _median_distance(v, expected) < limit]
+    if not found:
         return view
-    if view is None:
-        return again
-    return again if _median_distance(again, expected) < _median_distance(view, expected) else view
+    nearest = min(found, key=lambda v: _median_distance(v, expected))
+    if view is None or _median_distance(nearest, expected) < _median_distance(view, expected):
+        return nearest
+    return view
 
 
 def _median_distance(view: ViewKeypoints, expected_px: np.ndarray) -> float:
@@ -100,13 +113,14 @@ def _median_distance(view: ViewKeypoints, expected_px: np.ndarray) -> float:
 def detect_frame(images: Sequence[np.ndarray], cameras: Sequence[Camera],
                  masks: Sequence[np.ndarray | None] | None = None, *,
                  handedness: Handedness = "right") -> LiftedKeypoints:
-    """Detect and lift the hand of one multi-view frame.
+    """Detect and lift the hand of side `handedness` in one multi-view frame.
 
     Args:
         images: C (H, W, 3) uint8 RGB images in calibration order.
         cameras: the C cameras.
         masks: per view an (H, W) bool mask locating the hand (chroma key, HandSegNet) or None.
-        handedness: which hand (a left hand is shown to the model mirrored).
+        handedness: which hand (a left hand is shown to the model mirrored). With several hands in view, the one of
+            this side, the same hand in every view; with one hand in view, that hand whatever its side.
     Raises:
         DetectorInputError: fewer than 2 views, mismatched lists, malformed arrays.
         DetectorUnavailableError: model files missing or corrupt.
@@ -115,16 +129,24 @@ def detect_frame(images: Sequence[np.ndarray], cameras: Sequence[Camera],
         raise DetectorInputError(f"handedness must be 'right' or 'left', got {handedness!r}")
     mask_list = _check_inputs(images, cameras, masks)
     model, palms = landmark_model(), palm_detector()
-    views: list[ViewKeypoints | None] = [
-        detect_view(model, image, start_crops(image, mask, palms), handedness)
-        for image, mask in zip(images, mask_list, strict=True)]
+    candidates = [view_hands(model, image, hand_searches(image, mask, palms), handedness)
+                  for image, mask in zip(images, mask_list, strict=True)]
+    return _lift_with_second_look(model, images, cameras, choose_hand(candidates, cameras, handedness), candidates,
+                                  handedness)
+
+
+def _lift_with_second_look(model: LandmarkModel, images: Sequence[np.ndarray], cameras: Sequence[Camera],
+                           views: list[ViewKeypoints | None], candidates: Sequence[Sequence[ViewKeypoints]],
+                           handedness: Handedness) -> LiftedKeypoints:
+    """Lift one hand's views; views that found nothing, or a hand the others disagree with, look again where the
+    others put it (`_second_look`), and the hand is lifted again where one changed."""
     lifted = lift(views, cameras)
-    # Views that found nothing, or a hand the others disagree with, look again where the others put it.
     doubtful = [c for c, v in enumerate(views) if v is None or lifted.inliers[:, c].sum() < MIN_INLIER_KEYPOINTS]
     if doubtful and sum(v is not None for v in views) >= 2:
         changed = False
         for c in doubtful:
-            again = _second_look(model, images[c], cameras[c], views[c], lifted, handedness)
+            others = [h for h in candidates[c] if h is not views[c]]
+            again = _second_look(model, images[c], cameras[c], views[c], others, lifted, handedness)
             changed = changed or again is not views[c]
             views[c] = again
         if changed:
@@ -132,19 +154,55 @@ def detect_frame(images: Sequence[np.ndarray], cameras: Sequence[Camera],
     return lifted
 
 
+def detect_frame_hands(images: Sequence[np.ndarray], cameras: Sequence[Camera],
+                       masks: Sequence[np.ndarray | None] | None = None) -> list[tuple[Handedness | None,
+                                                                                         LiftedKeypoints]]:
+    """Every hand of one multi-view frame seen in two views or more, each lifted on its own: (its side, None where
+    unclear; its lift), most views first. A detection belongs to one hand only (groups sharing one with a larger
+    group are left out). Arguments and errors as `detect_frame`. Every detection is read as a right hand (the shown
+    and mirrored readings are averaged either way); a hand's second look reads it as its side.
+    """
+    mask_list = _check_inputs(images, cameras, masks)
+    model, palms = landmark_model(), palm_detector()
+    candidates = [view_hands(model, image, hand_searches(image, mask, palms))
+                  for image, mask in zip(images, mask_list, strict=True)]
+    taken: set[tuple[int, int]] = set()
+    out: list[tuple[Handedness | None, LiftedKeypoints]] = []
+    for group in hand_groups(candidates, cameras):
+        nodes = set(group.members.items())
+        if len(nodes) < 2 or nodes & taken:
+            continue
+        taken |= nodes
+        views: list[ViewKeypoints | None] = [candidates[c][group.members[c]] if c in group.members else None
+                                             for c in range(len(cameras))]
+        out.append((group.side, _lift_with_second_look(model, images, cameras, views, candidates,
+                                                       group.side or "right")))
+    return out
+
+
 def detect_image(image: np.ndarray, box_px: Sequence[float] | None = None, *,
                  handedness: Handedness = "right") -> ViewKeypoints | None:
-    """One photo, no calibration: the hand's 21 keypoints, or None when no hand is found.
+    """One photo, no calibration: the 21 keypoints of the hand of side `handedness`, or None when no hand is found.
+
+    With several hands, the most present one the model reads as that side (`ViewKeypoints.right_score`); with one
+    hand, or none of that side, the first found whatever its side (its `model_side` says which the model thinks).
 
     Args:
         image: (H, W, 3) uint8 RGB.
         box_px: optional x, y, width, height in pixels saying where the hand is (inside the image). The palm detector
             looks inside it first, then the box itself is tried at 4 quarter turns. Without it the palm detector
             searches the whole image, then the whole image's centred square is tried.
+        handedness: the side looked for; every hand is read as that side (a left hand is shown mirrored).
     Raises:
         DetectorInputError: a malformed image or a box that is not inside it.
         DetectorUnavailableError: model files missing or corrupt.
     """
+    return hand_of_side(detect_image_hands(image, box_px, handedness=handedness), handedness)
+
+
+def detect_image_hands(image: np.ndarray, box_px: Sequence[float] | None = None, *,
+                       handedness: Handedness = "right") -> list[ViewKeypoints]:
+    """Every hand in one photo (see `detect_image`), in the order found, each read as side `handedness`."""
     image = check_image(image, "image")
     if handedness not in ("right", "left"):
         raise DetectorInputError(f"handedness must be 'right' or 'left', got {handedness!r}")
@@ -153,12 +211,14 @@ def detect_image(image: np.ndarray, box_px: Sequence[float] | None = None, *,
     if box_px is not None:
         x, y, w, h = check_box(box_px, width, height)
         box = Crop((x + w / 2 - 0.5, y + h / 2 - 0.5), max(w, h) * BOX_SCALE)
-        starts = [StartCrop(p.crop, False, "box+palm") for p in palms.detect(image, box, max_palms=1)]
-        starts.append(StartCrop(box, True, "box"))
+        found = palms.detect(image, box, max_palms=MAX_HANDS)
+        searches = [[StartCrop(p.crop, False, "box+palm") for p in found[:1]] + [StartCrop(box, True, "box")]]
+        searches += [[StartCrop(p.crop, False, "box+palm")] for p in found[1:]]
     else:
-        starts = start_crops(image, None, palms)
-        starts.append(StartCrop(Crop(((width - 1) / 2, (height - 1) / 2), float(min(width, height))), True, "image"))
-    return detect_view(model, image, starts, handedness)
+        searches = hand_searches(image, None, palms) or [[]]
+        searches[0] = [*searches[0], StartCrop(Crop(((width - 1) / 2, (height - 1) / 2), float(min(width, height))),
+                                                True, "image")]
+    return view_hands(model, image, searches, handedness)
 
 
 def check_box(box_px: Sequence[float], width: int, height: int) -> tuple[float, float, float, float]:

@@ -6,7 +6,8 @@ keypoints in FreiHAND order (0 wrist, 1-4 thumb, 5-8 index, 9-12 middle, 13-16 r
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
@@ -30,9 +31,11 @@ class ViewKeypoints:
         keypoints_px: (21, 2) float64, pixels of the full view.
         scores: (21,) float64 in [0, 1], per-keypoint confidence.
         presence: the model's hand-presence score in [0, 1] for the crop it kept.
-        handedness: which hand the keypoints are of.
+        handedness: the side the keypoints were read as (the side asked for: a left hand is shown mirrored).
         box_px: (4,) float64 x, y, width, height of the crop's axis-aligned bounds in pixels.
         rotation_rad: rotation of the crop the model saw (counter-clockwise in the image, radians).
+        right_score: the model's own handedness in [0, 1], high for a right hand (its handedness output on the
+            unmirrored crop averaged with one minus it on the mirrored crop); NaN where not known.
     """
 
     keypoints_px: np.ndarray
@@ -41,6 +44,14 @@ class ViewKeypoints:
     handedness: Handedness
     box_px: np.ndarray
     rotation_rad: float
+    right_score: float = field(default=math.nan)
+
+    @property
+    def model_side(self) -> Handedness | None:
+        """The side the model thinks this hand is (None where its handedness is not known)."""
+        if not math.isfinite(self.right_score):
+            return None
+        return "right" if self.right_score >= 0.5 else "left"
 
 
 @dataclass(frozen=True, eq=False)

@@ -3,7 +3,8 @@
 The search per view: the start crop (from a mask, the palm detector, or the other views' lift) is shown at 4
 rotations and the one with the highest presence is kept; its keypoints then give a tighter crop turned so wrist ->
 middle MCP points up, which is run again, as shown and mirrored. The two refined runs are averaged (weighted by their
-presence); the refined crop replaces the start crop only where its presence is not lower.
+presence); the refined crop replaces the start crop only where its presence is not lower. `hand_searches` gives
+one list of start crops per hand that may be in view (palms, mask blobs); hands.py runs them all.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from workers.detector.crops import Crop, crop_from_mask, upright_rotation
+from workers.detector.crops import Crop, mask_windows, upright_rotation
 from workers.detector.landmark_model import LandmarkModel, LandmarkOutput
 from workers.detector.palm import PalmDetector
 from workers.detector.types import Handedness, ViewKeypoints
@@ -27,8 +28,10 @@ REFINED_SCALE = 1.6
 AGREEMENT_FRACTION = 0.05
 MIN_PRESENCE = 0.2
 ACCEPT_PRESENCE = 0.5
-# Side of the window around a mask's largest blob over the blob's longer side.
+# Side of the window around a mask's blob over the blob's longer side.
 MASK_SCALE = 1.1
+# At most this many hands are looked for per view (palms, mask blobs).
+MAX_HANDS = 4
 
 
 @dataclass(frozen=True)
@@ -65,24 +68,29 @@ class StartCrop:
     source: str
 
 
-def start_crops(image: np.ndarray, mask: np.ndarray | None, palms: PalmDetector | None) -> list[StartCrop]:
-    """Windows to look for the hand in, best first.
+def hand_searches(image: np.ndarray, mask: np.ndarray | None, palms: PalmDetector | None,
+                  max_hands: int = MAX_HANDS) -> list[list[StartCrop]]:
+    """Windows to look for hands in: one list of windows per search (`detect_view` tries a list's windows in order
+    until one shows a hand), the first search the one-hand search of before (#36), then one per further palm or mask
+    blob. Empty where there is nowhere to look.
 
     A chroma-key mask continues into the forearm and sleeve, so its box is much larger than the hand (at 320 px the
-    hand was ~1/4 of it and the landmark model found nothing there): the palm detector looks inside the mask's box
-    first, then the box itself is tried (right for hand-only masks). Without a mask the palm detector sees the whole
-    image. (pipeline.py gives a view a second look from the other views' lift.)
+    hand was ~1/4 of it and the landmark model found nothing there): the palm detector looks inside each large blob's
+    box first, then the box itself is tried (right for hand-only masks). Without a mask the palm detector sees the
+    whole image. (pipeline.py gives a view a second look from the other views' lift.)
     """
-    out: list[StartCrop] = []
-    window = crop_from_mask(mask, MASK_SCALE) if mask is not None else None
-    if window is not None:
+    searches: list[list[StartCrop]] = []
+    extra: list[list[StartCrop]] = []
+    windows = mask_windows(mask, MASK_SCALE, max_count=max_hands) if mask is not None else []
+    for window in windows:
         box = Crop((window[0], window[1]), window[2])
-        if palms is not None:
-            out += [StartCrop(p.crop, False, "mask+palm") for p in palms.detect(image, box, max_palms=1)]
-        out.append(StartCrop(box, True, "mask"))
-    elif palms is not None:
-        out += [StartCrop(p.crop, False, "palm") for p in palms.detect(image, max_palms=1)]
-    return out
+        found = palms.detect(image, box, max_palms=max_hands) if palms is not None else []
+        searches.append([StartCrop(p.crop, False, "mask+palm") for p in found[:1]] + [StartCrop(box, True, "mask")])
+        extra += [[StartCrop(p.crop, False, "mask+palm")] for p in found[1:]]
+    if not windows and palms is not None:
+        found = palms.detect(image, max_palms=max_hands)
+        searches += [[StartCrop(p.crop, False, "palm")] for p in found]
+    return searches + extra
 
 
 def detect_view(model: LandmarkModel, image: np.ndarray, starts: list[StartCrop],
@@ -122,5 +130,9 @@ def detect_view(model: LandmarkModel, image: np.ndarray, starts: list[StartCrop]
     disagreement = np.linalg.norm(kp_shown - kp_flipped, axis=1)
     presence = shown.output.presence
     scores = presence * np.exp(-0.5 * (disagreement / (AGREEMENT_FRACTION * hand_size)) ** 2)
+    # The model's handedness output reads the crop as shown: a mirrored crop shows the other hand. Both runs vote.
+    plain, mirror = (flipped, shown) if shown.crop.mirrored else (shown, flipped)
+    right_score = 0.5 * (plain.output.right_score + 1.0 - mirror.output.right_score)
     return ViewKeypoints(keypoints_px=keypoints, scores=np.clip(scores, 0.0, 1.0), presence=float(presence),
-                         handedness=handedness, box_px=crop.bounds_px(), rotation_rad=float(crop.rotation_rad))
+                         handedness=handedness, box_px=crop.bounds_px(), rotation_rad=float(crop.rotation_rad),
+                         right_score=float(np.clip(right_score, 0.0, 1.0)))

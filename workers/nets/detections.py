@@ -20,6 +20,7 @@ import numpy as np
 
 from workers.capture.reader import load_frame_images, load_frame_masks
 from workers.capture.schema import FrameRef
+from workers.detector.handedness import lifted_side, side_disagreement
 from workers.detector.keypoint_offsets import KeypointOffsets, fit_keypoint_offsets
 from workers.geometry.camera import Camera
 from workers.geometry.projection import project_points
@@ -30,7 +31,7 @@ log = logging.getLogger(__name__)
 
 # The grid centre from the lifted keypoints needs at least this many of them (else the caller's own centre).
 MIN_CENTER_KEYPOINTS = 6
-CACHE_VERSION = 1
+CACHE_VERSION = 2  # 2: several hands per view, the requested side's kept (issue 36)
 
 
 @dataclass(frozen=True, eq=False)
@@ -204,16 +205,22 @@ def detect_frames(frames: Sequence[FrameRef], cameras: Sequence[Camera], *, hand
 
     masks = masks or (lambda f: chroma_masks(f, cameras))
     out = []
+    sides: dict[str, list[str | None]] = {}  # sequence -> the side each newly detected frame's hand looks like
     for frame in frames:
         found = cache.get(frame, masks_label, handedness) if cache is not None else None
         if found is None:
             views = images(frame) if images is not None else [load_frame_images(frame, cameras)[c.name]
                                                               for c in cameras]
-            found = FrameDetections.from_lifted(detect_frame(list(views), list(cameras), masks(frame),
-                                                             handedness=handedness))  # type: ignore[arg-type]
+            lifted = detect_frame(list(views), list(cameras), masks(frame),
+                                  handedness=handedness)  # type: ignore[arg-type]
+            sides.setdefault(frame.sequence_id, []).append(lifted_side(lifted))
+            found = FrameDetections.from_lifted(lifted)
             if cache is not None:
                 cache.put(frame, masks_label, handedness, found)
         out.append(found)
         if progress:
             progress(1)
+    for sequence, seen in sides.items():  # the capture's declared side may be wrong (issue 36): say so
+        if note := side_disagreement(seen, handedness):  # type: ignore[arg-type]
+            log.warning("detections of sequence %s: %s", sequence, note)
     return out

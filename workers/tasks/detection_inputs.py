@@ -15,6 +15,7 @@ from sqlalchemy.orm import Session
 
 from backend.models.enums import MaskKind
 from backend.models.jobs import Job
+from workers.detector.handedness import lifted_side
 from workers.detector.types import DetectorInputError, LiftedKeypoints
 from workers.detector.usable import used_detections
 from workers.fitting.inputs import FrameObservations
@@ -28,7 +29,9 @@ SOURCE = "detector"  # the fit source and the proposal kind
 
 def detection_record(lifted: LiftedKeypoints, view_ids: Sequence[int]) -> dict[str, Any]:
     """The detector's output for one frame as JSON (NaN -> None): what the fit is made from and what the
-    annotators' "D" proposals show. Per-view arrays follow `view_ids` (calibration order)."""
+    annotators' "D" proposals show. Per-view arrays follow `view_ids` (calibration order). "hand_side" is the side
+    the detected hand looks like (workers.detector.handedness.lifted_side; None where unclear), per view
+    "right_score" the model's own handedness."""
     C = len(view_ids)
     inliers = np.asarray(lifted.inliers, dtype=bool)
     if inliers.shape != (NUM_KEYPOINTS, C) or len(lifted.views) != C:
@@ -44,14 +47,15 @@ def detection_record(lifted: LiftedKeypoints, view_ids: Sequence[int]) -> dict[s
         views.append(None if view is None else {
             "view_id": int(view_id), "keypoints_px": rounded(view.keypoints_px, (NUM_KEYPOINTS, 2), 2),
             "scores": rounded(view.scores, (NUM_KEYPOINTS,), 4), "presence": round(float(view.presence), 4),
-            "handedness": view.handedness, "box_px": rounded(view.box_px, (4,), 2),
-            "rotation_rad": round(float(view.rotation_rad), 4)})
+            "handedness": view.handedness, "right_score": round(float(view.right_score), 4),
+            "box_px": rounded(view.box_px, (4,), 2), "rotation_rad": round(float(view.rotation_rad), 4)})
     return json_safe({
         "view_ids": [int(v) for v in view_ids], "views": views,
         "points_world": rounded(lifted.points_world, (NUM_KEYPOINTS, 3), 6),
         "confidence": rounded(lifted.confidence, (NUM_KEYPOINTS,), 4),
         "reprojection_px": rounded(lifted.reprojection_px, (NUM_KEYPOINTS,), 2),
-        "inliers": inliers.tolist(), "frame_confidence": round(float(lifted.frame_confidence), 4)})
+        "inliers": inliers.tolist(), "frame_confidence": round(float(lifted.frame_confidence), 4),
+        "hand_side": lifted_side(lifted)})
 
 
 def _floats(value: Any, shape: tuple[int, ...]) -> np.ndarray:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections import defaultdict
 from collections.abc import Sequence
 from typing import Any
 
@@ -37,6 +38,7 @@ from backend.services.state_machine import transition
 from backend.services.verification import Candidate, ReviewPolicy, select_for_review
 from workers.capture.reader import load_frame_images
 from workers.capture.schema import CaptureError
+from workers.detector.handedness import side_disagreement
 from workers.detector.types import DetectorInputError, DetectorUnavailableError, Handedness, LiftedKeypoints
 from workers.geometry.camera import Camera
 from workers.rigs.hand_scale import estimate_hand_scale, hand_scale_of_views
@@ -239,6 +241,7 @@ def run_preannotation_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
                                "fit_failed": 0, "errors": {}}
     reporter = ProgressReporter(ctx, [job_id])
     size = max(1, ctx.settings.fit_batch_size)
+    looks: dict[str, list[Any]] = defaultdict(lambda: ["right", []])  # sequence -> [side asked for, frames' sides]
     try:
         with ctx.session_factory() as session:
             earlier = _fit_jobs_of(session, job_id, sample_ids)
@@ -260,6 +263,9 @@ def run_preannotation_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
                 frame = frames.get(sample_id)
                 record, why = (_detect_sample(ctx, frame, rig, handedness or _side(frame)) if frame
                                else (None, "sample is gone"))
+                if record is not None and frame is not None:  # the side the detected hand looks like, per sequence
+                    looks[frame.sequence_key][0] = handedness or _side(frame)
+                    looks[frame.sequence_key][1].append(record.get("hand_side"))
                 reporter(span[0] + (span[1] - span[0]) * 0.5 * (i + 1) / len(part),
                          f"detecting hands: {start + i + 1}/{len(todo)} samples")
                 if record is None:
@@ -283,6 +289,7 @@ def run_preannotation_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
         with ctx.session_factory.begin() as session:
             jobs.finish(session, job_id, JobState.failed, error=message[:2000], result=_jsonable(summary))
         return {"job_id": job_id, "failed": message, **summary}
+    _note_side_disagreement(job_id, looks, summary)
     try:  # before routing: the annotate page shows a view's newest mask
         summary["hand_masks"] = record_hand_masks(ctx, sample_ids)
     except Exception as exc:  # the page then shows the chroma key, as before: no reason to fail the job
@@ -295,6 +302,17 @@ def run_preannotation_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
         jobs.finish(session, job_id, JobState.succeeded, result=result)
     log.info("preannotate job %s done: %s", job_id, {k: v for k, v in result.items() if k != "errors"})
     return {"job_id": job_id, **result}
+
+
+def _note_side_disagreement(job_id: int, looks: dict[str, list[Any]], summary: dict[str, Any]) -> None:
+    """Where a sequence's detected hands look like the other side than the one the detector was asked for
+    (workers.detector.handedness.side_disagreement), say so in the job's result ("handedness" per sequence) and
+    the log: the capture's declared side may be wrong, or the detector took the other hand."""
+    notes = {key: note for key, (side, sides) in looks.items() if (note := side_disagreement(sides, side))}
+    if notes:
+        summary["handedness"] = notes
+        for key, note in notes.items():
+            log.warning("preannotate job %s, sequence %s: %s", job_id, key, note)
 
 
 def _stop_if_cancelled(ctx: WorkerContext, job_id: int) -> None:

@@ -1,11 +1,16 @@
-"""`handloop detect`: the pretrained detector's 21 keypoints on any photo (one view, no calibration)."""
+"""`handloop detect`: the pretrained detector's 21 keypoints on any photo (one view, no calibration), of the side
+asked for where there are several hands, or every hand with --all."""
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import typer
+
+if TYPE_CHECKING:
+    from workers.detector.types import ViewKeypoints
 
 
 def parse_box(text: str) -> tuple[float, float, float, float]:
@@ -37,19 +42,39 @@ def read_rgb(path: Path):  # -> (H, W, 3) uint8; DetectorInputError naming the f
         raise DetectorInputError(f"{path}: not a readable image ({exc})") from None
 
 
+def hand_json(view: ViewKeypoints) -> dict[str, Any]:
+    """One hand as printed: keypoints (21 x [x, y] px), scores (21), presence, `side` (the side it was read as) and
+    `model_side` / `right_score` (which side the landmark model thinks it is; null where unknown)."""
+    import math
+
+    score = view.right_score
+    return {"keypoints": view.keypoints_px.round(2).tolist(), "scores": view.scores.round(4).tolist(),
+            "presence": round(view.presence, 4), "side": view.handedness, "model_side": view.model_side,
+            "right_score": round(score, 4) if math.isfinite(score) else None}
+
+
 def register(app: typer.Typer, bench: typer.Typer) -> None:
     @app.command("detect")
     def detect(
         images: list[Path] = typer.Argument(..., help="Image files (PNG, JPEG, ...)."),
         box: str | None = typer.Option(None, "--box", help="X,Y,W,H in pixels: where the hand is (every image)."),
-        left: bool = typer.Option(False, "--left", help="The hand is a left hand."),
+        left: bool = typer.Option(False, "--left", help="Look for the left hand (of two, the one the model reads "
+                                                        "as left; a single hand is given whatever its side)."),
+        right: bool = typer.Option(False, "--right", help="Look for the right hand (the default)."),
+        all_hands: bool = typer.Option(False, "--all", help="List every hand found, each with its side, under "
+                                                            "\"hands\"."),
         json_out: bool = typer.Option(False, "--json", help="Print the JSON list as the last stdout line."),
     ) -> None:
         """Run the hand detector on each image; keypoints in FreiHAND order, pixels with (0, 0) at the centre of
         the top-left pixel. An image without a hand gets "keypoints": null and presence 0."""
         from workers.detector import DetectorInputError, DetectorUnavailableError
-        from workers.detector.pipeline import check_box, detect_image
+        from workers.detector.hands import hand_of_side
+        from workers.detector.pipeline import check_box, detect_image_hands
 
+        if left and right:
+            typer.echo("error: --left and --right ask for different hands: give one of them", err=True)
+            raise typer.Exit(code=2)
+        side = "left" if left else "right"
         parsed = parse_box(box) if box is not None else None
         try:
             # Every image is read and checked before any detection: a bad one fails the run, nothing partial.
@@ -62,16 +87,21 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
                         raise DetectorInputError(f"{path}: {exc}") from None
             results = []
             for path, image in zip(images, decoded, strict=True):
-                view = detect_image(image, parsed, handedness="left" if left else "right")
-                results.append({"image": str(path),
-                                "keypoints": None if view is None else view.keypoints_px.round(2).tolist(),
-                                "scores": None if view is None else view.scores.round(4).tolist(),
-                                "presence": 0.0 if view is None else round(view.presence, 4)})
+                hands = detect_image_hands(image, parsed, handedness=side)
+                view = hand_of_side(hands, side)
+                record = {"image": str(path), **(hand_json(view) if view is not None else
+                                                 {"keypoints": None, "scores": None, "presence": 0.0, "side": side,
+                                                  "model_side": None, "right_score": None})}
+                if all_hands:
+                    record["hands"] = [hand_json(h) for h in hands]
+                results.append(record)
         except (DetectorInputError, DetectorUnavailableError) as exc:
             typer.echo(f"error: {exc}", err=True)
             raise typer.Exit(code=2) from None
         if not json_out:
             for r in results:
-                typer.echo(f"{r['image']}: " + ("no hand found" if r["keypoints"] is None else
-                                                f"hand, presence {r['presence']:.2f}"))
+                found = "no hand found" if r["keypoints"] is None else (
+                    f"{r['side']} hand, presence {r['presence']:.2f}, the model reads it as {r['model_side']}")
+                extra = f" ({len(r['hands'])} hands in all)" if all_hands else ""
+                typer.echo(f"{r['image']}: {found}{extra}")
         typer.echo(json.dumps(results))

@@ -1,4 +1,5 @@
-"""`handloop detect IMAGE... [--box] [--left] --json`: one JSON object per image; clear errors (exit 2) naming files."""
+"""`handloop detect IMAGE... [--box] [--left|--right] [--all] --json`: one JSON object per image; clear errors
+(exit 2) naming files."""
 
 from __future__ import annotations
 
@@ -44,7 +45,9 @@ def test_detect_prints_one_object_per_image(hand_photo: tuple[Path, np.ndarray, 
         records = _last_json(result.stdout)
         assert len(records) == count
         for record in records:
-            assert set(record) == {"image", "keypoints", "scores", "presence"} and record["image"] == str(path)
+            assert set(record) == {"image", "keypoints", "scores", "presence", "side", "model_side", "right_score"}
+            assert record["image"] == str(path) and record["side"] == "right"
+            assert record["model_side"] in ("right", "left") and 0 <= record["right_score"] <= 1
             keypoints = np.asarray(record["keypoints"])
             assert keypoints.shape == (21, 2) and len(record["scores"]) == 21 and 0 < record["presence"] <= 1
             assert np.median(np.linalg.norm(keypoints - truth, axis=1)) < 0.2 * np.ptp(truth, axis=0).max()
@@ -93,3 +96,32 @@ def test_left_flag_detects_a_mirrored_hand(tmp_path: Path, hand_photo: tuple[Pat
     keypoints = np.asarray(_last_json(result.stdout)[0]["keypoints"])
     keypoints[:, 0] = image.shape[1] - 1 - keypoints[:, 0]
     assert np.median(np.linalg.norm(keypoints - truth, axis=1)) < 0.2 * np.ptp(truth, axis=0).max()
+
+
+def test_left_and_right_together_are_refused(hand_photo: tuple[Path, np.ndarray, np.ndarray]) -> None:
+    result = runner.invoke(app, ["detect", str(hand_photo[0]), "--left", "--right", "--json"])
+    assert result.exit_code == 2 and "--left and --right" in result.output
+
+
+@pytest.mark.usefixtures("require_detector")
+def test_two_hands_each_side_on_request_and_all_listed(tmp_path: Path) -> None:
+    """A rendered view with a right and a left hand (tests/support/two_hands.py, the view where both show most)."""
+    from tests.support.two_hands import render_two_hands
+
+    _, frames = render_two_hands(seed=31, frames=1)
+    frame = frames[0]
+    c = int(np.argmax(np.minimum(frame.visible_px["right"], frame.visible_px["left"])))
+    path = tmp_path / "two.png"
+    cv2.imwrite(str(path), frame.images[c][..., ::-1])
+    found = {}
+    for flag in ("--right", "--left"):
+        result = runner.invoke(app, ["detect", str(path), flag, "--all", "--json"])
+        assert result.exit_code == 0, result.output
+        record = _last_json(result.stdout)[0]
+        side = flag[2:]
+        assert record["side"] == side and len(record["hands"]) >= 2
+        assert {h["model_side"] for h in record["hands"]} <= {"right", "left"}
+        found[side] = np.asarray(record["keypoints"])
+        truth = frame.keypoints_2d[side][c]
+        assert np.median(np.linalg.norm(found[side] - truth, axis=1)) < 0.3 * np.ptp(truth, axis=0).max()
+    assert np.median(np.linalg.norm(found["right"] - found["left"], axis=1)) > 10.0

@@ -77,10 +77,10 @@ def test_a_view_that_finds_nothing_looks_again_where_the_others_put_the_hand(
     images, chroma, gt = load_frame_images(refs[0], cameras), load_frame_masks(refs[0]), load_ground_truth(refs[0])
     c = int(np.argmax([gt.hand_masks[cam.name].sum() for cam in cameras]))
     blind = images[cameras[c].name]
-    real_start_crops = pipeline.start_crops
+    real_searches = pipeline.hand_searches
     # The view's own search (mask, palm detector) finds nothing: only the other views' lift can place its window.
-    monkeypatch.setattr(pipeline, "start_crops",
-                        lambda image, mask, palms: [] if image is blind else real_start_crops(image, mask, palms))
+    monkeypatch.setattr(pipeline, "hand_searches",
+                        lambda image, mask, palms: [] if image is blind else real_searches(image, mask, palms))
     lifted = detect_frame([images[cam.name] for cam in cameras], cameras, [chroma[cam.name] for cam in cameras])
     view = lifted.views[c]
     assert view is not None, "the second look found nothing"

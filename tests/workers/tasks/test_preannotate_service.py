@@ -438,3 +438,25 @@ def test_the_detector_looks_for_each_sequences_hand_unless_the_admin_names_one(t
                 assert fit.diagnostics["mean_residual_2d_px"] == by_origin["detector"]["mean_px"]
     finally:
         ctx.session_factory.kw["bind"].dispose()
+
+
+def test_a_sequence_whose_hands_look_like_the_other_side_is_noted(tmp_path, capture_cache, monkeypatch):
+    """A left-hand capture detected as right hands (the admin named "right"): the detected hands' chirality says
+    left in every frame, and the job's result says so for the sequence (issue 36)."""
+    capture = tiny_capture(capture_cache, frames=3, side="left")
+    settings = Settings(data_dir=tmp_path / "data", review_min_time_gap_s=0.0, review_min_pose_distance=0.0,
+                        **TEST_SETTINGS)
+    project_id = prepare_database(settings, capture, queue_for_annotation=False)
+    queue = InMemoryJobQueue()
+    ctx = build_context(settings, job_queue=queue)
+    monkeypatch.setattr(preannotate, "detect", FakeDetector(capture, outlier_views=0))
+    monkeypatch.setattr(preannotation, "detector_problem", lambda: None)
+    try:
+        with ctx.session_factory() as session:
+            samples = list(session.execute(select(Sample.id).order_by(Sample.id)).scalars())
+        result = preannotate.run_preannotation_job(ctx, _launch(ctx, queue, project_id, sample_ids=samples,
+                                                                handedness="right"))
+        (note,) = result["handedness"].values()
+        assert "left hand in 3 of 3 frames" in note and "a right hand was asked for" in note
+    finally:
+        ctx.session_factory.kw["bind"].dispose()

@@ -5,16 +5,15 @@ on request (issue 36)."""
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
+from tests.support.handpose3d_rig import handpose3d_cameras, handpose3d_dir
 from workers.detector import detect_frame
 from workers.detector.pipeline import detect_image, detect_image_hands
-from workers.geometry.camera import Camera
 from workers.geometry.epipolar import symmetric_epipolar_distances
 
 FRAMES = (56, 148, 240, 332)
@@ -23,13 +22,7 @@ SIZE_PX = 720
 
 @pytest.fixture(scope="module")
 def recording() -> Path:
-    configured = os.environ.get("HANDLOOP_REALDATA_DIR")
-    root = (Path(configured) if configured else Path(__file__).resolve().parents[3].parent / "shared" / "realdata")
-    folder = root / "handpose3d"
-    if not (folder / "cam0_test.mp4").is_file():
-        pytest.skip(f"the real recording is not at {folder} (set HANDLOOP_REALDATA_DIR to the folder holding "
-                    "handpose3d/)")
-    return folder
+    return handpose3d_dir()
 
 
 def _frame(folder: Path, camera: int, index: int) -> np.ndarray:
@@ -41,35 +34,9 @@ def _frame(folder: Path, camera: int, index: int) -> np.ndarray:
     return np.ascontiguousarray(bgr[..., ::-1])
 
 
-def _numbers(path: Path) -> dict[str, np.ndarray]:
-    """The recording's own layout: a `name:` line, then rows of numbers (handpose3d's README)."""
-    out: dict[str, list[float]] = {}
-    key = ""
-    for line in path.read_text().splitlines():
-        line = line.strip()
-        if line.endswith(":"):
-            key = line[:-1]
-            out[key] = []
-        elif line and not line.startswith("#"):
-            out[key] += [float(v) for v in line.split()]
-    return {k: np.asarray(v) for k, v in out.items()}
-
-
-def _cameras(folder: Path) -> list[Camera]:
-    """Camera 0 from the board's frame; rot_trans_c1 is camera 0 -> camera 1 (chained). Translations in board
-    squares: the epipolar geometry checked here does not depend on their unit."""
-    intrinsics = [_numbers(folder / f"c{i}.dat") for i in (0, 1)]
-    pose0, pose01 = (_numbers(folder / f"rot_trans_c{i}.dat") for i in (0, 1))
-    R0, t0 = pose0["R"].reshape(3, 3), pose0["T"].reshape(3)
-    R01, t01 = pose01["R"].reshape(3, 3), pose01["T"].reshape(3)
-    poses = [(R0, t0), (R01 @ R0, R01 @ t0 + t01)]
-    return [Camera(f"cam{i}", SIZE_PX, SIZE_PX, intrinsics[i]["intrinsic"].reshape(3, 3),
-                   intrinsics[i]["distortion"][:5], R, t) for i, (R, t) in enumerate(poses)]
-
-
 @pytest.mark.usefixtures("require_detector")
 def test_the_one_hand_is_found_in_both_views_and_agrees_across_them(recording: Path) -> None:
-    cameras = _cameras(recording)
+    cameras = handpose3d_cameras()  # board squares: the epipolar geometry does not depend on the unit
     medians = []
     for index in FRAMES:
         lifted = detect_frame([_frame(recording, c, index) for c in (0, 1)], cameras, handedness="right")

@@ -33,12 +33,18 @@ def _snapshot(session_factory: Callable[[], Session], job_id: int) -> tuple[str,
         return str(job.state), float(job.progress or 0.0), job.message or "", job.error, job.result
 
 
+def _sleep(seconds: float) -> bool:
+    time.sleep(seconds)
+    return False
+
+
 def follow_job(session_factory: Callable[[], Session], job_id: int, *, label: str, poll_s: float = 1.0,
-               sleep: Callable[[float], None] = time.sleep, out: TextIO | None = None) -> JobEnd:
+               wait: Callable[[float], bool] = _sleep, out: TextIO | None = None) -> JobEnd | None:
     """Draw the job's progress (0-100 %) and message until it is final; returns how it ended.
 
     Reads the job's row every `poll_s` seconds (a worker writes it), as the page's server-sent events do;
-    `sleep` waits between reads. A job still queued shows that it waits for a worker."""
+    `wait(poll_s)` waits between reads and returns True to stop following (then None is returned: the job
+    goes on). A job still queued shows that it waits for a worker."""
     from tqdm import tqdm
 
     with tqdm(total=100, desc=label, unit="%", file=out or sys.stderr,
@@ -50,4 +56,12 @@ def follow_job(session_factory: Callable[[], Session], job_id: int, *, label: st
                 bar.set_postfix_str(state)
                 return JobEnd(job_id, state, error, result)
             bar.set_postfix_str(WAITING if state == JobState.queued else message)
-            sleep(poll_s)
+            if wait(poll_s):
+                return None
+
+
+def preannotation_summary(result: dict[str, Any]) -> str:
+    """One line of a finished preannotate job's result (workers.tasks.preannotate)."""
+    keys = ("samples", "detected", "fitted", "no_detection", "fit_failed", "to_review", "fitted_to_annotators",
+            "unlabeled_to_annotators")
+    return ", ".join(f"{result[k]} {k.replace('_', ' ')}" for k in keys if k in result)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import logging
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import typer
 
@@ -57,7 +57,7 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         from tqdm import tqdm
 
         from backend.broker.celery_queue import CeleryJobQueue
-        from backend.cli.job_progress import follow_job
+        from backend.cli.job_progress import follow_job, preannotation_summary
         from backend.db.session import create_engine_from_url, make_session_factory
         from backend.services import preannotation
         from backend.services.errors import DomainError
@@ -108,10 +108,11 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         typer.echo(result.model_dump_json())
         if wait and job_id is not None:
             end = follow_job(factory, job_id, label=f"pre-annotation (job {job_id})")
-            if end.state != "succeeded":
-                typer.echo(f"pre-annotation job {job_id} {end.state}: {end.error or ''}", err=True)
+            if end is None or end.state != "succeeded":
+                typer.echo(f"pre-annotation job {job_id} {end.state}: {end.error or ''}" if end else
+                           f"stopped following pre-annotation job {job_id}; it goes on", err=True)
                 raise typer.Exit(code=1)
-            typer.echo(f"pre-annotation done: {_preannotation_summary(end.result or {})}", err=True)
+            typer.echo(f"pre-annotation done: {preannotation_summary(end.result or {})}", err=True)
 
     @users.command("create")
     def create_user(email: str = typer.Argument(...),
@@ -194,9 +195,3 @@ def _require_schema(session: Session) -> None:
         raise InvalidInputError("the database has no handloop tables yet: run `handloop db upgrade` first "
                                 "(or import without --no-migrate)")
 
-
-def _preannotation_summary(result: dict[str, Any]) -> str:
-    """One line of a finished preannotate job's result (workers.tasks.preannotate)."""
-    keys = ("samples", "detected", "fitted", "no_detection", "fit_failed", "to_review", "fitted_to_annotators",
-            "unlabeled_to_annotators")
-    return ", ".join(f"{result[k]} {k.replace('_', ' ')}" for k in keys if k in result)

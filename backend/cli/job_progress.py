@@ -39,14 +39,15 @@ def _sleep(seconds: float) -> bool:
 
 
 def follow_job(session_factory: Callable[[], Session], job_id: int, *, label: str, poll_s: float = 1.0,
-               wait: Callable[[float], bool] = _sleep, out: TextIO | None = None) -> JobEnd | None:
+               wait: Callable[[float], bool] | None = None, out: TextIO | None = None) -> JobEnd | None:
     """Draw the job's progress (0-100 %) and message until it is final; returns how it ended.
 
     Reads the job's row every `poll_s` seconds (a worker writes it), as the page's server-sent events do;
     `wait(poll_s)` waits between reads and returns True to stop following (then None is returned: the job
-    goes on). A job still queued shows that it waits for a worker."""
+    goes on; default: sleep). A job still queued shows that it waits for a worker."""
     from tqdm import tqdm
 
+    wait = wait or _sleep
     with tqdm(total=100, desc=label, unit="%", file=out or sys.stderr,
               bar_format="{desc}: {percentage:3.0f}%|{bar}|{postfix}") as bar:
         while True:

@@ -76,7 +76,7 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
                 where = "the annotators' queue (needs annotation)" if queue else "unlabeled"
                 typer.echo(f"pre-annotation off: {problem}; the samples go to {where}", err=True)
         factory = make_session_factory(create_engine_from_url(settings.resolved_database_url))
-        bar = tqdm(unit="file", desc="verifying", file=sys.stderr)
+        bar = tqdm(unit="file", desc="verifying", file=sys.stderr, delay=0.5)  # not drawn for a refusal
 
         def verified(done: int, total: int) -> None:
             bar.total = total

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from typing import Any, TextIO
 
 from sqlalchemy.orm import Session
+from tqdm import tqdm
 
 from backend.models.enums import JobState
 from backend.services import jobs
@@ -45,8 +46,6 @@ def follow_job(session_factory: Callable[[], Session], job_id: int, *, label: st
     Reads the job's row every `poll_s` seconds (a worker writes it), as the page's server-sent events do;
     `wait(poll_s)` waits between reads and returns True to stop following (then None is returned: the job
     goes on; default: sleep). A job still queued shows that it waits for a worker."""
-    from tqdm import tqdm
-
     wait = wait or _sleep
     with tqdm(total=100, desc=label, unit="%", file=out or sys.stderr,
               bar_format="{desc}: {percentage:3.0f}%|{bar}|{postfix}") as bar:

@@ -140,3 +140,25 @@ def test_wait_follows_the_job_until_the_worker_has_routed_the_samples(data_dir, 
     states = _states(data_dir)
     assert set(states) <= {"in_review", "needs_annotation"} and states.get("in_review", 0) >= 1, states
     assert _rows(data_dir, f"SELECT state FROM jobs WHERE id = {out['preannotation_job_id']}") == [("succeeded",)]
+
+
+def test_wait_exits_1_with_the_error_of_a_failed_job(data_dir, capture, monkeypatch):
+    from backend.db.session import create_engine_from_url, make_session_factory
+    from backend.models.enums import JobState
+    from backend.services import jobs
+    from backend.settings import get_settings
+
+    _detector(monkeypatch, None)
+
+    def worker_fails_it(_seconds: float) -> bool:
+        engine = create_engine_from_url(get_settings().resolved_database_url)
+        with make_session_factory(engine).begin() as session:
+            job_id = _rows(data_dir, "SELECT id FROM jobs")[0][0]
+            jobs.finish(session, job_id, JobState.failed, error="the detector went missing")
+        engine.dispose()
+        return False
+
+    monkeypatch.setattr(job_progress, "_sleep", worker_fails_it)
+    result = runner.invoke(app, ["import", str(capture), "--wait"])
+    assert result.exit_code == 1, result.output[-2000:]
+    assert "pre-annotation job 1 failed: the detector went missing" in result.output

@@ -37,9 +37,10 @@ def test_the_admin_sees_the_pre_annotation_form_and_the_reliability_figures(live
 
 def test_the_import_form_pre_annotates_in_the_same_action(live_stack, tab):
     """The import form's "pre-annotate" box is checked exactly when the detector can run (else disabled, its
-    reason shown); importing with it queues round 0's job, whose live bar the page shows until the worker ends it,
-    and the job routes every sample (none left unlabeled)."""
-    stack = live_stack()
+    reason shown); importing with it queues round 0's job, whose live bar the page shows until the worker ends it;
+    the job routes every sample (none left unlabeled), and the annotators' first sample shows the detector fit's
+    and the detector's keypoints as proposals (the stack's own project stays unlabeled, out of their queue)."""
+    stack = live_stack(queue_for_annotation=False)
     with stack.client("admin") as http:
         status = http.get("/api/admin/preannotation").json()
     admin = tab()
@@ -66,3 +67,10 @@ def test_the_import_form_pre_annotates_in_the_same_action(live_stack, tab):
     page.locator("#data").scroll_into_view_if_needed()
     admin.shot("admin-import-preannotated")
     assert not admin.errors, admin.errors
+    annotator = tab()
+    user = stack.users["annotator"]
+    sign_in(annotator, stack.base_url, user.email, user.password, "annotate")
+    kinds = annotator.page.evaluate("() => window.__handloop.page.sources.map((s) => s.kind)")
+    assert kinds == ["fit", "detector"], kinds
+    annotator.shot("annotate-first-sample-preannotated")
+    assert not annotator.errors, annotator.errors

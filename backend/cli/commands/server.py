@@ -194,4 +194,3 @@ def _require_schema(session: Session) -> None:
     if not inspect(session.connection()).has_table("projects"):
         raise InvalidInputError("the database has no handloop tables yet: run `handloop db upgrade` first "
                                 "(or import without --no-migrate)")
-

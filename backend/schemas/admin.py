@@ -81,6 +81,10 @@ class ImportRequest(Strict):
     path: str = Field(min_length=1, max_length=4096, description="Capture directory on the server.")
     project: str | None = Field(default=None, max_length=200)
     queue_for_annotation: bool = True
+    preannotate: bool | None = Field(
+        default=None, description="Import the samples unlabeled and queue their pre-annotation by the pretrained "
+        "detector (round 0 without clicks): true refuses the import (503) where the detector cannot run; "
+        "left out, the server's HANDLOOP_PREANNOTATE_ON_IMPORT decides (and a missing detector only skips it).")
 
 
 class ImportPublic(Public):
@@ -91,8 +95,8 @@ class ImportPublic(Public):
     samples: int
     views: int
     masks: int
-    preannotation: str | None = Field(default=None, description="HANDLOOP_PREANNOTATE_ON_IMPORT: the job queued, "
-                                      "or why it did not run (the import is then as without it).")
+    preannotation: str | None = Field(default=None, description="With pre-annotation: the job queued, or why it "
+                                      "did not run (the import is then as without it).")
     preannotation_job_id: int | None = None
 
 

@@ -152,16 +152,21 @@ def launch(session: Session, queue: jobs.JobQueue, project_id: int, *, actor_id:
 
 def import_capture(session: Session, storage: Storage, queue: jobs.JobQueue, path: Path, *, enabled: bool,
                    project_name: str | None, queue_for_annotation: bool, actor_id: int | None,
-                   progress: Callable[[int, int], None] | None = None) -> ImportPublic:
-    """The import, followed (when `enabled`: HANDLOOP_PREANNOTATE_ON_IMPORT) by a pre-annotation of every sample.
+                   required: bool = False, progress: Callable[[int, int], None] | None = None) -> ImportPublic:
+    """The import, followed (when `enabled`) by a pre-annotation of every sample: round 0 in one action.
 
     The samples are imported 'unlabeled' and the pre-annotation routes them: reviewers get what the policy picks,
     the rest go to the annotators when the import asked for that (`queue_for_annotation`). Where the detector
-    or the capture cannot carry it, the import is exactly as without the setting, and the answer says why.
+    or the capture cannot carry it, the import is exactly as without it, and the answer says why; with
+    `required` (the caller asked for it by name) a detector that cannot run refuses the import instead, before
+    anything is read or written (ServiceUnavailableError with the detector's sentence).
     """
     from backend.services import importer  # deferred: its capture reader pulls in cv2 and PIL
 
     problem = detector_problem() if enabled else None
+    if required and problem is not None:
+        raise ServiceUnavailableError(f"pre-annotation is unavailable: {problem}; nothing was imported: import "
+                                      "without pre-annotation, or install the detector (docs/detector.md)")
     run = enabled and problem is None
     result = importer.import_capture(session, storage, path, project_name=project_name,
                                      queue_for_annotation=queue_for_annotation and not run, actor_id=actor_id,

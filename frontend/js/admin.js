@@ -359,12 +359,22 @@ class AdminPage {
     };
     const path = h("input", { type: "text", placeholder: "capture directory on the server", class: "wide-input" });
     const project = h("input", { type: "text", placeholder: "project name (optional)" });
+    // Round 0 in the same action: the samples come in unlabeled and the detector's job routes them (reviewers
+    // first, the rest to the annotators with its proposals). Checked wherever the detector can run.
+    const detector = this.preannotation || { available: false, reason: "status not loaded" };
+    const preannotate = h("input", { type: "checkbox", name: "preannotate", checked: detector.available,
+      disabled: !detector.available });
+    const outcome = h("div", { class: "muted import-outcome" });
     const importCapture = async (e) => {
       e.preventDefault();
       try {
-        const r = await this.api.post("/api/admin/imports", { path: path.value, project: project.value || null });
-        toast(`imported ${r.project}: ${r.samples} samples, ${r.views} views` +
-          (r.preannotation ? ` · pre-annotation: ${r.preannotation}` : ""), "ok");
+        const r = await this.api.post("/api/admin/imports", { path: path.value, project: project.value || null,
+          preannotate: preannotate.checked });
+        const round0 = r.preannotation_job_id
+          ? `pre-annotation job ${r.preannotation_job_id} queued for ${r.samples} samples: its progress is under Rounds`
+          : r.preannotation ? `pre-annotation ${r.preannotation}` : "";
+        toast(`imported ${r.project}: ${r.samples} samples, ${r.views} views${round0 ? ` · ${round0}` : ""}`, "ok");
+        fill(outcome, `${r.project}: ${r.samples} samples imported${round0 ? `; ${round0}` : ""}`);
         if (r.preannotation_job_id) this.watch(r.preannotation_job_id);
         this.refresh();
       } catch (error) {
@@ -380,7 +390,13 @@ class AdminPage {
         h("button", { onclick: () => download("/api/admin/exports/predictions", "handloop-predictions.json") }, "Predictions")),
       h("p", { class: "muted" }, "The FreiHAND layout (images, masks, meshes) is written by `handloop export --format freihand`."),
       h("h2", {}, "Import a capture"),
-      h("form", { class: "inline-form", onsubmit: importCapture }, path, project, h("button", { type: "submit" }, "Import")));
+      h("form", { class: "inline-form import-form", onsubmit: importCapture }, path, project,
+        h("label", { class: "preannotate-import", title: detector.available
+          ? "detector -> triangulation -> fit on every sample; the fits go to the reviewers first" : detector.reason },
+        preannotate, " pre-annotate with the detector (round 0)"),
+        h("button", { type: "submit" }, "Import")),
+      detector.available ? null : h("div", { class: "muted import-why" }, `detector unavailable: ${detector.reason}`),
+      outcome);
   }
 }
 

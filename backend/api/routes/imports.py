@@ -15,7 +15,10 @@ router = APIRouter(prefix="/admin/imports", tags=["admin: import"])
 def import_capture(body: ImportRequest, session: SessionDep, storage: StorageDep, settings: SettingsDep,
                    queue: JobQueueDep, admin: AdminUser) -> ImportPublic:
     """Import a capture directory that the server can read (validated by the capture reader); with
-    HANDLOOP_PREANNOTATE_ON_IMPORT, then pre-annotate its samples (services.preannotation)."""
+    `preannotate` (left out: HANDLOOP_PREANNOTATE_ON_IMPORT), then queue its samples' pre-annotation
+    (services.preannotation): the job's progress is `GET /api/admin/jobs/{preannotation_job_id}/events`."""
+    asked = body.preannotate is not None
     return preannotation.import_capture(session, storage, queue, Path(body.path),
-                                        enabled=settings.preannotate_on_import, project_name=body.project,
+                                        enabled=body.preannotate if asked else settings.preannotate_on_import,
+                                        required=bool(body.preannotate), project_name=body.project,
                                         queue_for_annotation=body.queue_for_annotation, actor_id=admin.id)

@@ -5,8 +5,14 @@ from __future__ import annotations
 import logging
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
+
+if TYPE_CHECKING:
+    from sqlalchemy.orm import Session
+
+    from backend.settings import Settings
 
 logger = logging.getLogger("handloop.server")
 
@@ -25,25 +31,33 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         """Run the API server (OpenAPI docs at /docs)."""
         import uvicorn
 
-        from backend.db.migrate import upgrade
         from backend.settings import get_settings
 
         settings = get_settings()
         if migrate:
-            settings.data_dir.mkdir(parents=True, exist_ok=True)
-            upgrade(settings.resolved_database_url)
+            _migrate(settings)
         uvicorn.run("backend.app:create_app", factory=True, host=host, port=port, workers=workers,
                     log_level="info")
 
     @app.command("import")
     def import_(path: Path = typer.Argument(..., help="Capture directory."),
                 project: str | None = typer.Option(None, help="Project name (default: the capture's name)."),
-                queue: bool = typer.Option(True, help="Queue every sample for annotation (round 0).")) -> None:
+                queue: bool = typer.Option(True, help="Queue every sample for annotation (round 0); with "
+                                                      "pre-annotation, those the reviewers' queue does not take."),
+                preannotate: bool | None = typer.Option(
+                    None, "--preannotate/--no-preannotate", show_default=False,
+                    help="Import the samples unlabeled and queue their pre-annotation by the pretrained detector "
+                         "(round 0 without clicks; a worker runs it). Default: on where the detector is installed."),
+                wait: bool = typer.Option(False, "--wait", help="Follow the pre-annotation job until it ends "
+                                                                "(a worker must run it: `handloop worker`)."),
+                migrate: bool = typer.Option(True, help="Upgrade the database to the newest schema first "
+                                                        "(as `handloop serve` does).")) -> None:
         """Validate a capture, verify every file in full, and import it as a project (nothing if a file is broken);
-        with HANDLOOP_PREANNOTATE_ON_IMPORT, then queue its pre-annotation by the pretrained detector."""
+        then, where the detector is installed, queue its pre-annotation (round 0 without clicks)."""
         from tqdm import tqdm
 
         from backend.broker.celery_queue import CeleryJobQueue
+        from backend.cli.job_progress import follow_job, preannotation_summary
         from backend.db.session import create_engine_from_url, make_session_factory
         from backend.services import preannotation
         from backend.services.errors import DomainError
@@ -52,8 +66,17 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         from backend.settings import get_settings
 
         settings = get_settings()
+        if migrate:
+            _migrate(settings)
+        enabled = preannotate
+        if enabled is None:  # the default: round 0 without clicks where the detector can run
+            problem = preannotation.quick_detector_problem()
+            enabled = problem is None
+            if problem is not None:
+                where = "the annotators' queue (needs annotation)" if queue else "unlabeled"
+                typer.echo(f"pre-annotation off: {problem}; the samples go to {where}", err=True)
         factory = make_session_factory(create_engine_from_url(settings.resolved_database_url))
-        bar = tqdm(unit="file", desc="verifying", file=sys.stderr)
+        bar = tqdm(unit="file", desc="verifying", file=sys.stderr, delay=0.5)  # not drawn for a refusal
 
         def verified(done: int, total: int) -> None:
             bar.total = total
@@ -63,9 +86,10 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
 
         try:
             with factory() as session:
+                _require_schema(session)
                 result = preannotation.import_capture(
                     session, LocalDiskStorage(settings.storage_dir), CeleryJobQueue(settings), path,
-                    enabled=settings.preannotate_on_import, project_name=project, queue_for_annotation=queue,
+                    enabled=enabled, required=bool(preannotate), project_name=project, queue_for_annotation=queue,
                     actor_id=None, progress=verified)
                 session.commit()
                 run_after_commit(session)  # the pre-annotation job's task, once its row is committed
@@ -74,7 +98,21 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
             logger.error("%s", exc.message)
             raise typer.Exit(code=2) from exc
         bar.close()
+        job_id = result.preannotation_job_id
+        if job_id is not None:
+            typer.echo(f"pre-annotation: job {job_id} queued for {result.samples} samples (detector -> "
+                       "triangulation -> fit; reviewers first); a worker runs it (`handloop worker`); its "
+                       "progress is on the admin page" + ("" if wait else " (or follow it with --wait)"), err=True)
+        elif result.preannotation:
+            typer.echo(f"pre-annotation {result.preannotation}", err=True)
         typer.echo(result.model_dump_json())
+        if wait and job_id is not None:
+            end = follow_job(factory, job_id, label=f"pre-annotation (job {job_id})")
+            if end is None or end.state != "succeeded":
+                typer.echo(f"pre-annotation job {job_id} {end.state}: {end.error or ''}" if end else
+                           f"stopped following pre-annotation job {job_id}; it goes on", err=True)
+                raise typer.Exit(code=1)
+            typer.echo(f"pre-annotation done: {preannotation_summary(end.result or {})}", err=True)
 
     @users.command("create")
     def create_user(email: str = typer.Argument(...),
@@ -118,12 +156,9 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
     @db.command("upgrade")
     def db_upgrade(revision: str = typer.Argument("head")) -> None:
         """Upgrade the database schema."""
-        from backend.db.migrate import upgrade
         from backend.settings import get_settings
 
-        settings = get_settings()
-        settings.data_dir.mkdir(parents=True, exist_ok=True)
-        upgrade(settings.resolved_database_url, revision)
+        _migrate(get_settings(), revision)
 
     @db.command("downgrade")
     def db_downgrade(revision: str = typer.Argument(..., help="Target revision, e.g. -1 or base.")) -> None:
@@ -139,3 +174,23 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         from backend.settings import get_settings
 
         typer.echo(current(get_settings().resolved_database_url) or "(empty database)")
+
+
+def _migrate(settings: Settings, revision: str = "head") -> None:
+    """Upgrade the database (created where it is new, with its data folder) to `revision`: `serve`, `import`
+    and `db upgrade` (the demo and the simulation's stack call backend.db.migrate the same way)."""
+    from backend.db.migrate import upgrade
+
+    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    upgrade(settings.resolved_database_url, revision)
+
+
+def _require_schema(session: Session) -> None:
+    """Refuse (DomainError) a database without handloop's tables (--no-migrate on a new one)."""
+    from sqlalchemy import inspect
+
+    from backend.services.errors import InvalidInputError
+
+    if not inspect(session.connection()).has_table("projects"):
+        raise InvalidInputError("the database has no handloop tables yet: run `handloop db upgrade` first "
+                                "(or import without --no-migrate)")

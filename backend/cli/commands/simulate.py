@@ -57,7 +57,8 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         seed: int = typer.Option(0),
         detector: str | None = typer.Option(None, "--detector", help="on: round 0 pre-annotated by the pretrained "
                                             "detector (the initial set goes to reviewers first); off: clicked "
-                                            "from nothing (the paper). Default: on where the server can run it."),
+                                            "from nothing (the paper). Default: on where the detector is installed "
+                                            "(with --url: where that server can run it); the output says which."),
         nets: str = typer.Option("cpu-small", help="Networks trained each round: tiny, cpu-small or paper."),
         set_: list[str] = typer.Option([], "--set", help="Another server setting, KEY=VALUE (e.g. "
                                                          "round_mvnet_budget_s=300); repeatable."),
@@ -94,12 +95,18 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
             fail(f"{capture} has no ground truth: the simulated people need a synthetic capture")
         if detector not in (None, "on", "off"):
             fail(f"--detector must be on or off, not {detector!r}")
-        if detector == "on" and url is None:  # the started stack shares this install: refuse before starting it
+        if url is None and detector != "off":  # the started stack shares this install: settled before it starts
             from backend.services.preannotation import detector_problem
 
             problem = detector_problem()
-            if problem is not None:
+            if detector == "on" and problem is not None:
                 fail(f"--detector on needs the pretrained detector: {problem}")
+            if detector is None:
+                detector = "on" if problem is None else "off"
+                typer.echo(f"detector {detector} (the default: " + ("installed)" if problem is None
+                                                                     else f"{problem})"), err=True)
+        elif detector is None:
+            typer.echo(f"detector on where the server at {url} can run it (the default)", err=True)
         try:
             config = BootstrapConfig(
                 rounds=rounds, annotators=annotators, reviewers=reviewers,

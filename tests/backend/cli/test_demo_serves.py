@@ -45,6 +45,13 @@ def test_demo_prints_url_and_login_and_runs_api_and_worker(tmp_path):
         login, _ = _read_until(process, r"login\s+: (\S+) / (\S+)", 300)
         url, output = _read_until(process, r"URL\s+: (http://\S+?)/ ", 300)
         assert "stand-in for MANO" in output
+        # Round 0 pre-annotated by the worker where the detector is installed; "running" once it has ended.
+        _, output = _read_until(process, r"running\s+: API \+ worker", 300)
+        from workers.detector import detector_status
+
+        problem = detector_status()
+        assert ("round 0 : pre-annotation succeeded: 2 samples" if problem is None
+                else f"pre-annotation off: {problem}") in output, output
         base = url.group(1)
         assert base == f"http://127.0.0.1:{port}"
         assert httpx.get(base + "/api/health", timeout=10).status_code == 200
@@ -52,6 +59,7 @@ def test_demo_prints_url_and_login_and_runs_api_and_worker(tmp_path):
                            timeout=30).json()["access_token"]
         http = httpx.Client(base_url=base, headers={"Authorization": f"Bearer {token}"}, timeout=30)
         task = http.post("/api/annotate/next").json()  # the imported capture is in the annotators' queue
+        # (at 96 px the detector finds no hand to fit: the pre-annotation handed both samples to the annotators)
         from workers.capture import load_ground_truth, read_capture
 
         capture = read_capture(tmp_path / "data" / "demo-capture", check_images=False)

@@ -137,37 +137,6 @@ def test_cli_import_and_users(capture_dir, tmp_path):
     assert cli("db", "downgrade", "base").returncode == 0
 
 
-def test_cli_import_with_the_pre_annotation_setting(capture_dir, tmp_path):
-    """Where the detector can run, the import queues its job (a message for the workers); where it cannot (this
-    build without the detector's code or model files), the import is as without the setting and says why."""
-    from backend.services.preannotation import detector_problem
-
-    env = {**os.environ, "HANDLOOP_DATA_DIR": str(tmp_path), "HANDLOOP_PREANNOTATE_ON_IMPORT": "true"}
-    env.pop("HANDLOOP_DATABASE_URL", None)
-    env.pop("HANDLOOP_BROKER_URL", None)
-    run = subprocess.run([HANDLOOP, "db", "upgrade"], cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
-    assert run.returncode == 0, run.stderr[-2000:]
-    imported = subprocess.run([HANDLOOP, "import", str(capture_dir)], cwd=REPO, env=env, capture_output=True,
-                              text=True, timeout=300)
-    assert imported.returncode == 0, imported.stderr[-2000:]
-    result = json.loads(imported.stdout.strip().splitlines()[-1])
-    problem = detector_problem()
-    if problem is None:
-        from sqlalchemy import create_engine
-
-        from backend.settings import Settings
-
-        assert result["preannotation"] == f"job {result['preannotation_job_id']} queued"
-        engine = create_engine(Settings(data_dir=tmp_path).resolved_database_url)
-        with engine.connect() as conn:
-            rows = conn.execute(text("SELECT kind, state FROM jobs")).all()
-        engine.dispose()
-        assert [tuple(r) for r in rows] == [("preannotate", "queued")]
-        assert any(p.is_file() for p in (tmp_path / "broker" / "messages").rglob("*"))  # handed to the workers
-    else:
-        assert result["preannotation"] == f"not run: {problem}" and result["preannotation_job_id"] is None
-
-
 def _variant(capture_dir: Path, out: Path, **header: object) -> Path:
     """A copy of the capture with capture.json's fields changed (`hand_model_side` sets hand_model.side)."""
     subprocess.run(["cp", "-r", str(capture_dir), str(out)], check=True)

@@ -282,3 +282,29 @@ def test_bench_sim_reports_a_run_that_stopped_and_ends_with_its_json_line(monkey
     record = json.loads(result.stdout.strip().splitlines()[-1])
     assert record["stopped"] == {"round": 1, "reason": reason} and record["targets_met"]["rounds"] is False
     assert f"detector on: stopped in round 1: {reason}" in result.stderr
+
+
+@pytest.mark.parametrize("problem", [None, "the hand landmark model file is missing"])
+def test_simulate_without_detector_defaults_to_the_installed_detector_and_says_which(capture_dir, tmp_path,
+                                                                                    monkeypatch, problem):
+    """No --detector: on where the detector can run here, else off; the started stack's Settings build (the
+    default once reached them as mvnet_detector=None, a validation error) and the output names the choice."""
+    from backend.services import preannotation
+    from backend.simulation import runner as sim_runner
+
+    seen = {}
+
+    def fake_run_simulation(capture, work, config, *, initial_every, server, on_round):
+        seen["detector"] = config.detector
+        seen["settings"] = sim_runner._stack_settings(work / "server", sim_runner.stack_overrides(config, server))
+        return {"detector": config.detector}
+
+    monkeypatch.setattr(preannotation, "detector_problem", lambda: problem)
+    monkeypatch.setattr(sim_runner, "run_simulation", fake_run_simulation)
+    result = runner.invoke(app, ["simulate", "--capture", str(capture_dir), "--out", str(tmp_path / "run"), "--json"])
+    assert result.exit_code == 0, result.output[-2000:]
+    on = problem is None
+    assert seen["detector"] is on and seen["settings"].mvnet_detector is on
+    said = "detector on (the default: installed)" if on else f"detector off (the default: {problem})"
+    assert said in result.output
+    assert json.loads(result.stdout.strip().splitlines()[-1]) == {"detector": on}

@@ -4,6 +4,7 @@ asked for where there are several hands, or every hand with --all."""
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -45,8 +46,6 @@ def read_rgb(path: Path):  # -> (H, W, 3) uint8; DetectorInputError naming the f
 def hand_json(view: ViewKeypoints) -> dict[str, Any]:
     """One hand as printed: keypoints (21 x [x, y] px), scores (21), presence, `side` (the side it was read as) and
     `model_side` / `right_score` (which side the landmark model thinks it is; null where unknown)."""
-    import math
-
     score = view.right_score
     return {"keypoints": view.keypoints_px.round(2).tolist(), "scores": view.scores.round(4).tolist(),
             "presence": round(view.presence, 4), "side": view.handedness, "model_side": view.model_side,

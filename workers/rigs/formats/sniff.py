@@ -6,13 +6,13 @@ import json
 import tomllib
 from pathlib import Path
 
+from workers.rigs.formats.caliscope import camera_tables
+
 # Formats whose files are the same layout: reading one as the other is no mistake.
 _SAME = {"anipose": "anipose", "pose2sim": "anipose"}
 
 
 def _toml(path: Path) -> tuple[str, str] | None:
-    from workers.rigs.formats.caliscope import camera_tables
-
     try:
         data = tomllib.loads(path.read_text())
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):

@@ -80,6 +80,9 @@ class AnnotatePage {
     this.onKey = (e) => this.keydown(e);
     this.onKeyUp = (e) => this.keys.delete(e.code);
     this.onResize = () => { this.fitView(); this.requestRender(); };
+    // The clock counts working time: between inputs, not across a pause of more than 30 s or a hidden tab.
+    this.onVisibility = () => { if (document.hidden && this.timer) this.timer.pause(); };
+    document.addEventListener("visibilitychange", this.onVisibility);
     window.addEventListener("keydown", this.onKey);
     window.addEventListener("keyup", this.onKeyUp);
     window.addEventListener("resize", this.onResize);
@@ -112,6 +115,7 @@ class AnnotatePage {
     window.removeEventListener("keydown", this.onKey);
     window.removeEventListener("keyup", this.onKeyUp);
     window.removeEventListener("resize", this.onResize);
+    document.removeEventListener("visibilitychange", this.onVisibility);
     clearInterval(this.clock);
     clearTimeout(this.emptyTimer);
     this.drafts.stop(); // what is not saved yet goes now (Back, another page): the next mount restores it
@@ -213,7 +217,7 @@ class AnnotatePage {
     }
     this.viewIndex = 0;
     this.keypoint = this.annotation.firstUnset(this.views[0].id) ?? SPARSE[0];
-    this.timer = new ActionTimer();
+    this.timer = new ActionTimer({ dropIdle: true });
     this.submissionId = crypto.randomUUID();
     this.hideBanner();
     this.justPlaced = null; // a view of the previous sample
@@ -289,9 +293,12 @@ class AnnotatePage {
     this.proposals = computeProposals(this.annotation, this.cameras, this.sources);
   }
 
-  advance() {
+  // Pick the next keypoint to work on: after a placement (afterClick) the next one without a position in
+  // this view, not-annotated ones included (a click then sets it: docs/ui.md); after N or an accept, the next
+  // one with nothing decided. None left here: the first undecided one of the next view that has one.
+  advance({ afterClick = false } = {}) {
     if (!this.autoAdvance) return;
-    const next = this.annotation.firstUnset(this.view.id, this.keypoint);
+    const next = this.annotation.firstUnset(this.view.id, this.keypoint, { placedToo: afterClick });
     if (next !== null) {
       this.keypoint = next;
     } else {
@@ -339,7 +346,8 @@ class AnnotatePage {
   // What O and N apply to: the point just placed (while it is still set), else the picked keypoint here.
   target() {
     const j = this.justPlaced;
-    if (j && this.annotation.get(j.viewId, j.keypoint)) return { ...j, justPlaced: true };
+    // Only in the view on screen: after the page moved on to the next view, O and N act on what is shown.
+    if (j && j.viewId === this.view.id && this.annotation.get(j.viewId, j.keypoint)) return { ...j, justPlaced: true };
     return { viewId: this.view.id, keypoint: this.keypoint, justPlaced: false };
   }
 
@@ -522,6 +530,7 @@ class AnnotatePage {
 
   pointerdown(e) {
     if (!this.task) return;
+    this.timer.input();
     this.canvas.focus();
     try {
       this.canvas.setPointerCapture(e.pointerId);
@@ -557,6 +566,7 @@ class AnnotatePage {
   }
 
   pointermove(e) {
+    if (this.timer) this.timer.input();
     const [sx, sy] = this.screenPoint(e);
     const previous = this.hover;
     this.hover = [sx, sy];
@@ -626,19 +636,26 @@ class AnnotatePage {
         this.changed(view.id);
       }
     } else if (d.type === "place") {
-      this.setClick(this.view.id, d.keypoint, { x: d.u, y: d.v, visibility: d.visibility }, "click");
-      this.advance();
+      if (this.placeable(d.u, d.v)) {
+        this.setClick(this.view.id, d.keypoint, { x: d.u, y: d.v, visibility: d.visibility }, "click");
+        this.advance({ afterClick: true });
+      }
     } else if (d.type === "point") {
-      const currentUnset = this.annotation.get(this.view.id, this.keypoint) === null;
-      if (d.moved) {
+      // A not-annotated keypoint is unset: a click on another point places it there (docs/ui.md).
+      const currentUnset = !this.annotation.placed(this.view.id, this.keypoint);
+      if (d.moved && !this.placeable(d.u, d.v)) {
+        // dropped outside the image: the point stays where it was
+      } else if (d.moved) {
         this.keypoint = d.keypoint;
         const existing = this.annotation.get(this.view.id, d.keypoint);
         const visibility = existing && existing.visibility === "occluded" ? "occluded" : "visible";
         this.setClick(this.view.id, d.keypoint, { x: d.u, y: d.v, visibility }, "drag");
         if (d.from === "proposal") this.advance();
       } else if (d.keypoint !== this.keypoint && currentUnset) {
-        this.setClick(this.view.id, this.keypoint, { x: d.pressU, y: d.pressV, visibility: "visible" }, "click");
-        this.advance();
+        if (this.placeable(d.pressU, d.pressV)) {
+          this.setClick(this.view.id, this.keypoint, { x: d.pressU, y: d.pressV, visibility: "visible" }, "click");
+          this.advance({ afterClick: true });
+        }
       } else if (d.from === "proposal") {
         this.keypoint = d.keypoint;
         this.acceptProposal(d.keypoint);
@@ -650,9 +667,18 @@ class AnnotatePage {
     this.requestRender();
   }
 
+  // Whether image point (u, v) lies in the view's image; if not, says so (nothing is placed outside it).
+  placeable(u, v) {
+    if (inside([u, v], this.view)) return true;
+    toast(`outside ${this.view.camera}'s image: nothing placed (click on the image)`, "warn", 2500);
+    document.body.dataset.refused = "outside";
+    return false;
+  }
+
   wheel(e) {
     e.preventDefault();
     if (!this.task) return;
+    this.timer.input();
     if (this.mode === "mask" && !e.ctrlKey) {
       this.setRadius(this.radius * (e.deltaY < 0 ? 1.15 : 1 / 1.15));
       return;
@@ -672,6 +698,7 @@ class AnnotatePage {
 
   keydown(e) {
     if (!this.task || isTyping(e)) return;
+    this.timer.input();
     this.keys.add(e.code);
     const ctrl = e.ctrlKey || e.metaKey;
     const key = e.key;
@@ -776,7 +803,8 @@ class AnnotatePage {
     this.viewIndex = index;
     this.decodeMask(this.view);
     this.timer.mark("view", { view_id: this.view.id });
-    this.keypoint = this.annotation.firstUnset(this.view.id) ?? this.keypoint;
+    this.keypoint = this.annotation.firstUnset(this.view.id) ??
+      this.annotation.firstUnset(this.view.id, -1, { placedToo: true }) ?? this.keypoint;
     this.restoreZoom();
     this.requestRender();
     for (const [i, el] of [...this.thumbs.children].entries()) el.classList.toggle("active", i === index);
@@ -1085,9 +1113,11 @@ class AnnotatePage {
     if (this.showMask && view.overlay) ctx.drawImage(view.overlay.canvas, 0, 0);
     ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
     this.drawPoints(ctx, view, vp, { r: 3 });
+    // Placed points out of the keypoints; those marked not annotated apart ("· 2 N"): they are decided, not done.
     const done = this.annotation.doneIn(view.id);
-    el.querySelector(".thumb-label").textContent =
-      `${index + 1} ${view.camera} ${done}/${this.annotation.keypoints.length}${view.maskEdited ? " ✎" : ""}`;
+    const skipped = this.annotation.notAnnotatedIn(view.id);
+    el.querySelector(".thumb-label").textContent = `${index + 1} ${view.camera} ${done}/${this.annotation.keypoints.length}` +
+      `${skipped ? ` · ${skipped} N` : ""}${view.maskEdited ? " ✎" : ""}`;
     el.classList.toggle("complete", done === this.annotation.keypoints.length);
   }
 
@@ -1097,7 +1127,8 @@ class AnnotatePage {
     const expires = this.leases.expiresAt(this.task.sample_id);
     const left = expires ? Math.max(0, Math.round((expires - Date.now()) / 1000)) : null;
     if (expires && expires <= Date.now() && !this.lostLease) this.leases.retake(this.task.sample_id).catch(() => null);
-    el.textContent = `time ${fmt(this.timer.spentSeconds(), 0, " s")} · lease ${left === null ? "–" : `${left} s`}`;
+    const idle = this.timer.idle() ? ` (paused: no input for ${this.timer.idleCapMs / 1000} s)` : "";
+    el.textContent = `time ${fmt(this.timer.spentSeconds(), 0, " s")}${idle} · lease ${left === null ? "–" : `${left} s`}`;
   }
 
   renderSide() {
@@ -1115,6 +1146,7 @@ class AnnotatePage {
       h("span", { class: "kp-name" }, SPARSE_LABELS[i]), h("span", { class: "kp-status" }, text));
     });
     const total = this.views.reduce((n, v) => n + this.annotation.doneIn(v.id), 0);
+    const skipped = this.views.reduce((n, v) => n + this.annotation.notAnnotatedIn(v.id), 0);
     const masks = this.views.filter((v) => v.maskEdited).length;
     const t = this.task;
     fill(this.side, 
@@ -1142,7 +1174,8 @@ class AnnotatePage {
       h("div", { class: "button-row" },
         h("button", { onclick: () => this.undo(), disabled: !this.history.canUndo }, "Undo"),
         h("button", { onclick: () => this.redo(), disabled: !this.history.canRedo }, "Redo")),
-      h("div", { class: "totals" }, `${total}/${this.views.length * this.annotation.keypoints.length} keypoints · ${masks} mask(s) corrected`),
+      h("div", { class: "totals" }, `${total}/${this.views.length * this.annotation.keypoints.length} keypoints placed · ` +
+        `${skipped} not annotated · ${masks} mask(s) corrected`),
       h("button", { class: "primary submit", onclick: () => this.submit(), disabled: this.submitting },
         this.submitting ? "Submitting…" : "Submit (Ctrl+Enter)"),
       h("div", { class: "muted legend" }, "proposals: T triangulated from your clicks, F current fit, M MVNet, " +

@@ -33,16 +33,29 @@ export class Annotation {
     return click ? click.visibility : "unset";
   }
 
-  doneIn(viewId) {
-    return this.keypoints.filter((k) => this.get(viewId, k) !== null).length;
+  // Whether a keypoint has a position in a view (visible or occluded); a not-annotated one has none.
+  placed(viewId, keypoint) {
+    const c = this.get(viewId, keypoint);
+    return Boolean(c) && c.visibility !== "not_annotated" && c.x !== null;
   }
 
-  firstUnset(viewId, after = -1) {
+  // Keypoints placed in a view: what "done" counts (a not-annotated point is not done, only decided).
+  doneIn(viewId) {
+    return this.keypoints.filter((k) => this.placed(viewId, k)).length;
+  }
+
+  notAnnotatedIn(viewId) {
+    return this.keypoints.filter((k) => this.status(viewId, k) === "not_annotated").length;
+  }
+
+  // The first keypoint after `after` (wrapping) with nothing decided (no point, not marked not annotated);
+  // with {placedToo: true}, the first without a position (not-annotated ones included): where a click goes.
+  firstUnset(viewId, after = -1, { placedToo = false } = {}) {
     const order = this.keypoints;
     const start = order.indexOf(after) + 1;
     for (let i = 0; i < order.length; i++) {
       const k = order[(start + i) % order.length];
-      if (this.get(viewId, k) === null) return k;
+      if (placedToo ? !this.placed(viewId, k) : this.get(viewId, k) === null) return k;
     }
     return null;
   }

@@ -28,8 +28,9 @@ const HELP = [
   ["1 … 6", "pick wrist, thumb, index, middle, ring, pinky"],
   ["click", "place the keypoint (then the next one is picked); the magnifier beside the cursor shows where"],
   ["drag", "move a point or a proposal"],
-  ["A / Enter", `accept the proposal of this keypoint / all of this view's with confidence >= ${ACCEPT_CONF}`],
-  ["O", "toggle occluded: the point just placed, else the picked one (ringed white)"],
+  ["A / Enter", `accept the proposal of this keypoint / all of this view's with confidence >= ${ACCEPT_CONF}; ` +
+    "those the fit's mesh hides (\"hidden\") as occluded"],
+  ["O", "toggle occluded: the point just placed in this view, else the picked one (ringed white)"],
   ["N", "not annotated in this view: the point just placed, else the picked one"],
   ["Del / Backspace", "clear the picked keypoint in this view"],
   ["Tab / Shift+Tab", "next / previous view (or click a thumbnail)"],
@@ -295,20 +296,24 @@ class AnnotatePage {
 
   // Pick the next keypoint to work on: after a placement (afterClick) the next one without a position in
   // this view, not-annotated ones included (a click then sets it: docs/ui.md); after N or an accept, the next
-  // one with nothing decided. None left here: the first undecided one of the next view that has one.
+  // one with nothing decided. None left here: the first undecided one of the next view that has one, else
+  // (afterClick) the first one without a position of the next view that has one.
   advance({ afterClick = false } = {}) {
     if (!this.autoAdvance) return;
     const next = this.annotation.firstUnset(this.view.id, this.keypoint, { placedToo: afterClick });
     if (next !== null) {
       this.keypoint = next;
     } else {
-      for (let i = 1; i < this.views.length; i++) {
-        const idx = (this.viewIndex + i) % this.views.length;
-        const k = this.annotation.firstUnset(this.views[idx].id);
-        if (k !== null) {
-          this.selectView(idx);
-          this.keypoint = k;
-          break;
+      const passes = afterClick ? [false, true] : [false];
+      search: for (const placedToo of passes) {
+        for (let i = 1; i < this.views.length; i++) {
+          const idx = (this.viewIndex + i) % this.views.length;
+          const k = this.annotation.firstUnset(this.views[idx].id, -1, { placedToo });
+          if (k !== null) {
+            this.selectView(idx);
+            this.keypoint = k;
+            break search;
+          }
         }
       }
     }
@@ -318,8 +323,9 @@ class AnnotatePage {
   acceptProposal(keypoint, { advance = true } = {}) {
     const p = this.proposals.get(this.view.id).get(keypoint);
     if (!p) return false;
-    this.setClick(this.view.id, keypoint, { x: p.x, y: p.y, visibility: "visible", from: p.source,
-      confidence: p.confidence }, "accept");
+    // One gesture for occlusion: a keypoint the fit's mesh hides here is accepted as occluded (O flips it).
+    this.setClick(this.view.id, keypoint, { x: p.x, y: p.y, visibility: p.hidden ? "occluded" : "visible",
+      from: p.source, confidence: p.confidence }, "accept");
     if (advance) this.advance();
     return true;
   }
@@ -330,9 +336,12 @@ class AnnotatePage {
     for (const k of sure) this.acceptProposal(k, { advance: false });
     this.justPlaced = null;
     const left = all.length - sure.length;
+    const hidden = all.filter(([k, p]) => sure.includes(k) && p.hidden).length;
+    const occluded = hidden ? ` (${hidden} as occluded: the fit's mesh hides them; a digit then O flips one)` : "";
     if (all.length === 0) toast("no proposals left in this view", "info", 1500);
-    else if (left) toast(`accepted ${sure.length}; ${left} below ${ACCEPT_CONF} ringed orange: have a look (A accepts one)`,
-      "info", 3000);
+    else if (left) toast(`accepted ${sure.length}${occluded}; ${left} below ${ACCEPT_CONF} ringed orange: have a look ` +
+      "(A accepts one)", "info", 3000);
+    else if (hidden) toast(`accepted ${sure.length}${occluded}`, "info", 3000);
     if (left) {
       // Stay on the first doubtful one, so the next key is about it.
       this.keypoint = all.find(([, p]) => !confident(p))[0];
@@ -648,8 +657,9 @@ class AnnotatePage {
       } else if (d.moved) {
         this.keypoint = d.keypoint;
         const existing = this.annotation.get(this.view.id, d.keypoint);
-        const visibility = existing && existing.visibility === "occluded" ? "occluded" : "visible";
-        this.setClick(this.view.id, d.keypoint, { x: d.u, y: d.v, visibility }, "drag");
+        const offered = d.from === "proposal" ? this.proposals.get(this.view.id).get(d.keypoint) : null;
+        const occluded = existing ? existing.visibility === "occluded" : Boolean(offered && offered.hidden);
+        this.setClick(this.view.id, d.keypoint, { x: d.u, y: d.v, visibility: occluded ? "occluded" : "visible" }, "drag");
         if (d.from === "proposal") this.advance();
       } else if (d.keypoint !== this.keypoint && currentUnset) {
         if (this.placeable(d.pressU, d.pressV)) {
@@ -1138,13 +1148,15 @@ class AnnotatePage {
     const rows = SPARSE.map((k, i) => {
       const status = this.annotation.status(view.id, k);
       const p = props.get(k);
-      const text = status === "unset" ? (p ? `proposal ${proposalLabel(p)}${confident(p) ? "" : " · look"}` : "–")
+      const text = status === "unset" ? (p ? `proposal ${proposalLabel(p)}${p.hidden ? " · hidden" : ""}` +
+        `${confident(p) ? "" : " · look"}` : "–")
         : status.replace("_", " ") + (this.annotation.get(view.id, k).from ? " (accepted)" : "");
       return h("li", { class: `kp-row${k === this.keypoint ? " current" : ""} status-${status}`,
         onclick: () => this.pick(k) },
       h("kbd", {}, String(i + 1)), h("span", { class: "swatch", style: { background: colorOf(k) } }),
       h("span", { class: "kp-name" }, SPARSE_LABELS[i]), h("span", { class: "kp-status" }, text));
     });
+    const hiddenCount = [...props.values()].filter((p) => confident(p) && p.hidden).length;
     const total = this.views.reduce((n, v) => n + this.annotation.doneIn(v.id), 0);
     const skipped = this.views.reduce((n, v) => n + this.annotation.notAnnotatedIn(v.id), 0);
     const masks = this.views.filter((v) => v.maskEdited).length;
@@ -1168,7 +1180,8 @@ class AnnotatePage {
       h("ul", { class: "kp-list" }, rows),
       h("div", { class: "button-row" },
         h("button", { class: "accept-all", onclick: () => this.acceptAllInView(), disabled: props.size === 0 },
-          `Accept ${[...props.values()].filter(confident).length} of ${props.size} proposals (Enter)`),
+          `Accept ${[...props.values()].filter(confident).length} of ${props.size} proposals (Enter)` +
+          `${hiddenCount ? ` · ${hiddenCount} as occluded` : ""}`),
         h("button", { onclick: () => this.toggleOccluded() }, "Occluded (O)"),
         h("button", { onclick: () => this.markNotAnnotated() }, "Not annotated (N)")),
       h("div", { class: "button-row" },

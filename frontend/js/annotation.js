@@ -103,10 +103,13 @@ export function triangulateClicked(annotation, cameras, keypoint) {
 // annotator's own clicks in the other views, then the API's sources in the server's order (for a detector
 // fit: the fit, then the detector; else MVNet, then the current fit). A source with per-keypoint confidences
 // (MVNet, the detector) offers only those >= minConf; a fit has no confidence (null).
+// Each says whether the fit's mesh hides the keypoint in that view (the fit source's `hidden` flags, whichever
+// source the point came from: it is the same hand), so that accepting it marks it occluded.
 // cameras: view id -> camera; sources: the API's proposal sources.
-// Returns view id -> keypoint -> {x, y, source, confidence (0..1 or null)}.
+// Returns view id -> keypoint -> {x, y, source, confidence (0..1 or null), hidden (bool)}.
 export function proposals(annotation, cameras, sources, { minConf = 0.3 } = {}) {
   const out = new Map(annotation.viewIds.map((v) => [v, new Map()]));
+  const mesh = sources.find((source) => source.hidden);
   for (const keypoint of annotation.keypoints) {
     const tri = triangulateClicked(annotation, cameras, keypoint);
     for (const viewId of annotation.viewIds) {
@@ -124,7 +127,10 @@ export function proposals(annotation, cameras, sources, { minConf = 0.3 } = {}) 
         const p = (source.views[String(viewId)] || [])[keypoint];
         if (inside(p, cam)) proposal = { x: p[0], y: p[1], source: source.kind, confidence };
       }
-      if (proposal) out.get(viewId).set(keypoint, proposal);
+      if (proposal) {
+        proposal.hidden = Boolean(mesh && (mesh.hidden[String(viewId)] || [])[keypoint]);
+        out.get(viewId).set(keypoint, proposal);
+      }
     }
   }
   return out;

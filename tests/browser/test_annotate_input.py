@@ -101,3 +101,93 @@ def test_the_clock_counts_no_idle_gap(live_stack, tab):
     assert spent() == pytest.approx(start + 10, abs=2)
     durations = page.evaluate("() => window.__handloop.page.timer.actions.map((a) => a.duration_ms)")
     assert sum(durations) / 1000 == pytest.approx(spent(), abs=0.5)
+
+
+def _sent_back_with_a_true_fit(stack) -> dict:
+    """One sample annotated from the truth, fitted with the true hand (as a worker records it) and sent back by
+    the reviewer: the annotate page then offers the fit's proposals with the keypoints its mesh hides."""
+    import numpy as np
+
+    from backend.services import records
+    from backend.services.verification import HeuristicThresholds
+    from tests.support.annotate import clicks_body, ground_truth_of
+
+    with stack.client("annotator") as http:
+        task = http.post("/api/annotate/next").json()
+        body = clicks_body(stack, task)  # in two views only: the others come back with nothing set
+        body["clicks"] = [c for c in body["clicks"] if c["view_id"] in {v["id"] for v in task["views"][:2]}]
+        submitted = http.post(f"/api/annotate/samples/{task['sample_id']}/submissions", json=body)
+        assert submitted.status_code == 201, submitted.text
+    gt = ground_truth_of(stack, task)
+    with stack.session_factory().begin() as session:
+        records.record_fit(session, task["sample_id"], params=np.concatenate(
+            [gt.betas, gt.pose, gt.global_orient, gt.transl]).tolist(), keypoints_m=gt.keypoints_3d.tolist(),
+            view_ious={v["id"]: 0.9 for v in task["views"]}, diagnostics={}, inputs={"submission_ids": [
+                submitted.json()["id"]]}, model_file="handloop-builtin v1", thresholds=HeuristicThresholds())
+    with stack.client("reviewer") as http:
+        assert http.post("/api/review/next").json()["sample_id"] == task["sample_id"]
+        decided = http.post(f"/api/review/samples/{task['sample_id']}/decision",
+                            json={"decision": "annotate", "reason": "mark the hidden ones occluded"})
+        assert decided.status_code == 201, decided.text
+    return {"task": task, "gt": gt}
+
+
+def test_enter_accepts_what_the_fits_mesh_hides_as_occluded_and_o_flips_one(live_stack, tab):
+    """Item 10: occlusion in one gesture. Confident proposals at the true keypoints (an MVNet-like source added
+    to the API's answer, as in test_proposals) and the fit's per-view flags from the server: Enter accepts the
+    hidden ones as occluded (before: all visible, then a digit and O per hidden point); a digit and O flip one."""
+    import json
+
+    stack = live_stack(worker=False, frames=3)
+    made = _sent_back_with_a_true_fit(stack)
+    gt, sid = made["gt"], made["task"]["sample_id"]
+    names = list(gt.camera_names)
+    served: dict = {}
+
+    def with_network(route) -> None:
+        response = route.fetch()
+        body = response.json()
+        views = {str(c["view_id"]): gt.keypoints_2d[names.index(c["camera"])].round(2).tolist()
+                 for c in body["cameras"]}
+        body["sources"].insert(0, {"kind": "mvnet", "label": "MVNet (test)", "confidences": [0.9] * 21, "views": views})
+        served[body["sample_id"]] = body
+        route.fulfill(response=response, body=json.dumps(body))
+
+    t = tab()
+    page = t.page
+    page.route("**/proposals", with_network)
+    user = stack.users["annotator"]
+    sign_in(t, stack.base_url, user.email, user.password, "annotate")
+    assert page.evaluate("() => window.__handloop.page.task.sample_id") == sid
+    fit = next(s for s in served[sid]["sources"] if s["kind"] == "fit")
+    views = page.evaluate("() => window.__handloop.page.views.map((v) => [v.id, v.width, v.height])")
+
+    def inside(view_id: int, k: int) -> bool:
+        p = next(s for s in served[sid]["sources"] if s["kind"] == "mvnet")["views"][str(view_id)][k]
+        w, h = next((w, h) for v, w, h in views if v == view_id)
+        return -0.5 <= p[0] <= w - 0.5 and -0.5 <= p[1] <= h - 0.5
+
+    # Of the views with nothing set, the one whose fit hides the most of the six keypoints.
+    index = max(range(2, len(views)), key=lambda i: sum(fit["hidden"][str(views[i][0])][k] for k in SPARSE
+                                                      if inside(views[i][0], k)))
+    view_id = views[index][0]
+    hidden = {k for k in SPARSE if fit["hidden"][str(view_id)][k] and inside(view_id, k)}
+    shown = {k for k in SPARSE if inside(view_id, k)} - hidden
+    assert hidden, "the true hand hides none of the keypoints in any view"
+    if index:
+        page.click(f".thumb >> nth={index}")
+    assert "hidden" in page.inner_text(".kp-list")
+    actions_before = page.evaluate("() => window.__handloop.page.timer.actions.length")
+    page.keyboard.press("Enter")
+    got = {k: page.evaluate(STATUS, [index, k]) for k in SPARSE}
+    assert {k for k, s in got.items() if s == "occluded"} == hidden, got
+    assert {k for k, s in got.items() if s == "visible"} == shown, got
+    # One key for all of them (each acceptance is logged as one "accept").
+    logged = page.evaluate("() => window.__handloop.page.timer.actions.map((a) => a.kind)")[actions_before:]
+    assert logged.count("accept") == len(hidden) + len(shown) and "occlude" not in logged, logged
+    # A digit and O flip one the mesh got wrong (back on that view: Enter moved on to the next one).
+    page.click(f".thumb >> nth={index}")
+    k = sorted(hidden)[0]
+    page.keyboard.press(str(SPARSE.index(k) + 1))
+    page.keyboard.press("o")
+    assert page.evaluate(STATUS, [index, k]) == "visible"

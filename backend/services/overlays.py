@@ -135,18 +135,24 @@ def annotate_proposals(session: Session, user: Actor, sample_id: int, *, mano_pa
 def hidden_keypoints(fit: Fit, cameras: list[ViewCamera], mano_path: Path | None) -> dict[str, list[bool]] | None:
     """View id -> (21,) whether the fit's own mesh hides each of its keypoints from that camera (the hand's
     self-occlusion; a held object is not in the mesh); None when this server cannot pose the fit's hand model."""
-    from workers.rendering.occlusion import hidden_by_mesh
-    from workers.synth.visibility import skin_depth_tolerance_m
-
     arrays = load_arrays(fit.model_file, mano_path, fit_side(fit.diagnostics))
     if arrays is None or fit.params is None:
         return None
     try:
-        mesh = posed_mesh(arrays, np.asarray(fit.params))
+        return mesh_hidden(arrays, fit.params, fit.keypoints_m, cameras)
     except ValueError as exc:  # stored parameters this code cannot pose: no flags, the proposals still go
         logger.warning("fit %s: %s; no occlusion flags", fit.id, exc)
         return None
-    keypoints = np.asarray(fit.keypoints_m, dtype=np.float64).reshape(21, 3)
+
+
+def mesh_hidden(arrays: Any, params: Any, keypoints_m: Any, cameras: list[ViewCamera]) -> dict[str, list[bool]]:
+    """View id -> (21,) whether the hand posed by `params` (61,) hides each keypoint (21, 3) metres, world frame,
+    from that camera; ValueError for parameters that cannot be posed."""
+    from workers.rendering.occlusion import hidden_by_mesh
+    from workers.synth.visibility import skin_depth_tolerance_m
+
+    mesh = posed_mesh(arrays, np.asarray(params, dtype=np.float64))
+    keypoints = np.asarray(keypoints_m, dtype=np.float64).reshape(21, 3)
     hidden = hidden_by_mesh(keypoints, mesh.vertices, mesh.faces, cameras,
                             skin_depth_tolerance_m(keypoints, mesh.vertices))
     return {str(cam.view_id): [bool(h) for h in hidden[c]] for c, cam in enumerate(cameras)}

@@ -446,8 +446,12 @@ class AnnotatePage {
   applyDraft(draft) {
     const p = draft.payload;
     for (const byKeypoint of this.annotation.clicks.values()) byKeypoint.clear();
+    let outside = 0;
     for (const c of p.clicks) {
       if (!this.annotation.clicks.has(c.view_id) || !this.annotation.keypoints.includes(c.keypoint)) continue;
+      // A click outside the image (saved by an older page): the server refuses every save holding it: dropped.
+      const view = this.views.find((v) => v.id === c.view_id);
+      if (c.x !== null && c.x !== undefined && !inside([c.x, c.y], view)) { outside++; continue; }
       const value = { x: c.x ?? null, y: c.y ?? null, visibility: c.visibility };
       if (c.from_proposal) value.from = "proposal"; // accepted, not placed by hand (its source is not kept)
       this.annotation.set(c.view_id, c.keypoint, value);
@@ -463,6 +467,7 @@ class AnnotatePage {
     if (this.annotation.keypoints.includes(p.keypoint)) this.keypoint = p.keypoint;
     this.submissionId = p.submission_id;
     this.timer.carriedMs = p.time_spent_s * 1000;
+    if (outside) toast(`${outside} point(s) of your draft lay outside the image: dropped, place them again`, "warn", 8000);
     window.__handloop.marks.draftRestored = performance.now();
     toast(`restored your work on sample ${this.task.sample_id} (saved ${new Date(draft.updated_at).toLocaleTimeString()})`,
       "info", 2500);

@@ -621,6 +621,9 @@ def _scripted_occlusion(browser, base: str, token: str, truth: dict[int, Any], s
                     _drag(page, v, have[:2], uv)
                     clicks += 1
                 if have[2] != want:
+                    if page.evaluate("() => window.__handloop.page.viewIndex") != v:  # a click moved the page on
+                        page.click(f".thumb >> nth={v}")
+                        clicks += 1
                     page.keyboard.press(str(SPARSE.index(k) + 1))
                     page.keyboard.press("o")
                     keys, occlusion_keys = keys + 2, occlusion_keys + 2

@@ -43,6 +43,9 @@ class ProposalSource(Public):
     label: str
     confidences: list[float] | None = Field(description="Per keypoint (21): MVNet's, or the detector's lifted ones.")
     views: dict[str, list[Pixel2 | None]] = Field(description="View id -> 21 projected keypoints (px) or null.")
+    hidden: dict[str, list[bool]] | None = Field(
+        default=None, description="The fit's only: view id -> 21 flags, true where the fit's mesh hides the keypoint "
+                                  "from that camera (accepted as occluded); null for other sources or without a mesh.")
 
 
 class ProposalsPublic(Public):

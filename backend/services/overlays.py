@@ -91,11 +91,13 @@ def _projections(points_m: Any, cameras: list[ViewCamera]) -> dict[int, np.ndarr
     return {cam.view_id: project(points, cam) for cam in cameras}
 
 
-def annotate_proposals(session: Session, user: Actor, sample_id: int) -> dict[str, Any]:
+def annotate_proposals(session: Session, user: Actor, sample_id: int, *, mano_path: Path | None = None
+                       ) -> dict[str, Any]:
     """Calibrations (the browser triangulates from the annotator's own clicks), proposal sources in the order the
     page offers them (the first one holding a point wins): for a pre-annotation fit its keypoints, then the
     detector's behind it; else MVNet's prediction, then the current fit; each projected into every view. Also the
-    previous clicks and the reviewer's note when the sample came back from review."""
+    previous clicks and the reviewer's note when the sample came back from review. The fit's source also says per
+    view which keypoints its mesh hides (`hidden`): Enter accepts those as occluded (docs/ui.md)."""
 
     sample = _held(session, user, sample_id, LeaseKind.annotate)
     cameras = view_cameras(session, sample_id)
@@ -111,7 +113,8 @@ def annotate_proposals(session: Session, user: Actor, sample_id: int) -> dict[st
     if fit is not None:
         projected = _projections(fit.keypoints_m, cameras)
         fitted = {"kind": "fit", "label": f"fit {fit.id} ({hand_model_label(fit.model_file)})",
-                  "confidences": None, "views": {str(v): pixels_or_none(p) for v, p in projected.items()}}
+                  "confidences": None, "views": {str(v): pixels_or_none(p) for v, p in projected.items()},
+                  "hidden": hidden_keypoints(fit, cameras, mano_path)}
     detection = detector_proposal(fit, cameras) if fit is not None else None
     if detection is not None:
         # The fit of the detector's keypoints first: one hand agreeing with all views and the hand's anatomy lies
@@ -127,6 +130,32 @@ def annotate_proposals(session: Session, user: Actor, sample_id: int) -> dict[st
     return {"sample_id": sample_id, "cameras": [c.to_public() for c in cameras],
             "keypoints_to_click": list(SPARSE_KEYPOINTS), "sources": sources,
             "previous_clicks": [c.to_public() for c in previous], "review_note": note}
+
+
+def hidden_keypoints(fit: Fit, cameras: list[ViewCamera], mano_path: Path | None) -> dict[str, list[bool]] | None:
+    """View id -> (21,) whether the fit's own mesh hides each of its keypoints from that camera (the hand's
+    self-occlusion; a held object is not in the mesh); None when this server cannot pose the fit's hand model."""
+    arrays = load_arrays(fit.model_file, mano_path, fit_side(fit.diagnostics))
+    if arrays is None or fit.params is None:
+        return None
+    try:
+        return mesh_hidden(arrays, fit.params, fit.keypoints_m, cameras)
+    except ValueError as exc:  # stored parameters this code cannot pose: no flags, the proposals still go
+        logger.warning("fit %s: %s; no occlusion flags", fit.id, exc)
+        return None
+
+
+def mesh_hidden(arrays: Any, params: Any, keypoints_m: Any, cameras: list[ViewCamera]) -> dict[str, list[bool]]:
+    """View id -> (21,) whether the hand posed by `params` (61,) hides each keypoint (21, 3) metres, world frame,
+    from that camera; ValueError for parameters that cannot be posed."""
+    from workers.rendering.occlusion import hidden_by_mesh
+    from workers.synth.visibility import skin_depth_tolerance_m
+
+    mesh = posed_mesh(arrays, np.asarray(params, dtype=np.float64))
+    keypoints = np.asarray(keypoints_m, dtype=np.float64).reshape(21, 3)
+    hidden = hidden_by_mesh(keypoints, mesh.vertices, mesh.faces, cameras,
+                            skin_depth_tolerance_m(keypoints, mesh.vertices))
+    return {str(cam.view_id): [bool(h) for h in hidden[c]] for c, cam in enumerate(cameras)}
 
 
 def detector_proposal(fit: Fit, cameras: list[ViewCamera]) -> dict[str, Any] | None:

@@ -28,8 +28,9 @@ const HELP = [
   ["1 … 6", "pick wrist, thumb, index, middle, ring, pinky"],
   ["click", "place the keypoint (then the next one is picked); the magnifier beside the cursor shows where"],
   ["drag", "move a point or a proposal"],
-  ["A / Enter", `accept the proposal of this keypoint / all of this view's with confidence >= ${ACCEPT_CONF}`],
-  ["O", "toggle occluded: the point just placed, else the picked one (ringed white)"],
+  ["A / Enter", `accept the proposal of this keypoint / all of this view's with confidence >= ${ACCEPT_CONF}; ` +
+    "those the fit's mesh hides (\"hidden\") as occluded"],
+  ["O", "toggle occluded: the point just placed in this view, else the picked one (ringed white)"],
   ["N", "not annotated in this view: the point just placed, else the picked one"],
   ["Del / Backspace", "clear the picked keypoint in this view"],
   ["Tab / Shift+Tab", "next / previous view (or click a thumbnail)"],
@@ -80,6 +81,9 @@ class AnnotatePage {
     this.onKey = (e) => this.keydown(e);
     this.onKeyUp = (e) => this.keys.delete(e.code);
     this.onResize = () => { this.fitView(); this.requestRender(); };
+    // The clock counts working time: between inputs, not across a pause of more than 30 s or a hidden tab.
+    this.onVisibility = () => { if (document.hidden && this.timer) this.timer.pause(); };
+    document.addEventListener("visibilitychange", this.onVisibility);
     window.addEventListener("keydown", this.onKey);
     window.addEventListener("keyup", this.onKeyUp);
     window.addEventListener("resize", this.onResize);
@@ -112,6 +116,7 @@ class AnnotatePage {
     window.removeEventListener("keydown", this.onKey);
     window.removeEventListener("keyup", this.onKeyUp);
     window.removeEventListener("resize", this.onResize);
+    document.removeEventListener("visibilitychange", this.onVisibility);
     clearInterval(this.clock);
     clearTimeout(this.emptyTimer);
     this.drafts.stop(); // what is not saved yet goes now (Back, another page): the next mount restores it
@@ -213,7 +218,7 @@ class AnnotatePage {
     }
     this.viewIndex = 0;
     this.keypoint = this.annotation.firstUnset(this.views[0].id) ?? SPARSE[0];
-    this.timer = new ActionTimer();
+    this.timer = new ActionTimer({ dropIdle: true });
     this.submissionId = crypto.randomUUID();
     this.hideBanner();
     this.justPlaced = null; // a view of the previous sample
@@ -289,19 +294,26 @@ class AnnotatePage {
     this.proposals = computeProposals(this.annotation, this.cameras, this.sources);
   }
 
-  advance() {
+  // Pick the next keypoint to work on: after a placement (afterClick) the next one without a position in
+  // this view, not-annotated ones included (a click then sets it: docs/ui.md); after N or an accept, the next
+  // one with nothing decided. None left here: the first undecided one of the next view that has one, else
+  // (afterClick) the first one without a position of the next view that has one.
+  advance({ afterClick = false } = {}) {
     if (!this.autoAdvance) return;
-    const next = this.annotation.firstUnset(this.view.id, this.keypoint);
+    const next = this.annotation.firstUnset(this.view.id, this.keypoint, { placedToo: afterClick });
     if (next !== null) {
       this.keypoint = next;
     } else {
-      for (let i = 1; i < this.views.length; i++) {
-        const idx = (this.viewIndex + i) % this.views.length;
-        const k = this.annotation.firstUnset(this.views[idx].id);
-        if (k !== null) {
-          this.selectView(idx);
-          this.keypoint = k;
-          break;
+      const passes = afterClick ? [false, true] : [false];
+      search: for (const placedToo of passes) {
+        for (let i = 1; i < this.views.length; i++) {
+          const idx = (this.viewIndex + i) % this.views.length;
+          const k = this.annotation.firstUnset(this.views[idx].id, -1, { placedToo });
+          if (k !== null) {
+            this.selectView(idx);
+            this.keypoint = k;
+            break search;
+          }
         }
       }
     }
@@ -311,8 +323,9 @@ class AnnotatePage {
   acceptProposal(keypoint, { advance = true } = {}) {
     const p = this.proposals.get(this.view.id).get(keypoint);
     if (!p) return false;
-    this.setClick(this.view.id, keypoint, { x: p.x, y: p.y, visibility: "visible", from: p.source,
-      confidence: p.confidence }, "accept");
+    // One gesture for occlusion: a keypoint the fit's mesh hides here is accepted as occluded (O flips it).
+    this.setClick(this.view.id, keypoint, { x: p.x, y: p.y, visibility: p.hidden ? "occluded" : "visible",
+      from: p.source, confidence: p.confidence }, "accept");
     if (advance) this.advance();
     return true;
   }
@@ -323,9 +336,12 @@ class AnnotatePage {
     for (const k of sure) this.acceptProposal(k, { advance: false });
     this.justPlaced = null;
     const left = all.length - sure.length;
+    const hidden = all.filter(([k, p]) => sure.includes(k) && p.hidden).length;
+    const occluded = hidden ? ` (${hidden} as occluded: the fit's mesh hides them; a digit then O flips one)` : "";
     if (all.length === 0) toast("no proposals left in this view", "info", 1500);
-    else if (left) toast(`accepted ${sure.length}; ${left} below ${ACCEPT_CONF} ringed orange: have a look (A accepts one)`,
-      "info", 3000);
+    else if (left) toast(`accepted ${sure.length}${occluded}; ${left} below ${ACCEPT_CONF} ringed orange: have a look ` +
+      "(A accepts one)", "info", 3000);
+    else if (hidden) toast(`accepted ${sure.length}${occluded}`, "info", 3000);
     if (left) {
       // Stay on the first doubtful one, so the next key is about it.
       this.keypoint = all.find(([, p]) => !confident(p))[0];
@@ -339,7 +355,8 @@ class AnnotatePage {
   // What O and N apply to: the point just placed (while it is still set), else the picked keypoint here.
   target() {
     const j = this.justPlaced;
-    if (j && this.annotation.get(j.viewId, j.keypoint)) return { ...j, justPlaced: true };
+    // Only in the view on screen: after the page moved on to the next view, O and N act on what is shown.
+    if (j && j.viewId === this.view.id && this.annotation.get(j.viewId, j.keypoint)) return { ...j, justPlaced: true };
     return { viewId: this.view.id, keypoint: this.keypoint, justPlaced: false };
   }
 
@@ -429,8 +446,12 @@ class AnnotatePage {
   applyDraft(draft) {
     const p = draft.payload;
     for (const byKeypoint of this.annotation.clicks.values()) byKeypoint.clear();
+    let outside = 0;
     for (const c of p.clicks) {
       if (!this.annotation.clicks.has(c.view_id) || !this.annotation.keypoints.includes(c.keypoint)) continue;
+      // A click outside the image (saved by an older page): the server refuses every save holding it: dropped.
+      const view = this.views.find((v) => v.id === c.view_id);
+      if (c.x !== null && c.x !== undefined && !inside([c.x, c.y], view)) { outside++; continue; }
       const value = { x: c.x ?? null, y: c.y ?? null, visibility: c.visibility };
       if (c.from_proposal) value.from = "proposal"; // accepted, not placed by hand (its source is not kept)
       this.annotation.set(c.view_id, c.keypoint, value);
@@ -446,6 +467,7 @@ class AnnotatePage {
     if (this.annotation.keypoints.includes(p.keypoint)) this.keypoint = p.keypoint;
     this.submissionId = p.submission_id;
     this.timer.carriedMs = p.time_spent_s * 1000;
+    if (outside) toast(`${outside} point(s) of your draft lay outside the image: dropped, place them again`, "warn", 8000);
     window.__handloop.marks.draftRestored = performance.now();
     toast(`restored your work on sample ${this.task.sample_id} (saved ${new Date(draft.updated_at).toLocaleTimeString()})`,
       "info", 2500);
@@ -522,6 +544,7 @@ class AnnotatePage {
 
   pointerdown(e) {
     if (!this.task) return;
+    this.timer.input();
     this.canvas.focus();
     try {
       this.canvas.setPointerCapture(e.pointerId);
@@ -557,6 +580,7 @@ class AnnotatePage {
   }
 
   pointermove(e) {
+    if (this.timer) this.timer.input();
     const [sx, sy] = this.screenPoint(e);
     const previous = this.hover;
     this.hover = [sx, sy];
@@ -626,19 +650,27 @@ class AnnotatePage {
         this.changed(view.id);
       }
     } else if (d.type === "place") {
-      this.setClick(this.view.id, d.keypoint, { x: d.u, y: d.v, visibility: d.visibility }, "click");
-      this.advance();
+      if (this.placeable(d.u, d.v)) {
+        this.setClick(this.view.id, d.keypoint, { x: d.u, y: d.v, visibility: d.visibility }, "click");
+        this.advance({ afterClick: true });
+      }
     } else if (d.type === "point") {
-      const currentUnset = this.annotation.get(this.view.id, this.keypoint) === null;
-      if (d.moved) {
+      // A not-annotated keypoint is unset: a click on another point places it there (docs/ui.md).
+      const currentUnset = !this.annotation.placed(this.view.id, this.keypoint);
+      if (d.moved && !this.placeable(d.u, d.v)) {
+        // dropped outside the image: the point stays where it was
+      } else if (d.moved) {
         this.keypoint = d.keypoint;
         const existing = this.annotation.get(this.view.id, d.keypoint);
-        const visibility = existing && existing.visibility === "occluded" ? "occluded" : "visible";
-        this.setClick(this.view.id, d.keypoint, { x: d.u, y: d.v, visibility }, "drag");
+        const offered = d.from === "proposal" ? this.proposals.get(this.view.id).get(d.keypoint) : null;
+        const occluded = existing ? existing.visibility === "occluded" : Boolean(offered && offered.hidden);
+        this.setClick(this.view.id, d.keypoint, { x: d.u, y: d.v, visibility: occluded ? "occluded" : "visible" }, "drag");
         if (d.from === "proposal") this.advance();
       } else if (d.keypoint !== this.keypoint && currentUnset) {
-        this.setClick(this.view.id, this.keypoint, { x: d.pressU, y: d.pressV, visibility: "visible" }, "click");
-        this.advance();
+        if (this.placeable(d.pressU, d.pressV)) {
+          this.setClick(this.view.id, this.keypoint, { x: d.pressU, y: d.pressV, visibility: "visible" }, "click");
+          this.advance({ afterClick: true });
+        }
       } else if (d.from === "proposal") {
         this.keypoint = d.keypoint;
         this.acceptProposal(d.keypoint);
@@ -650,9 +682,18 @@ class AnnotatePage {
     this.requestRender();
   }
 
+  // Whether image point (u, v) lies in the view's image; if not, says so (nothing is placed outside it).
+  placeable(u, v) {
+    if (inside([u, v], this.view)) return true;
+    toast(`outside ${this.view.camera}'s image: nothing placed (click on the image)`, "warn", 2500);
+    document.body.dataset.refused = "outside";
+    return false;
+  }
+
   wheel(e) {
     e.preventDefault();
     if (!this.task) return;
+    this.timer.input();
     if (this.mode === "mask" && !e.ctrlKey) {
       this.setRadius(this.radius * (e.deltaY < 0 ? 1.15 : 1 / 1.15));
       return;
@@ -672,6 +713,7 @@ class AnnotatePage {
 
   keydown(e) {
     if (!this.task || isTyping(e)) return;
+    this.timer.input();
     this.keys.add(e.code);
     const ctrl = e.ctrlKey || e.metaKey;
     const key = e.key;
@@ -776,7 +818,8 @@ class AnnotatePage {
     this.viewIndex = index;
     this.decodeMask(this.view);
     this.timer.mark("view", { view_id: this.view.id });
-    this.keypoint = this.annotation.firstUnset(this.view.id) ?? this.keypoint;
+    this.keypoint = this.annotation.firstUnset(this.view.id) ??
+      this.annotation.firstUnset(this.view.id, -1, { placedToo: true }) ?? this.keypoint;
     this.restoreZoom();
     this.requestRender();
     for (const [i, el] of [...this.thumbs.children].entries()) el.classList.toggle("active", i === index);
@@ -1085,9 +1128,11 @@ class AnnotatePage {
     if (this.showMask && view.overlay) ctx.drawImage(view.overlay.canvas, 0, 0);
     ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
     this.drawPoints(ctx, view, vp, { r: 3 });
+    // Placed points out of the keypoints; those marked not annotated apart ("· 2 N"): they are decided, not done.
     const done = this.annotation.doneIn(view.id);
-    el.querySelector(".thumb-label").textContent =
-      `${index + 1} ${view.camera} ${done}/${this.annotation.keypoints.length}${view.maskEdited ? " ✎" : ""}`;
+    const skipped = this.annotation.notAnnotatedIn(view.id);
+    el.querySelector(".thumb-label").textContent = `${index + 1} ${view.camera} ${done}/${this.annotation.keypoints.length}` +
+      `${skipped ? ` · ${skipped} N` : ""}${view.maskEdited ? " ✎" : ""}`;
     el.classList.toggle("complete", done === this.annotation.keypoints.length);
   }
 
@@ -1097,7 +1142,8 @@ class AnnotatePage {
     const expires = this.leases.expiresAt(this.task.sample_id);
     const left = expires ? Math.max(0, Math.round((expires - Date.now()) / 1000)) : null;
     if (expires && expires <= Date.now() && !this.lostLease) this.leases.retake(this.task.sample_id).catch(() => null);
-    el.textContent = `time ${fmt(this.timer.spentSeconds(), 0, " s")} · lease ${left === null ? "–" : `${left} s`}`;
+    const idle = this.timer.idle() ? ` (paused: no input for ${this.timer.idleCapMs / 1000} s)` : "";
+    el.textContent = `time ${fmt(this.timer.spentSeconds(), 0, " s")}${idle} · lease ${left === null ? "–" : `${left} s`}`;
   }
 
   renderSide() {
@@ -1107,14 +1153,17 @@ class AnnotatePage {
     const rows = SPARSE.map((k, i) => {
       const status = this.annotation.status(view.id, k);
       const p = props.get(k);
-      const text = status === "unset" ? (p ? `proposal ${proposalLabel(p)}${confident(p) ? "" : " · look"}` : "–")
+      const text = status === "unset" ? (p ? `proposal ${proposalLabel(p)}${p.hidden ? " · hidden" : ""}` +
+        `${confident(p) ? "" : " · look"}` : "–")
         : status.replace("_", " ") + (this.annotation.get(view.id, k).from ? " (accepted)" : "");
       return h("li", { class: `kp-row${k === this.keypoint ? " current" : ""} status-${status}`,
         onclick: () => this.pick(k) },
       h("kbd", {}, String(i + 1)), h("span", { class: "swatch", style: { background: colorOf(k) } }),
       h("span", { class: "kp-name" }, SPARSE_LABELS[i]), h("span", { class: "kp-status" }, text));
     });
+    const hiddenCount = [...props.values()].filter((p) => confident(p) && p.hidden).length;
     const total = this.views.reduce((n, v) => n + this.annotation.doneIn(v.id), 0);
+    const skipped = this.views.reduce((n, v) => n + this.annotation.notAnnotatedIn(v.id), 0);
     const masks = this.views.filter((v) => v.maskEdited).length;
     const t = this.task;
     fill(this.side, 
@@ -1136,13 +1185,15 @@ class AnnotatePage {
       h("ul", { class: "kp-list" }, rows),
       h("div", { class: "button-row" },
         h("button", { class: "accept-all", onclick: () => this.acceptAllInView(), disabled: props.size === 0 },
-          `Accept ${[...props.values()].filter(confident).length} of ${props.size} proposals (Enter)`),
+          `Accept ${[...props.values()].filter(confident).length} of ${props.size} proposals (Enter)` +
+          `${hiddenCount ? ` · ${hiddenCount} as occluded` : ""}`),
         h("button", { onclick: () => this.toggleOccluded() }, "Occluded (O)"),
         h("button", { onclick: () => this.markNotAnnotated() }, "Not annotated (N)")),
       h("div", { class: "button-row" },
         h("button", { onclick: () => this.undo(), disabled: !this.history.canUndo }, "Undo"),
         h("button", { onclick: () => this.redo(), disabled: !this.history.canRedo }, "Redo")),
-      h("div", { class: "totals" }, `${total}/${this.views.length * this.annotation.keypoints.length} keypoints · ${masks} mask(s) corrected`),
+      h("div", { class: "totals" }, `${total}/${this.views.length * this.annotation.keypoints.length} keypoints placed · ` +
+        `${skipped} not annotated · ${masks} mask(s) corrected`),
       h("button", { class: "primary submit", onclick: () => this.submit(), disabled: this.submitting },
         this.submitting ? "Submitting…" : "Submit (Ctrl+Enter)"),
       h("div", { class: "muted legend" }, "proposals: T triangulated from your clicks, F current fit, M MVNet, " +

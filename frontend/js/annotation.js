@@ -33,16 +33,29 @@ export class Annotation {
     return click ? click.visibility : "unset";
   }
 
-  doneIn(viewId) {
-    return this.keypoints.filter((k) => this.get(viewId, k) !== null).length;
+  // Whether a keypoint has a position in a view (visible or occluded); a not-annotated one has none.
+  placed(viewId, keypoint) {
+    const c = this.get(viewId, keypoint);
+    return Boolean(c) && c.visibility !== "not_annotated" && c.x !== null;
   }
 
-  firstUnset(viewId, after = -1) {
+  // Keypoints placed in a view: what "done" counts (a not-annotated point is not done, only decided).
+  doneIn(viewId) {
+    return this.keypoints.filter((k) => this.placed(viewId, k)).length;
+  }
+
+  notAnnotatedIn(viewId) {
+    return this.keypoints.filter((k) => this.status(viewId, k) === "not_annotated").length;
+  }
+
+  // The first keypoint after `after` (wrapping) with nothing decided (no point, not marked not annotated);
+  // with {placedToo: true}, the first without a position (not-annotated ones included): where a click goes.
+  firstUnset(viewId, after = -1, { placedToo = false } = {}) {
     const order = this.keypoints;
     const start = order.indexOf(after) + 1;
     for (let i = 0; i < order.length; i++) {
       const k = order[(start + i) % order.length];
-      if (this.get(viewId, k) === null) return k;
+      if (placedToo ? !this.placed(viewId, k) : this.get(viewId, k) === null) return k;
     }
     return null;
   }
@@ -90,10 +103,13 @@ export function triangulateClicked(annotation, cameras, keypoint) {
 // annotator's own clicks in the other views, then the API's sources in the server's order (for a detector
 // fit: the fit, then the detector; else MVNet, then the current fit). A source with per-keypoint confidences
 // (MVNet, the detector) offers only those >= minConf; a fit has no confidence (null).
+// Each says whether the fit's mesh hides the keypoint in that view (the fit source's `hidden` flags, whichever
+// source the point came from: it is the same hand), so that accepting it marks it occluded.
 // cameras: view id -> camera; sources: the API's proposal sources.
-// Returns view id -> keypoint -> {x, y, source, confidence (0..1 or null)}.
+// Returns view id -> keypoint -> {x, y, source, confidence (0..1 or null), hidden (bool)}.
 export function proposals(annotation, cameras, sources, { minConf = 0.3 } = {}) {
   const out = new Map(annotation.viewIds.map((v) => [v, new Map()]));
+  const mesh = sources.find((source) => source.hidden);
   for (const keypoint of annotation.keypoints) {
     const tri = triangulateClicked(annotation, cameras, keypoint);
     for (const viewId of annotation.viewIds) {
@@ -111,7 +127,10 @@ export function proposals(annotation, cameras, sources, { minConf = 0.3 } = {}) 
         const p = (source.views[String(viewId)] || [])[keypoint];
         if (inside(p, cam)) proposal = { x: p[0], y: p[1], source: source.kind, confidence };
       }
-      if (proposal) out.get(viewId).set(keypoint, proposal);
+      if (proposal) {
+        proposal.hidden = Boolean(mesh && (mesh.hidden[String(viewId)] || [])[keypoint]);
+        out.get(viewId).set(keypoint, proposal);
+      }
     }
   }
   return out;

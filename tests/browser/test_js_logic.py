@@ -247,3 +247,19 @@ def test_markers_carry_a_light_and_a_dark_ring_on_skin_mask_and_background(js):
         light = max(range(4, 8), key=lambda i: lum[i])
         dark = min(range(light + 1, 10), key=lambda i: lum[i])
         assert lum[light] > 200 and lum[dark] < 70, (where, [round(v) for v in lum])
+
+
+def test_the_annotate_clock_counts_no_idle_gap_and_the_review_clock_keeps_its_cap(js):
+    out = js("""const {ActionTimer} = await import('/js/timing.js');
+                let t = 0; const now = () => t;
+                const work = new ActionTimer({dropIdle: true, now});
+                t = 5000; work.input(); t = 12000; const a = work.mark('click');  // 12 s of work
+                t = 12000 + 600000; const idle = [work.idle(), work.spentSeconds()];  // ten minutes away
+                const b = work.mark('click');  // the gap adds nothing
+                t += 20000; work.pause(); t += 20000; const c = work.mark('click');  // hidden tab: 20 s, then none
+                const capped = new ActionTimer({now}); t += 600000; const d = capped.mark('decide');
+                return {a: a.duration_ms, idle, b: b.duration_ms, c: c.duration_ms, spent: work.spentSeconds(),
+                        d: d.duration_ms};""")
+    assert out["a"] == 12000 and out["idle"] == [True, 12.0] and out["b"] == 0
+    assert out["c"] == 20000 and out["spent"] == 32.0
+    assert out["d"] == 30000  # the review page's rule, unchanged: a pause counts up to 30 s

@@ -15,10 +15,11 @@ router = APIRouter(tags=["overlays"])
 
 
 @router.get("/annotate/samples/{sample_id}/proposals", response_model=ProposalsPublic)
-def proposals(sample_id: Id, session: SessionDep, user: AnnotatorUser) -> dict[str, Any]:
-    """Calibrations (to triangulate from your clicks), MVNet's and the current fit's keypoints in every view,
-    the previous clicks and the reviewer's note, for a sample whose annotation lease you hold."""
-    return overlays.annotate_proposals(session, user, sample_id)
+def proposals(sample_id: Id, session: SessionDep, settings: SettingsDep, user: AnnotatorUser) -> dict[str, Any]:
+    """Calibrations (to triangulate from your clicks), MVNet's and the current fit's keypoints in every view
+    (the fit's with the keypoints its mesh hides per view), the previous clicks and the reviewer's note, for a
+    sample whose annotation lease you hold."""
+    return overlays.annotate_proposals(session, user, sample_id, mano_path=settings.mano_path)
 
 
 @router.get("/review/samples/{sample_id}/overlay", response_model=ReviewOverlayPublic)

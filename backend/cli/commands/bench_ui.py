@@ -20,6 +20,15 @@ the capture's ground truth, as a worker would record them, since UI speed does n
   ("M": an MVNet-like source injected into the proposals answer, the true keypoints with 3 px noise,
   one in five below the accept threshold; Enter in every view). Either way, every accepted point more than
   4 px from the truth is corrected by hand (pick, Del, click), so the result is as good as all-clicked.
+- scripted annotator marking occlusion from proposals ("O"): a network's proposals (the true keypoints with 3 px
+  noise, all confident) and the fit's flags of the keypoints its mesh hides per view (computed as the API
+  computes them, `overlays.mesh_hidden`, for the true hand) injected into the proposals answer; Enter in every
+  view, every point more than 4 px off dragged into place, then every keypoint inside the image whose visibility
+  differs from the truth flipped (digit, O). Reported: clicks, keys and wall seconds per sample, the
+  truly occluded keypoints, and the actions spent on occlusion per occluded keypoint (target <= 1; accepting
+  all as visible and flipping each costs 2).
+- activity events rejected: every activity log the pages posted during the run (annotate and review), the
+  logs the API refused (4xx/5xx) and the actions in them (target 0).
 - never losing work: clicks lost by a reload, by the Back button and by a lapsed lease on a free sample
   (targets 0), and restore_ms: navigation start of the reload -> the draft applied on screen.
 """
@@ -91,9 +100,9 @@ def run(tmp: Path, *, width: int, frames: int, repeats: int, brush_events: int, 
     from backend.runtime import start_stack
     from backend.settings import Settings
 
-    # `frames` samples as before (all but one reviewed), plus the scripted annotator's (2 runs of `scripted`,
+    # `frames` samples as before (all but one reviewed), plus the scripted annotator's (3 runs of `scripted`,
     # and one for the work-loss checks), left in the annotation queue after them.
-    capture = _synthesise(tmp / "capture", width, frames + 2 * scripted + 1)
+    capture = _synthesise(tmp / "capture", width, frames + 3 * scripted + 1)
     settings = Settings(data_dir=tmp / "data", environment="test", secret_key=uuid.uuid4().hex * 2)
     _prepare_database(settings, capture)
     _share_hand_model(settings.data_dir)
@@ -122,6 +131,7 @@ def run(tmp: Path, *, width: int, frames: int, repeats: int, brush_events: int, 
                 by_triangulation = _scripted_annotator(browser, base, tokens["annotator"], truth, scripted, "T",
                                                        frame_of)
                 by_network = _scripted_annotator(browser, base, tokens["annotator"], truth, scripted, "M", frame_of)
+                occlusion = _scripted_occlusion(browser, base, tokens["annotator"], truth, scripted, frame_of)
             finally:
                 browser.close()
     worst_page = max(interactive, key=lambda p: interactive[p])
@@ -150,12 +160,20 @@ def run(tmp: Path, *, width: int, frames: int, repeats: int, brush_events: int, 
         "clicks_per_sample_M": by_network["clicks_per_sample"],
         "seconds_per_sample_T": by_triangulation["seconds_per_sample"],
         "seconds_per_sample_M": by_network["seconds_per_sample"],
+        "scripted_occlusion_from_proposals": occlusion,
+        "clicks_per_sample_O": occlusion["clicks_per_sample"],
+        "seconds_per_sample_O": occlusion["seconds_per_sample"],
+        "occlusion_actions_per_occluded_point": occlusion["occlusion_actions_per_occluded_point"],
+        "activity_logs_posted": ACTIVITY["posted"],
+        "activity_logs_rejected": ACTIVITY["rejected"],
+        "activity_events_rejected": ACTIVITY["events_rejected"],
         "reload_clicks_lost": losses["reload_clicks_lost"],
         "back_clicks_lost": losses["back_clicks_lost"],
         "lapsed_lease_clicks_lost": losses["lapsed_lease_clicks_lost"],
         "restore_ms": losses["restore_ms"],
         "targets": {"interactive_ms": 1000, "next_sample_ms": 200, "brush_event_ms": 16, "reload_clicks_lost": 0,
-                    "back_clicks_lost": 0, "lapsed_lease_clicks_lost": 0},
+                    "back_clicks_lost": 0, "lapsed_lease_clicks_lost": 0, "activity_events_rejected": 0,
+                    "occlusion_actions_per_occluded_point": 1},
         "chromium_version": version,
     }
 
@@ -261,9 +279,30 @@ def _into_review(base: str, tokens: dict[str, str], settings, capture: Path, cou
 # --- browser measurements ------------------------------------------------------------------------------------
 
 
+# Activity logs the pages post (POST /api/activity), over the whole run: how many, how many the API refused and
+# the actions those held (each refused log loses all its actions).
+ACTIVITY = {"posted": 0, "rejected": 0, "events_rejected": 0, "errors": []}
+
+
+def _count_activity(response) -> None:
+    request = response.request
+    if request.method != "POST" or not request.url.endswith("/api/activity"):
+        return
+    ACTIVITY["posted"] += 1
+    if response.status >= 400:
+        ACTIVITY["rejected"] += 1
+        try:
+            ACTIVITY["events_rejected"] += len((request.post_data_json or {}).get("actions") or [])
+            ACTIVITY["errors"].append(response.text()[:300])
+        except Exception as exc:  # a body that cannot be read still counts as refused
+            ACTIVITY["errors"].append(f"unreadable: {exc}")
+        _progress(f"activity log refused ({response.status}): {ACTIVITY['errors'][-1]}")
+
+
 def _context(browser, token: str):
     context = browser.new_context(viewport={"width": 1600, "height": 900})
     context.add_init_script(f"sessionStorage.setItem('handloop.token', {token!r});")
+    context.on("response", _count_activity)
     return context
 
 
@@ -497,6 +536,116 @@ def _scripted_annotator(browser, base: str, token: str, truth: dict[int, Any], s
     _progress(f"scripted annotator from {'triangulation' if source == 'T' else 'network proposals'}: "
               f"{out['clicks_per_sample']} clicks, {out['keys_per_sample']} keys, {out['seconds_per_sample']} s per "
               f"sample (all clicked by hand: {6 * n_views} clicks)")
+    return out
+
+
+VISIBILITY = """() => { const p = window.__handloop.page; const out = [];
+  for (const [view, m] of p.annotation.clicks) for (const [k, c] of m) out.push([view, k, c.x, c.y, c.visibility]);
+  return out; }"""
+
+
+def _drag(page, view_index: int, start: Any, end: Any) -> None:
+    if page.evaluate("() => window.__handloop.page.viewIndex") != view_index:
+        page.click(f".thumb >> nth={view_index}")
+    page.mouse.move(*page.evaluate(SCREEN_OF, [float(start[0]), float(start[1])]))
+    page.mouse.down()
+    page.mouse.move(*page.evaluate(SCREEN_OF, [float(end[0]), float(end[1])]), steps=4)
+    page.mouse.up()
+
+
+def _scripted_occlusion(browser, base: str, token: str, truth: dict[int, Any], samples: int,
+                        frame_of: dict[int, int]) -> dict[str, Any]:
+    """Annotate `samples` samples marking occlusion from proposals (module docstring, "O"): Enter per view, then
+    drag each point more than CORRECT_PX off into place (a drag keeps its visibility), place a missing one by
+    hand, then flip (digit, O) each keypoint whose visibility differs from the truth. Counts clicks (drags
+    included), keys, and the keys spent on occlusion (the flips) per truly occluded keypoint in the image."""
+
+    import numpy as np
+
+    from backend.services.overlays import mesh_hidden
+    from backend.services.view_geometry import ViewCamera
+    from backend.viewer.hand_mesh import load_arrays
+
+    rng = np.random.default_rng(13)
+    arrays = load_arrays("handloop-builtin v1", None, "right")
+
+    def proposals(route) -> None:
+        response = route.fetch()
+        body = response.json()
+        gt = truth[frame_of[int(route.request.url.rsplit("/samples/", 1)[1].split("/")[0])]]
+        names = list(gt.camera_names)
+        views = {}
+        cameras = []
+        for camera in body["cameras"]:
+            uv = gt.keypoints_2d[names.index(camera["camera"])] + rng.normal(0, NOISE_PX, (21, 2))
+            views[str(camera["view_id"])] = uv.round(2).tolist()
+            cameras.append(ViewCamera(camera["camera"], camera["width"], camera["height"],
+                                      *(np.asarray(camera[k], dtype=np.float64) for k in ("K", "dist", "R", "t")),
+                                      view_id=camera["view_id"]))
+        params = np.concatenate([gt.betas, gt.pose, gt.global_orient, gt.transl])
+        hidden = mesh_hidden(arrays, params, gt.keypoints_3d, cameras)
+        fit = {"kind": "fit", "label": "fit (bench: the true hand)", "confidences": None, "views": {
+            str(c.view_id): gt.keypoints_2d[names.index(c.name)].round(2).tolist() for c in cameras}, "hidden": hidden}
+        body["sources"] = [{"kind": "mvnet", "label": "MVNet-like (bench)", "confidences": [0.9] * 21,
+                            "views": views}, fit]
+        route.fulfill(response=response, body=json.dumps(body))
+
+    context, page = _annotate_page(browser, base, token, proposals)
+    clicks = keys = occlusion_keys = occluded = left_wrong = 0
+    seconds = []
+    for _ in range(samples):
+        task = page.evaluate(TASK)
+        gt = truth[task["frame_index"]]
+        names = list(gt.camera_names)
+        t0 = time.perf_counter()
+        for v, view in enumerate(task["views"]):
+            if page.evaluate("() => window.__handloop.page.viewIndex") != v:
+                page.click(f".thumb >> nth={v}")
+                clicks += 1
+            page.keyboard.press("Enter")
+            keys += 1
+            got = {k: (x, y, vis) for view_id, k, x, y, vis in page.evaluate(VISIBILITY) if view_id == view["id"]}
+            for k in SPARSE:
+                uv = _true_uv(truth, task, v, k)
+                if uv is None:
+                    continue
+                hidden = not gt.visibility[names.index(view["camera"]), k]
+                occluded += hidden
+                want = "occluded" if hidden else "visible"
+                have = got.get(k)
+                if have is None or have[0] is None:  # no proposal: placed by hand
+                    _click(page, v, k, uv)
+                    clicks, keys = clicks + 1, keys + 1
+                    have = (*uv, "visible")
+                elif np.hypot(have[0] - uv[0], have[1] - uv[1]) > CORRECT_PX:  # dragged into place (keeps O)
+                    _drag(page, v, have[:2], uv)
+                    clicks += 1
+                if have[2] != want:
+                    if page.evaluate("() => window.__handloop.page.viewIndex") != v:  # a click moved the page on
+                        page.click(f".thumb >> nth={v}")
+                        clicks += 1
+                    page.keyboard.press(str(SPARSE.index(k) + 1))
+                    page.keyboard.press("o")
+                    keys, occlusion_keys = keys + 2, occlusion_keys + 2
+        wrong = [(view_id, k) for view_id, k, _, _, vis in page.evaluate(VISIBILITY)
+                 for v, view in enumerate(task["views"]) if view["id"] == view_id and _true_uv(truth, task, v, k)
+                 and vis != ("visible" if gt.visibility[names.index(view["camera"]), k] else "occluded")]
+        left_wrong += len(wrong)
+        before = task["sample_id"]
+        page.keyboard.press("Control+Enter")
+        keys += 1
+        page.wait_for_function(f"() => document.body.dataset.sample !== '{before}' || "
+                               "document.body.dataset.ready === 'annotate-empty'", timeout=60_000)
+        seconds.append(time.perf_counter() - t0)
+    context.close()
+    out = {"samples": samples, "clicks_per_sample": round(clicks / samples, 2),
+           "keys_per_sample": round(keys / samples, 2), "seconds_per_sample": round(statistics.fmean(seconds), 2),
+           "occluded_keypoints": occluded, "occlusion_keys": occlusion_keys,
+           "occlusion_actions_per_occluded_point": round(occlusion_keys / occluded, 3) if occluded else None,
+           "without_mesh_flags_would_be": 2.0, "keypoints_left_with_wrong_visibility": left_wrong}
+    _progress(f"scripted annotator marking occlusion: {out['clicks_per_sample']} clicks, {out['keys_per_sample']} "
+              f"keys, {out['seconds_per_sample']} s per sample; {occlusion_keys} keys for {occluded} occluded "
+              f"keypoints ({out['occlusion_actions_per_occluded_point']} each; flipping each by hand: 2)")
     return out
 
 

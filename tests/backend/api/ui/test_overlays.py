@@ -183,3 +183,31 @@ def test_an_unreadable_detection_record_leaves_the_overlay_without_residuals(sql
     assert data.status_code == 200, data.text
     fit = data.json()["fit"]
     assert fit["source"] == "detector" and fit["residual_reference"] is None and fit["mean_residual_px"] is None
+
+
+def test_the_fits_proposals_say_which_keypoints_its_mesh_hides_as_the_ground_truth_does(sqlite_env, ui, ui_capture):
+    """The fit under the send-back is the truth, so the keypoints its mesh hides per view are those the synthetic
+    capture's ground truth marks hidden (a z-buffer at whole pixels there, a ray here: they differ at silhouettes),
+    and far more of them than accepting everything as visible would get right."""
+    env = sqlite_env
+    task = ui.in_review(env, ui_capture)
+    sid = task["sample_id"]
+    env.client.post(f"/api/review/samples/{sid}/decision", headers=env.headers(Role.reviewer),
+                    json={"decision": "annotate", "reason": "look again"})
+    assert env.client.post("/api/annotate/next", headers=env.headers(Role.annotator)).json()["sample_id"] == sid
+    data = env.client.get(f"/api/annotate/samples/{sid}/proposals", headers=env.headers(Role.annotator)).json()
+    fit = data["sources"][0]
+    _, gt = ui.ground_truth(ui_capture, task["frame_index"])
+    by_camera = {name: c for c, name in enumerate(gt.camera_names)}
+    agree = total = hidden_count = all_visible = 0
+    for camera in data["cameras"]:
+        c = by_camera[camera["camera"]]
+        hidden = np.array(fit["hidden"][str(camera["view_id"])])
+        assert hidden.shape == (21,)
+        inside = np.array([p is not None and 0 <= p[0] < camera["width"] and 0 <= p[1] < camera["height"]
+                           for p in fit["views"][str(camera["view_id"])]])
+        agree += int(((hidden == ~gt.visibility[c]) & inside).sum())
+        all_visible += int((gt.visibility[c] & inside).sum())
+        total += int(inside.sum())
+        hidden_count += int(hidden.sum())
+    assert hidden_count > 0 and agree >= 0.85 * total and agree > all_visible + 0.3 * total, (agree, total, all_visible)

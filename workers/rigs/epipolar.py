@@ -20,19 +20,34 @@ CAUCHY_SCALE = 2.4
 TRIM_KEEP = 0.8  # the figures judged leave out the largest 20 % of distances (detector outliers, wrong views)
 
 
+def _essential_to_f(Ka_inv: np.ndarray, Ra: np.ndarray, ta: np.ndarray, Kb_inv: np.ndarray, Rb: np.ndarray,
+                    tb: np.ndarray) -> np.ndarray:
+    R = Rb @ Ra.T
+    t = tb - R @ ta
+    tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+    return Kb_inv.T @ tx @ R @ Ka_inv
+
+
 def fundamental(a: Camera, b: Camera) -> np.ndarray:
     """(3, 3) F of the calibration: x_b^T F x_a = 0 for undistorted pixels of cameras a and b."""
-    R = b.R @ a.R.T
-    t = b.t - R @ a.t
-    tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
-    return np.linalg.inv(b.K).T @ tx @ R @ np.linalg.inv(a.K)
+    return _essential_to_f(np.linalg.inv(a.K), a.R, a.t, np.linalg.inv(b.K), b.R, b.t)
 
 
 def distances(F: np.ndarray, xa: np.ndarray, xb: np.ndarray) -> np.ndarray:
     """(N,) signed symmetric epipolar distance, pixels, of N correspondences xa, xb (N, 2)."""
-    ha, hb = np.c_[xa, np.ones(len(xa))], np.c_[xb, np.ones(len(xb))]
-    line_b, line_a = ha @ F.T, hb @ F  # the lines in b (of xa) and in a (of xb)
-    e = np.sum(line_b * hb, axis=1)
+    line_b = xa @ F[:, :2].T + F[:, 2]  # the lines in b of xa, (N, 3)
+    line_a = xb @ F[:2, :] + F[2, :]  # the lines in a of xb
+    e = line_b[:, 0] * xb[:, 0] + line_b[:, 1] * xb[:, 1] + line_b[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return 0.5 * e * (1 / np.hypot(line_b[:, 0], line_b[:, 1]) + 1 / np.hypot(line_a[:, 0], line_a[:, 1]))
+
+
+def stacked_distances(Fs: np.ndarray, which: np.ndarray, xa: np.ndarray, xb: np.ndarray) -> np.ndarray:
+    """`distances` of many pairs at once: Fs (P, 3, 3), which (N,) the pair of each of the N correspondences."""
+    F = Fs[which]
+    line_b = np.einsum("nij,nj->ni", F[:, :, :2], xa) + F[:, :, 2]
+    line_a = np.einsum("nji,nj->ni", F[:, :2, :], xb) + F[:, 2, :]
+    e = line_b[:, 0] * xb[:, 0] + line_b[:, 1] * xb[:, 1] + line_b[:, 2]
     with np.errstate(divide="ignore", invalid="ignore"):
         return 0.5 * e * (1 / np.hypot(line_b[:, 0], line_b[:, 1]) + 1 / np.hypot(line_a[:, 0], line_a[:, 1]))
 
@@ -130,11 +145,19 @@ def fit_correction(camera: Camera, partners: Sequence[Camera], x_self: Sequence[
     """
     sizes = np.cumsum([len(x) for x in x_self])[:-1]
     n_params = 6 if kind == "pose" else 3
+    K_inv, center = np.linalg.inv(camera.K), camera.center_world
+    others = [(np.linalg.inv(p.K), p.R, p.t) for p in partners]
+    x_a = np.concatenate(list(x_self))
+    x_b = np.concatenate(list(x_partner))
+    which = np.repeat(np.arange(len(others)), [len(x) for x in x_self])
 
     def residuals(params: np.ndarray) -> np.ndarray:
-        cam = corrected(camera, params, kind)
-        return np.concatenate([distances(fundamental(cam, p), xs, xp)
-                               for p, xs, xp in zip(partners, x_self, x_partner, strict=True)])
+        rvec = params[:3] if kind in ("rotation", "pose") else np.zeros(3)
+        shift = params[3:] if kind == "pose" else params if kind == "translation" else np.zeros(3)
+        R = _rotation(rvec) @ camera.R
+        t = -R @ (center + shift)
+        return stacked_distances(np.stack([_essential_to_f(K_inv, R, t, *other) for other in others]), which, x_a,
+                                 x_b)
 
     params, d = robust_fit(residuals, n_params)
     return params, np.split(d, sizes)

@@ -301,7 +301,9 @@ def _judge_rig(report: CheckReport, cameras: list[Camera], pairs: dict[tuple[int
     report.cameras = []
     for c, cam in enumerate(cameras):
         epi = [medians[key] for key in partners[c] if not set(key) & (set(blamed) - {c})]
-        reason = corrections[c]["explanation"] if c in corrections else ""
+        reason = f"camera {cam.name!r} disagrees with the others: {corrections[c]['explanation']}" \
+            if c in corrections and report.verdict == "camera" else corrections[c]["explanation"] \
+            if c in corrections else ""
         if not judged[c]:
             reason = _not_judged_reason(c, cameras, pairs, shared)
             report.notes.append(reason)

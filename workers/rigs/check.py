@@ -246,6 +246,7 @@ def _judge_rig(report: CheckReport, cameras: list[Camera], pairs: dict[tuple[int
     judged = [len(partners[c]) >= MIN_PARTNERS for c in range(C)]
     # Per camera: the excess a correction of its own pose removes from its pairs (pooled).
     evidence = np.zeros(C)
+    strength = np.zeros(C)  # the excess a pose correction removes over what remains: ranks the explanations
     excess = np.full(C, np.nan)
     limit = np.full(C, np.nan)
     fitted: dict[int, tuple[np.ndarray, list[np.ndarray]]] = {}
@@ -262,23 +263,44 @@ def _judge_rig(report: CheckReport, cameras: list[Camera], pairs: dict[tuple[int
         pair_evidence = max([pairs[k].excess(_pair_distances(cameras, pairs[k])) / pairs[k].limit
                              for k in partners[c]], default=0.0)
         evidence[c] = max(excess[c] / limit[c], pair_evidence)
+        strength[c] = excess[c] / max(rms_after, 1e-9)
     suspects = [c for c in range(C) if judged[c] and evidence[c] > 1]
     explainers = [c for c in suspects if not any(key for key in bad_pairs if c not in key)]
-    explainers.sort(key=lambda c: -evidence[c])
+    explainers.sort(key=lambda c: -strength[c])
     blamed: list[int] = []
     corrections: dict[int, dict[str, Any]] = {}
+    diagnoses: dict[int, dict[str, Any]] = {}
+    if len(explainers) > 1 and strength[explainers[1]] >= CLOSE_CALL * strength[explainers[0]]:
+        # A close call: the camera whose rotation or move alone explains its pairs best (a partner's correction
+        # that fixes the shared pair breaks its other pairs).
+        diagnoses.update({c: _diagnose(c, cameras, pairs, partners[c], fitted[c][0]) for c in explainers})
+        simple = {c: diagnoses[c]["score"] for c in explainers}
+        fits_alone = [c for c in explainers if simple[c] <= 1]
+        if len(fits_alone) == 1:
+            explainers = fits_alone
+        else:  # the most evidence wins; the runner-up is named
+            first, second = explainers[:2]
+            report.notes.append(f"camera {cameras[second].name!r} explains the disagreement nearly as well as "
+                                f"{cameras[first].name!r} (its pose correction removes {strength[second]:.2f} against "
+                                f"{strength[first]:.2f} of what remains)")
+            explainers = explainers[:1]
     if not suspects and not bad_pairs:
         report.verdict = "consistent"
         report.summary = "no camera disagrees with the others"
-    elif explainers and (len(explainers) == 1 or evidence[explainers[1]] < CLOSE_CALL * evidence[explainers[0]]):
+    elif explainers and (len(explainers) == 1 or strength[explainers[1]] < CLOSE_CALL * strength[explainers[0]]):
         c = explainers[0]
         blamed = [c]
-        corrections[c] = _diagnose(c, cameras, pairs, partners[c], fitted[c][0])
+        corrections[c] = diagnoses.get(c) or _diagnose(c, cameras, pairs, partners[c], fitted[c][0])
         report.verdict = "camera"
         report.summary = f"camera {cameras[c].name!r} disagrees with the others: {corrections[c]['explanation']}"
-    else:
-        swap = _swap_test(cameras, pairs, sorted(suspects, key=lambda c: -evidence[c])[:SWAP_CANDIDATES])
-        names = ", ".join(cameras[c].name for c in (explainers or suspects))
+    swap_now = report.verdict != "consistent" and (not blamed or corrections[blamed[0]]["kind"] == "disagrees")
+    if swap_now:
+        # Swapped names look like one camera that no pose correction fixes (three cameras) or like two cameras
+        # whose pairs alone disagree: exchange calibrations and look again.
+        ranked = sorted(suspects, key=lambda c: -evidence[c])[:SWAP_CANDIDATES]
+        two_sets = [(i, j) for i, j in combinations(range(C), 2) if all(set(k) & {i, j} for k in bad_pairs)]
+        candidates = two_sets + [p for p in combinations(sorted(set(ranked + blamed)), 2) if p not in two_sets]
+        swap = _swap_test(cameras, pairs, bad_pairs, candidates)
         if swap is not None:
             i, j = swap
             blamed = [i, j]
@@ -288,16 +310,18 @@ def _judge_rig(report: CheckReport, cameras: list[Camera], pairs: dict[tuple[int
                            j: {"kind": "swapped", "with": cameras[i].name, "explanation": text}}
             report.verdict = "swapped"
             report.summary = text
-        elif len(explainers) > 1:
-            report.verdict = "ambiguous"
-            report.summary = (f"the rig disagrees, and cameras {names} each explain it about equally well: which one "
-                              "is off cannot be told from these keypoints (more cameras or views of the hand would)")
-        else:
-            report.verdict = "several"
-            bad = ", ".join(f"{cameras[a].name}-{cameras[b].name}" for a, b in sorted(bad_pairs))
-            report.summary = (f"the rig disagrees in several places: no single camera explains it (pairs that "
-                              f"disagree: {bad or 'none alone'}; cameras whose pose correction helps: "
-                              f"{names or 'none'})")
+        elif not blamed:
+            names = ", ".join(cameras[c].name for c in (explainers or suspects))
+            if len(explainers) > 1:
+                report.verdict = "ambiguous"
+                report.summary = (f"the rig disagrees, and cameras {names} each explain it about equally well: which "
+                                  "one is off cannot be told from these keypoints (more cameras or views would)")
+            else:
+                report.verdict = "several"
+                bad = ", ".join(f"{cameras[a].name}-{cameras[b].name}" for a, b in sorted(bad_pairs))
+                report.summary = (f"the rig disagrees in several places: no single camera explains it (pairs that "
+                                  f"disagree: {bad or 'none alone'}; cameras whose pose correction helps: "
+                                  f"{names or 'none'})")
     report.cameras = []
     for c, cam in enumerate(cameras):
         epi = [medians[key] for key in partners[c] if not set(key) & (set(blamed) - {c})]
@@ -349,17 +373,20 @@ def _diagnose(c: int, cameras: list[Camera], pairs: dict[tuple[int, int], _Pair]
     shift = float(np.linalg.norm(fits["translation"][0]))
     rotation = f"turned by {degrees:.1f} degrees (a rotation about its centre explains its pairs)"
     move = f"moved by {shift:.3g} calibration units (a move of its centre explains its pairs; stale extrinsics)"
+    simplest = min(scores.values())
     if scores["rotation"] <= 1 and (scores["translation"] > 1 or scores["rotation"] <= scores["translation"]):
-        return {"kind": "rotation", "degrees": degrees, "axis": _axis(fits["rotation"][0]), "explanation": rotation}
+        return {"kind": "rotation", "degrees": degrees, "axis": _axis(fits["rotation"][0]), "explanation": rotation,
+                "score": simplest}
     if scores["translation"] <= 1:
         return {"kind": "translation", "shift": fits["translation"][0].tolist(), "distance": shift,
-                "explanation": move}
+                "explanation": move, "score": simplest}
     if score(pose_after) <= 1:
         pose_deg, pose_shift = float(np.rad2deg(np.linalg.norm(pose[:3]))), float(np.linalg.norm(pose[3:]))
-        return {"kind": "pose", "degrees": pose_deg, "distance": pose_shift,
+        return {"kind": "pose", "degrees": pose_deg, "distance": pose_shift, "score": simplest,
                 "explanation": f"its pose is off: turned by {pose_deg:.1f} degrees and moved by {pose_shift:.3g} "
                                "calibration units explain its pairs (stale or mis-converted extrinsics)"}
-    return {"kind": "disagrees", "explanation": "no correction of its pose explains its pairs: wrong intrinsics or "
+    return {"kind": "disagrees", "score": simplest,
+            "explanation": "no correction of its pose explains its pairs: wrong intrinsics or "
                                                 "distortion, a transposed or mis-converted pose, or another camera's "
                                                 "images"}
 
@@ -369,20 +396,31 @@ def _axis(rvec: np.ndarray) -> list[float]:
     return (rvec / norm).round(3).tolist() if norm > 0 else [0.0, 0.0, 0.0]
 
 
-def _swap_test(cameras: list[Camera], pairs: dict[tuple[int, int], _Pair], candidates: list[int]
-               ) -> tuple[int, int] | None:
-    """Two cameras whose calibrations, exchanged, make every judged pair agree; None when no such two."""
+def _swap_test(cameras: list[Camera], pairs: dict[tuple[int, int], _Pair], bad_pairs: set[tuple[int, int]],
+               candidates: list[tuple[int, int]]) -> tuple[int, int] | None:
+    """The first two cameras (of `candidates`) whose calibrations, exchanged, make every judged pair agree; None
+    when none do. The pairs with either camera are undistorted and given their yardstick again."""
     from workers.geometry.projection import undistort_pixels  # deferred: torch
 
-    for i, j in combinations(sorted(candidates), 2):
+    floors = [max(FLOOR_MIN_PX, FLOOR_FRACTION * cam.width) for cam in cameras]
+    for i, j in candidates:
+        if any(not set(key) & {i, j} for key in bad_pairs):
+            continue  # a pair without either camera disagrees: exchanging them cannot make every pair agree
         trial = list(cameras)
         trial[i], trial[j] = replace(cameras[j], name=cameras[i].name), replace(cameras[i], name=cameras[j].name)
-
-        def ideal(c: int, raw: np.ndarray, kept: np.ndarray) -> np.ndarray:
-            return undistort_pixels(raw, trial[c]) if c in (i, j) else kept  # noqa: B023  (used at once)
-
-        if all(pair.excess(distances(fundamental(trial[pair.a], trial[pair.b]), ideal(pair.a, pair.raw_a, pair.xa),
-                                     ideal(pair.b, pair.raw_b, pair.xb))) <= pair.limit for pair in pairs.values()):
+        agree = True
+        for pair in pairs.values():
+            if not {pair.a, pair.b} & {i, j}:
+                continue  # unchanged, and agreeing (a candidate leaves no disagreeing pair outside it)
+            xa = undistort_pixels(pair.raw_a, trial[pair.a]) if pair.a in (i, j) else pair.xa
+            xb = undistort_pixels(pair.raw_b, trial[pair.b]) if pair.b in (i, j) else pair.xb
+            best = trimmed_rms(refit_pair(trial[pair.a], trial[pair.b], xa, xb))
+            limit = max(floors[pair.a], floors[pair.b], best * np.sqrt(PAIR_RATIO ** 2 - 1))
+            d = distances(fundamental(trial[pair.a], trial[pair.b]), xa, xb)
+            if np.sqrt(max(0.0, trimmed_rms(d) ** 2 - best ** 2)) > limit:
+                agree = False
+                break
+        if agree:
             return i, j
     return None
 

@@ -33,7 +33,8 @@ FLOOR_FRACTION = 0.003  # an excess below this fraction of the image width (4 px
 FLOOR_MIN_PX = 2.0
 PAIR_RATIO = 1.2  # a pair disagrees when the calibration's trimmed RMS exceeds the best pose's by this factor
 CAMERA_RATIO = 1.04  # a camera disagrees when correcting its pose lowers its pairs' trimmed RMS by this factor
-MIN_PAIR_POINTS = 12  # keypoints two cameras must share for the pair to be judged
+MIN_PAIR_POINTS = 6  # keypoints two cameras must share for the pair to be judged (sparse clicks: a few a sample)
+REFIT_MIN_POINTS = 12  # ... and for its own best-pose yardstick; fewer borrow the median of the others' yardsticks
 MIN_PARTNERS = 2  # judged pairs a camera needs to be judged (one pair cannot say which camera is off)
 CLOSE_CALL = 0.9  # two cameras explain it about equally when the runner-up's evidence is this close
 SWAP_CANDIDATES = 4  # the swap test exchanges the calibrations of the cameras with the most evidence
@@ -187,6 +188,7 @@ def check_keypoints(cameras: list[Camera], keypoints_px: list[np.ndarray], visib
     raw, U = _undistorted(keypoints_px, visible, cameras)
     ok = np.isfinite(U).all(axis=2)
     floors = np.array([max(FLOOR_MIN_PX, FLOOR_FRACTION * cam.width) for cam in cameras])
+    names = [cam.name for cam in cameras]
     figures: list[PairFigure] = []
     pairs: dict[tuple[int, int], _Pair] = {}
     for a, b in combinations(range(C), 2):
@@ -199,13 +201,22 @@ def check_keypoints(cameras: list[Camera], keypoints_px: list[np.ndarray], visib
             figures.append(PairFigure(cameras[a].name, cameras[b].name, median, p90, n, float("nan"), float("nan"),
                                       float("nan"), float("nan"), False, True))
             continue
-        best = trimmed_rms(refit_pair(cameras[a], cameras[b], xa, xb))
-        limit = max(floors[a], floors[b], best * np.sqrt(PAIR_RATIO ** 2 - 1))
-        pair = _Pair(a, b, xa, xb, raw[a, both], raw[b, both], best, limit)
-        pairs[(a, b)] = pair
-        excess = pair.excess(d)
-        figures.append(PairFigure(cameras[a].name, cameras[b].name, median, p90, n, trimmed_rms(d), best, excess,
-                                  pair.limit, True, excess <= pair.limit))
+        best = trimmed_rms(refit_pair(cameras[a], cameras[b], xa, xb)) if n >= REFIT_MIN_POINTS else float("nan")
+        pairs[(a, b)] = _Pair(a, b, xa, xb, raw[a, both], raw[b, both], best, float("nan"))
+        figures.append(PairFigure(cameras[a].name, cameras[b].name, median, p90, n, trimmed_rms(d), best,
+                                  float("nan"), float("nan"), True, True))
+    own = [p.best for p in pairs.values() if np.isfinite(p.best)]
+    borrowed = float(np.median(own)) if own else 0.0
+    for k, figure in enumerate(figures):
+        key = (names.index(figure.a), names.index(figure.b))
+        if key not in pairs:
+            continue
+        pair = pairs[key]
+        pair.best = pair.best if np.isfinite(pair.best) else borrowed
+        pair.limit = max(floors[pair.a], floors[pair.b], pair.best * np.sqrt(PAIR_RATIO ** 2 - 1))
+        excess = pair.excess(_pair_distances(cameras, pair))
+        figures[k] = replace(figure, best_px=pair.best, excess_px=excess, limit_px=pair.limit,
+                             consistent=excess <= pair.limit)
     by_key = {(f.a, f.b): f for f in figures}
     medians = {key: by_key[(cameras[key[0]].name, cameras[key[1]].name)].median_px for key in pairs}
     bad_pairs = {key for key in pairs if not by_key[(cameras[key[0]].name, cameras[key[1]].name)].consistent}
@@ -267,6 +278,9 @@ def _judge_rig(report: CheckReport, cameras: list[Camera], pairs: dict[tuple[int
     suspects = [c for c in range(C) if judged[c] and evidence[c] > 1]
     explainers = [c for c in suspects if not any(key for key in bad_pairs if c not in key)]
     explainers.sort(key=lambda c: -strength[c])
+    # A camera with too few partners to be judged explains a disagreement of its own pairs as well as they do.
+    unjudged = [c for c in range(C) if not judged[c] and any(c in key for key in bad_pairs)
+                and not any(c not in key for key in bad_pairs)]
     blamed: list[int] = []
     corrections: dict[int, dict[str, Any]] = {}
     diagnoses: dict[int, dict[str, Any]] = {}
@@ -284,16 +298,25 @@ def _judge_rig(report: CheckReport, cameras: list[Camera], pairs: dict[tuple[int
                                 f"{cameras[first].name!r} (its pose correction removes {strength[second]:.2f} against "
                                 f"{strength[first]:.2f} of what remains)")
             explainers = explainers[:1]
-    if not suspects and not bad_pairs:
-        report.verdict = "consistent"
-        report.summary = "no camera disagrees with the others"
+    report.verdict = "several"  # until an explanation is found below
+    if unjudged:
+        names_all = ", ".join(cameras[c].name for c in explainers + unjudged)
+        report.verdict = "ambiguous"
+        report.summary = (f"the rig disagrees, and cameras {names_all} each explain it: "
+                          f"{', '.join(cameras[c].name for c in unjudged)} has too few partner cameras to be judged "
+                          "(more annotated samples or views would tell)")
+    elif not suspects and not bad_pairs:
+        report.verdict = "consistent" if pairs else "not-judged"
+        report.summary = "no camera disagrees with the others" if pairs else (
+            f"no two cameras share {MIN_PAIR_POINTS} keypoints: nothing could be judged")
     elif explainers and (len(explainers) == 1 or strength[explainers[1]] < CLOSE_CALL * strength[explainers[0]]):
         c = explainers[0]
         blamed = [c]
         corrections[c] = diagnoses.get(c) or _diagnose(c, cameras, pairs, partners[c], fitted[c][0])
         report.verdict = "camera"
         report.summary = f"camera {cameras[c].name!r} disagrees with the others: {corrections[c]['explanation']}"
-    swap_now = report.verdict != "consistent" and (not blamed or corrections[blamed[0]]["kind"] == "disagrees")
+    swap_now = report.verdict not in ("consistent", "ambiguous", "not-judged") and (
+        not blamed or corrections[blamed[0]]["kind"] == "disagrees")
     if swap_now:
         # Swapped names look like one camera that no pose correction fixes (three cameras) or like two cameras
         # whose pairs alone disagree: exchange calibrations and look again.

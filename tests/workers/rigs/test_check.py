@@ -181,6 +181,23 @@ def test_a_camera_with_one_partner_is_not_judged_for_that_reason() -> None:
     assert report.cameras[2].partners == 1 and report.verdict == "consistent"
 
 
+def test_a_disagreeing_pair_with_an_unjudged_camera_blames_nobody() -> None:
+    """cam3 (turned) shares keypoints with cam0 only: their pair disagrees, but cam3 cannot be judged, so cam0 is
+    not blamed for it: the verdict says both explain it."""
+    cameras = default_rig(320)[:4]
+    rng = np.random.default_rng(4)
+    px = [project_points(_keypoints(rng), cameras)[0] for _ in range(FRAMES)]
+    visible = [np.ones((4, 21), bool) for _ in px]
+    for v in visible:
+        v[3, :10] = False
+        v[1, 10:] = v[2, 10:] = False
+    turned = list(cameras)
+    turned[3] = _rotated(cameras[3], 2.0)
+    report = check_keypoints(turned, px, visible)
+    assert report.flagged == [] and report.verdict == "ambiguous" and not report.agrees, report.summary
+    assert "cam3 has too few partner cameras" in report.summary
+
+
 def test_two_cameras_judge_the_pair_only() -> None:
     cameras = default_rig(320)[:2]
     rng = np.random.default_rng(3)

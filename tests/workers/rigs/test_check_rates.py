@@ -40,6 +40,7 @@ def _trial(case: str, seed: int) -> tuple[list[str], list[str], str]:
     return want, sorted(report.flagged), report.verdict
 
 
+@pytest.mark.slow  # 100 rigs per case: ~70 s a case on a lightly loaded core
 @pytest.mark.parametrize("case", ["clean", "rotated", "swapped", "moved"])
 def test_the_right_camera_is_blamed(case: str) -> None:
     results = [_trial(case, seed) for seed in range(TRIALS)]

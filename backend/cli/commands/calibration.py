@@ -107,15 +107,16 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
     @calibration.command("check")
     def check_cmd(
         capture: Path = typer.Argument(..., help="Capture folder."),
-        json_out: bool = typer.Option(False, "--json", help="Print the report as JSON."),
+        json_out: bool = typer.Option(False, "--json", help="Print the report as one line of JSON (the last line)."),
         source: str = typer.Option("auto", "--keypoints",
                                    help="auto (ground truth, else the detector), ground-truth or detector."),
         sequence: str | None = typer.Option(None, "--sequence", help="Only this sequence."),
         max_frames: int = typer.Option(50, "--max-frames", min=1, max=100_000,
                                        help="Frames used (spread evenly over the capture)."),
     ) -> None:
-        """Per camera pair the epipolar distance and per camera the reprojection consistency of 2D keypoints;
-        a camera that disagrees with the others is flagged."""
+        """Per camera pair the epipolar agreement of 2D keypoints found without the calibration; the camera that
+        explains the disagreement is flagged (turned, moved, swapped names). Exit 1: the calibration disagrees;
+        2: the check cannot run or judge anything."""
         from workers.capture import CaptureError
         from workers.rigs.check import CheckError, check_capture, format_report
 
@@ -123,10 +124,12 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
             raise typer.BadParameter(f"--keypoints must be auto, ground-truth or detector, not {source!r}")
         try:
             report = check_capture(capture, source=source, sequence_id=sequence, max_frames=max_frames,
-                                   log=lambda line: typer.echo(line, err=True))
+                                   log=lambda line: typer.echo(line, err=True), progress=True)
         except (CaptureError, CheckError) as exc:
             typer.echo(f"error: {exc}", err=True)
             raise typer.Exit(code=2) from None
-        typer.echo(json.dumps(report.to_dict(), indent=1) if json_out else format_report(report))
-        if report.flagged:
+        typer.echo(json.dumps(report.to_dict(), allow_nan=False) if json_out else format_report(report))
+        if report.verdict == "not-judged":
+            raise typer.Exit(code=2)
+        if not report.agrees:
             raise typer.Exit(code=1)

@@ -1,4 +1,5 @@
-"""The calibration check flags the camera whose calibration disagrees, and only that one."""
+"""The calibration check flags the camera whose calibration disagrees, and only that one (exact keypoints; the
+detector-like noise and the blame rates are in test_check_rates.py)."""
 
 from __future__ import annotations
 
@@ -25,11 +26,11 @@ from workers.capture import (
     write_frame,
     write_sequence,
 )
-from workers.detector.types import LiftedKeypoints, ViewKeypoints
+from workers.detector.types import ViewKeypoints
 from workers.geometry.camera import Camera, save_calibration
 from workers.geometry.projection import project_points
 from workers.geometry.rig import default_rig
-from workers.rigs.check import CheckError, check_capture, check_keypoints
+from workers.rigs.check import CheckError, check_capture, check_keypoints, format_report
 
 FRAMES = 6
 
@@ -56,8 +57,9 @@ def _write_capture(root: Path, cameras: list[Camera], seed: int = 0, working_wid
                          keypoints_3d=points, vertices=np.zeros((4, 3)), keypoints_2d=px,
                          visibility=np.ones((len(cameras), 21), bool), camera_names=tuple(names),
                          hand_masks={c.name: np.zeros((c.height, c.width), bool) for c in cameras})
-        write_frame(root, "seq000", i, {c.name: np.zeros((c.height, c.width, 3), np.uint8) for c in cameras},
-                    image_format="png", ground_truth=gt)
+        # each view a flat colour naming its frame and camera: the detector fakes below recognise it at any size
+        write_frame(root, "seq000", i, {c.name: np.full((c.height, c.width, 3), (i, k, 7), np.uint8)
+                                        for k, c in enumerate(cameras)}, image_format="png", ground_truth=gt)
     return all_px
 
 
@@ -80,9 +82,9 @@ def _recalibrate(capture: Path, cameras: list[Camera]) -> None:
 def test_true_calibration_flags_nothing(capture: Path) -> None:
     report = check_capture(capture)
     assert report.source == "ground-truth" and report.frames == FRAMES
-    assert report.flagged == []
-    assert all(c.reprojection_px < 0.01 for c in report.cameras)
-    assert all(p.median_px < 0.01 for p in report.pairs) and len(report.pairs) == 28
+    assert report.flagged == [] and report.verdict == "consistent" and report.agrees
+    assert all(c.epipolar_px < 0.01 and c.judged and c.partners == 7 for c in report.cameras)
+    assert all(p.median_px < 0.01 and p.consistent for p in report.pairs) and len(report.pairs) == 28
 
 
 @pytest.mark.parametrize("bad", [0, 3, 6])
@@ -91,11 +93,11 @@ def test_two_degrees_off_flags_that_camera_only(capture: Path, bad: int) -> None
     cameras[bad] = _rotated(cameras[bad], 2.0)
     _recalibrate(capture, cameras)
     report = check_capture(capture)
-    assert report.flagged == [f"cam{bad}"], report.to_dict()
-    figure = report.cameras[bad]
-    assert f"camera 'cam{bad}'" in figure.reason
-    others = [c for c in report.cameras if c.name != f"cam{bad}"]
-    assert max(c.reprojection_px for c in others) < figure.reprojection_px / 3
+    assert report.flagged == [f"cam{bad}"] and report.verdict == "camera", report.to_dict()
+    assert f"camera 'cam{bad}'" in report.summary
+    correction = report.cameras[bad].correction
+    assert correction["kind"] == "rotation" and abs(correction["degrees"] - 2.0) < 0.05, correction
+    assert "turned by 2.0 degrees" in report.cameras[bad].reason and f"camera 'cam{bad}'" in report.cameras[bad].reason
 
 
 def test_swapped_names_and_transposed_rotation_are_flagged(capture: Path) -> None:
@@ -103,7 +105,9 @@ def test_swapped_names_and_transposed_rotation_are_flagged(capture: Path) -> Non
     swapped = list(cameras)
     swapped[1], swapped[5] = replace(cameras[5], name="cam1"), replace(cameras[1], name="cam5")
     _recalibrate(capture, swapped)
-    assert sorted(check_capture(capture).flagged) == ["cam1", "cam5"]
+    report = check_capture(capture)
+    assert sorted(report.flagged) == ["cam1", "cam5"] and report.verdict == "swapped", report.summary
+    assert report.cameras[1].correction["with"] == "cam5"
     transposed = list(cameras)
     transposed[2] = replace(cameras[2], R=cameras[2].R.T)  # camera -> world rotation read as world -> camera
     _recalibrate(capture, transposed)
@@ -120,8 +124,11 @@ def test_cli_prints_and_exits_1_on_a_flag(capture: Path) -> None:
     _recalibrate(capture, cameras)
     result = runner.invoke(app, ["calibration", "check", str(capture), "--json"])
     assert result.exit_code == 1
-    data = json.loads(result.stdout)
-    assert data["flagged"] == ["cam4"] and len(data["cameras"]) == 8
+    lines = result.stdout.strip().splitlines()
+    assert len(lines) == 1, result.stdout  # exactly one line of JSON on stdout
+    data = json.loads(lines[-1])
+    assert data["flagged"] == ["cam4"] and len(data["cameras"]) == 8 and data["verdict"] == "camera"
+    assert data["cameras"][4]["correction"]["kind"] == "rotation"
 
 
 def test_without_ground_truth_or_detector_the_check_says_why(tmp_path: Path) -> None:
@@ -145,14 +152,66 @@ def test_without_ground_truth_or_detector_the_check_says_why(tmp_path: Path) -> 
 
 def test_too_few_cameras_or_points() -> None:
     cameras = default_rig(64)
-    with pytest.raises(CheckError, match=r"at least 3 cameras"):
-        check_keypoints(cameras[:2], [np.zeros((2, 21, 2))], [np.ones((2, 21), bool)])
-    points = np.random.default_rng(1).normal(0, 0.05, (21, 3))
-    px, _ = project_points(points, cameras)
-    visible = np.ones((8, 21), bool)
-    visible[7, 3:] = False  # cam7 sees only three keypoints
-    report = check_keypoints(cameras, [px], [visible])
-    assert report.flagged == [] and any("'cam7': only 3 usable keypoints" in n for n in report.notes)
+    with pytest.raises(CheckError, match=r"at least 2, the rig has 1"):
+        check_keypoints(cameras[:1], [np.zeros((1, 21, 2))], [np.ones((1, 21), bool)])
+    rng = np.random.default_rng(1)
+    px = [project_points(_keypoints(rng), cameras)[0] for _ in range(3)]
+    visible = [np.ones((8, 21), bool) for _ in px]
+    for v in visible:
+        v[7, 1:] = False  # cam7 sees one keypoint a frame
+    report = check_keypoints(cameras, px, visible)
+    assert report.flagged == [] and not report.cameras[7].judged
+    assert any("'cam7': not judged, too few keypoints: it shares 3" in n for n in report.notes), report.notes
+    text = format_report(report)
+    assert "nan" not in text.lower() and "cam7" in text and "not judged" in text
+
+
+def test_a_camera_with_one_partner_is_not_judged_for_that_reason() -> None:
+    """cam2 shares keypoints with cam0 only: not enough partners, said so (not 'too few keypoints')."""
+    cameras = default_rig(320)[:4]
+    rng = np.random.default_rng(2)
+    px = [project_points(_keypoints(rng), cameras)[0] for _ in range(3)]
+    visible = [np.ones((4, 21), bool) for _ in px]
+    for v in visible:
+        v[2, :10] = False  # cam2 sees keypoints 10-20 ...
+        v[1, 10:] = v[3, 10:] = False  # ... which cam1 and cam3 do not
+    report = check_keypoints(cameras, px, visible)
+    note = next(n for n in report.notes if "'cam2'" in n)
+    assert "too few partner cameras" in note and "with 1 camera " in note, note
+    assert report.cameras[2].partners == 1 and report.verdict == "consistent"
+
+
+def test_a_disagreeing_pair_with_an_unjudged_camera_blames_nobody() -> None:
+    """cam3 (turned) shares keypoints with cam0 only: their pair disagrees, but cam3 cannot be judged, so cam0 is
+    not blamed for it: the verdict says both explain it."""
+    cameras = default_rig(320)[:4]
+    rng = np.random.default_rng(4)
+    px = [project_points(_keypoints(rng), cameras)[0] for _ in range(FRAMES)]
+    visible = [np.ones((4, 21), bool) for _ in px]
+    for v in visible:
+        v[3, :10] = False
+        v[1, 10:] = v[2, 10:] = False
+    turned = list(cameras)
+    turned[3] = _rotated(cameras[3], 2.0)
+    report = check_keypoints(turned, px, visible)
+    assert report.flagged == [] and report.verdict == "ambiguous" and not report.agrees, report.summary
+    assert "cam3 has too few partner cameras" in report.summary
+
+
+def test_two_cameras_judge_the_pair_only() -> None:
+    cameras = default_rig(320)[:2]
+    rng = np.random.default_rng(3)
+    px = [project_points(_keypoints(rng), cameras)[0] for _ in range(FRAMES)]
+    visible = [np.ones((2, 21), bool) for _ in px]
+    report = check_keypoints(cameras, px, visible)
+    assert report.verdict == "pair-consistent" and report.flagged == [] and report.agrees
+    assert "only the pair" in report.summary
+    turned = [cameras[0], _rotated(cameras[1], 2.0)]
+    report = check_keypoints(turned, px, visible)
+    assert report.verdict == "pair-inconsistent" and report.flagged == [] and not report.agrees
+    assert report.pairs[0].excess_px > report.pairs[0].limit_px
+    text = format_report(report)
+    assert "nan" not in text.lower() and "disagrees" in text
 
 
 def test_pose_chained_to_another_camera_read_as_world_is_flagged(capture: Path) -> None:
@@ -166,65 +225,86 @@ def test_pose_chained_to_another_camera_read_as_world_is_flagged(capture: Path) 
     assert "camera 'cam5'" in report.cameras[5].reason
 
 
-def _install_detector(monkeypatch, detect_frame) -> None:
-    """workers.detector.pipeline replaced, for this test, by a module whose `detect_frame` is the one given
+class ImageDetector:
+    """Stands in for workers.detector.pipeline.detect_image: recognises the view by its flat colour (frame i,
+    camera k) and answers the keypoints of the TRUE rig at the image's size; `calls` records every call."""
+
+    def __init__(self, capture: Path, true_cameras: list[Camera]) -> None:
+        self.frames = list(read_capture(capture).sequences[0].frames)
+        self.true = true_cameras
+        self.calls: list[tuple] = []
+
+    def __call__(self, image, box_px=None, *, handedness="right"):
+        frame, k = int(image[0, 0, 0]), int(image[0, 0, 1])
+        self.calls.append((frame, k, image.shape, handedness))
+        points = load_ground_truth(self.frames[frame]).keypoints_3d
+        px, _ = project_points(points, [self.true[k].scaled(image.shape[1])])
+        return ViewKeypoints(px[0], np.full(21, 0.9), 0.99, handedness, np.zeros(4), 0.0)
+
+
+def _install_detector(monkeypatch, detect_image) -> None:
+    """workers.detector.pipeline replaced, for this test, by a module whose `detect_image` is the one given
     (the check imports it when it runs) and whose detector is always available."""
     fake = types.ModuleType("workers.detector.pipeline")
-    fake.detect_frame = detect_frame
+    fake.detect_image = detect_image
     fake.detector_status = lambda: None
     monkeypatch.setitem(sys.modules, "workers.detector.pipeline", fake)
     monkeypatch.setattr(workers.detector, "pipeline", fake, raising=False)
 
 
 def test_detector_keypoints_go_through_the_same_check(capture: Path, monkeypatch) -> None:
-    """The detector path, with workers.detector.pipeline replaced by one that returns the ground truth's
-    keypoints as its views (the interface of workers/detector/types.py)."""
-    frames = list(read_capture(capture).sequences[0].frames)
-    calls = []
-
-    def detect_frame(images, cameras, masks=None, *, handedness="right"):
-        gt = load_ground_truth(frames[len(calls)])
-        calls.append((len(images), len(cameras), masks, handedness))
-        views = tuple(ViewKeypoints(gt.keypoints_2d[c], np.where(gt.visibility[c], 0.9, 0.1), 0.99, handedness,
-                                    np.zeros(4), 0.0) for c in range(len(cameras)))
-        return LiftedKeypoints(gt.keypoints_3d, np.ones(21), np.ones((21, len(cameras)), bool), np.zeros(21), views)
-
-    _install_detector(monkeypatch, detect_frame)
+    """The detector path: every view detected on its own (no calibration), each once, then the same check."""
+    detector = ImageDetector(capture, default_rig(320))
+    _install_detector(monkeypatch, detector)
     cameras = default_rig(320)
     cameras[2] = _rotated(cameras[2], 2.0)
     _recalibrate(capture, cameras)
     report = check_capture(capture, source="detector")
     assert report.source == "detector" and report.frames == FRAMES and report.flagged == ["cam2"]
-    assert calls[0] == (8, 8, None, "right") and len(calls) == FRAMES
+    assert sorted((f, k) for f, k, _, _ in detector.calls) == [(f, k) for f in range(FRAMES) for k in range(8)]
+    assert all(h == "right" for *_, h in detector.calls)
     assert check_capture(capture).source == "ground-truth"  # auto prefers ground truth
 
 
 def test_the_detector_reads_the_working_width_and_its_keypoints_come_back_in_full_pixels(tmp_path: Path,
                                                                                        monkeypatch) -> None:
-    """A capture with a working width: the detector is given the views at that width with the cameras scaled
-    alike (it answers with the truth projected by the true cameras at that width); the check works in full
-    pixels and still flags a camera 2 degrees off."""
+    """A capture with a working width: the detector is given the views at that width; the check works in full
+    pixels (exactly: the pairs agree to 1e-6 px) and still flags a camera 2 degrees off."""
     full = default_rig(320)
     _write_capture(tmp_path / "cap", full, working_width_px=128)
-    frames = list(read_capture(tmp_path / "cap").sequences[0].frames)
-    seen = []
-
-    def detect_frame(images, cameras, masks=None, *, handedness="right"):
-        gt = load_ground_truth(frames[len(seen)])
-        seen.append(([im.shape for im in images], [(c.width, c.height) for c in cameras]))
-        px, _ = project_points(gt.keypoints_3d, [c.scaled(128) for c in full])  # the true rig, at 128 px
-        views = tuple(ViewKeypoints(px[c], np.full(21, 0.9), 0.99, handedness, np.zeros(4), 0.0)
-                      for c in range(len(cameras)))
-        return LiftedKeypoints(gt.keypoints_3d, np.ones(21), np.ones((21, len(cameras)), bool), np.zeros(21), views)
-
-    _install_detector(monkeypatch, detect_frame)
+    detector = ImageDetector(tmp_path / "cap", full)
+    _install_detector(monkeypatch, detector)
     report = check_capture(tmp_path / "cap", source="detector")
     small = [c.scaled(128) for c in full]
-    assert len(seen) == FRAMES and all(s == ([(c.height, c.width, 3) for c in small],
-                                             [(c.width, c.height) for c in small]) for s in seen)
-    assert report.flagged == [] and max(c.reprojection_px for c in report.cameras) < 1e-6  # full pixels, exactly
+    assert len(detector.calls) == FRAMES * 8
+    assert all(shape == (small[k].height, small[k].width, 3) for _, k, shape, _ in detector.calls)
+    assert report.flagged == [] and max(p.median_px for p in report.pairs) < 1e-6  # full pixels, exactly
     cameras = default_rig(320)
     cameras[6] = _rotated(cameras[6], 2.0)
     _recalibrate(tmp_path / "cap", cameras)
-    seen.clear()
     assert check_capture(tmp_path / "cap", source="detector").flagged == ["cam6"]
+
+
+def test_two_camera_capture_says_so_before_detecting_and_one_camera_is_refused(tmp_path: Path,
+                                                                                monkeypatch) -> None:
+    rig = default_rig(320)[:2]
+    _write_capture(tmp_path / "two", rig)
+    events: list[str] = []
+    detector = ImageDetector(tmp_path / "two", rig)
+
+    def recording(image, box_px=None, *, handedness="right"):
+        events.append("detect")
+        return detector(image, box_px, handedness=handedness)
+
+    _install_detector(monkeypatch, recording)
+    report = check_capture(tmp_path / "two", source="detector", log=events.append)
+    assert "only the pair's agreement can be judged" in events[0] and events[1:] == ["detect"] * (FRAMES * 2)
+    assert report.verdict == "pair-consistent" and report.flagged == []
+    result = CliRunner().invoke(app, ["calibration", "check", str(tmp_path / "two"), "--keypoints", "detector"])
+    assert result.exit_code == 0 and "the pair cam0-cam1 agrees" in result.stdout, result.output
+
+    _write_capture(tmp_path / "one", default_rig(320)[:1])
+    events.clear()
+    result = CliRunner().invoke(app, ["calibration", "check", str(tmp_path / "one"), "--keypoints", "detector"])
+    assert result.exit_code == 2 and "at least 2, the capture has 1" in result.output, result.output
+    assert events == []  # refused before any detection

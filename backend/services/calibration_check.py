@@ -14,7 +14,6 @@ from backend.models.enums import Visibility
 from backend.models.labels import Click, Submission
 from backend.services.errors import ConflictError, NotFoundError
 from workers.geometry.camera import Camera
-from workers.rigs.check import CheckError, check_keypoints
 
 MAX_SUBMISSIONS = 200  # the latest ones: enough for a stable median, bounded work per request
 
@@ -44,6 +43,9 @@ def calibration_check(session: Session, project_id: int, max_submissions: int = 
     keypoints = [frames[s] for s in sorted(frames)]
     visible = [np.isfinite(kp).all(axis=2) for kp in keypoints]
     notes = [] if keypoints else ["no visible clicks yet: the check needs annotated samples"]
+    # deferred: the check's pose fits load cv2 and torch (undistortion), kept out of the API's start-up
+    from workers.rigs.check import CheckError, check_keypoints
+
     try:
         report = check_keypoints(cameras, keypoints, visible, source="clicks", notes=notes)
     except CheckError as exc:  # the project's rig or clicks cannot be checked (yet): its state, not the request

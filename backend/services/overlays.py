@@ -148,6 +148,7 @@ def hidden_keypoints(fit: Fit, cameras: list[ViewCamera], mano_path: Path | None
 def mesh_hidden(arrays: Any, params: Any, keypoints_m: Any, cameras: list[ViewCamera]) -> dict[str, list[bool]]:
     """View id -> (21,) whether the hand posed by `params` (61,) hides each keypoint (21, 3) metres, world frame,
     from that camera; ValueError for parameters that cannot be posed."""
+    # deferred: the occlusion test and the skin tolerance load torch and cv2, kept out of the API's start-up
     from workers.rendering.occlusion import hidden_by_mesh
     from workers.synth.visibility import skin_depth_tolerance_m
 

@@ -1,6 +1,6 @@
-// The calibration check on the admin page (issue 18): per camera, how well the annotators' visible clicks
-// agree with the project's calibration (epipolar distance to the other views, reprojection of the triangulated
-// points), and a flag on a camera that disagrees with the others (a swapped name, a stale extrinsic).
+// The calibration check on the admin page (issues 18, 36): per camera, how well the annotators' visible clicks
+// agree with the project's calibration (epipolar distance to the other views, and the excess over the best pose),
+// the verdict (which camera, turned, moved or swapped names) and the rig's scale judged by the hand's size.
 // GET /api/admin/projects/{id}/calibration-check; `handloop calibration check CAPTURE` prints the same figures.
 // Kept out of admin.js: `withCalibrationCheck` adds this section to the admin page that admin.js mounts.
 import { fmt, h, fill } from "./dom.js";
@@ -30,7 +30,7 @@ export class CalibrationCheck {
     fill(this.select, projects.map((p) => h("option", { value: String(p.project_id) }, p.name)));
     fill(this.section, h("h2", {}, "Calibration check"),
       h("p", { class: "muted" }, "From the annotators' visible clicks: per camera the median distance to the " +
-        "epipolar lines of the other views and the reprojection error of the triangulated points, in pixels."),
+        "epipolar lines of the other views, and how much of it a better pose of the camera would remove, in pixels."),
       h("form", { class: "inline-form", onsubmit: (e) => { e.preventDefault(); this.run(); } },
         this.select, h("button", { type: "submit", disabled: !projects.length }, "Check calibration")),
       projects.length ? this.result : h("p", { class: "muted" }, "no project imported yet"));
@@ -53,18 +53,24 @@ export class CalibrationCheck {
 
 export function renderReport(report) {
   const flagged = new Set(report.flagged);
-  const verdict = flagged.size
-    ? h("p", { class: "callout warn", "data-verdict": "flagged" }, `flagged: ${report.flagged.join(", ")}`)
-    : h("p", { "data-verdict": "ok" }, report.frames ? "no camera disagrees with the others" : "nothing to check yet");
+  const agrees = ["consistent", "pair-consistent", "not-judged"].includes(report.verdict);
+  const verdict = h("p", agrees ? { "data-verdict": flagged.size ? "flagged" : "ok" }
+    : { class: "callout warn", "data-verdict": flagged.size ? "flagged" : report.verdict },
+  report.frames ? `${flagged.size ? `flagged: ${report.flagged.join(", ")}. ` : ""}${report.summary || ""}`
+    : "nothing to check yet");
+  const scale = report.hand_scale;
+  const scaleLine = scale ? h("p", { class: scale.scale_wrong ? "callout warn" : "muted",
+    "data-scale": scale.verdict }, scale.message) : null;
   const rows = report.cameras.map((c) => h("tr", { "data-camera": c.name, class: flagged.has(c.name) ? "bad" : "" },
     h("td", {}, c.name), h("td", { class: "num" }, fmt(c.epipolar_px)), h("td", { class: "num" }, fmt(c.threshold_px)),
-    h("td", { class: "num" }, fmt(c.reprojection_px)), h("td", { class: "num" }, String(c.points)),
-    h("td", {}, flagged.has(c.name) ? "FLAGGED" : "ok")));
+    h("td", { class: "num" }, fmt(c.excess_px)), h("td", { class: "num" }, String(c.points)),
+    h("td", {}, flagged.has(c.name) ? "FLAGGED" : c.judged ? "ok" : "not judged")));
   return [
     h("p", { class: "muted" }, `${report.frames} annotated samples (${report.source})`),
     verdict,
+    scaleLine,
     report.cameras.length ? h("table", { class: "table" },
-      h("thead", {}, h("tr", {}, ["camera", "epipolar px", "limit px", "reprojection px", "points", "verdict"]
+      h("thead", {}, h("tr", {}, ["camera", "epipolar px", "limit px", "excess px", "points", "verdict"]
         .map((t, i) => h("th", { class: i >= 1 && i <= 4 ? "num" : "" }, t)))),
       h("tbody", {}, rows)) : null,
     report.cameras.filter((c) => c.flagged && c.reason).map((c) => h("p", { class: "error" }, c.reason)),

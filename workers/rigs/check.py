@@ -27,7 +27,10 @@ from typing import Any
 import numpy as np
 
 from workers.geometry.camera import Camera
-from workers.rigs.epipolar import corrected, distances, fit_correction, fundamental, refit_pair, trimmed_rms
+from workers.geometry.epipolar import fundamental_matrix, signed_symmetric_distances
+from workers.handmodel.keypoints import NUM_KEYPOINTS
+from workers.rigs.epipolar import corrected, fit_correction, refit_pair, trimmed_rms
+from workers.rigs.hand_scale import HandScale, estimate_hand_scale, triangulate_keypoints
 
 FLOOR_FRACTION = 0.003  # an excess below this fraction of the image width (4 px at 1280 px) is never a finding
 FLOOR_MIN_PX = 2.0
@@ -94,15 +97,21 @@ class CheckReport:
     verdict: str = "not-judged"
     summary: str = ""
     notes: list[str] = field(default_factory=list)
+    hand_scale: HandScale | None = None  # the rig's scale judged by the triangulated hand's size (21 keypoints)
 
     @property
     def flagged(self) -> list[str]:
         return [c.name for c in self.cameras if c.flagged]
 
     @property
+    def scale_wrong(self) -> bool:
+        """True when the triangulated hand is of no human size: the calibration's length unit is wrong."""
+        return self.hand_scale is not None and self.hand_scale.verdict in ("too large", "too small")
+
+    @property
     def agrees(self) -> bool:
-        """True when the calibration agrees with the keypoints (or nothing could be judged)."""
-        return self.verdict in ("consistent", "pair-consistent", "not-judged")
+        """True when the calibration agrees with the keypoints (or nothing could be judged) and its scale does."""
+        return self.verdict in ("consistent", "pair-consistent", "not-judged") and not self.scale_wrong
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON types; figures that could not be computed (NaN) are None."""
@@ -120,6 +129,9 @@ class CheckReport:
         return clean({"source": self.source, "frames": self.frames, "verdict": self.verdict,
                       "summary": self.summary, "flagged": self.flagged,
                       "cameras": [asdict(c) for c in self.cameras], "pairs": [asdict(p) for p in self.pairs],
+                      "hand_scale": None if self.hand_scale is None else {
+                          **asdict(self.hand_scale), "scale_wrong": self.scale_wrong,
+                          "message": self.hand_scale.message()},
                       "notes": list(self.notes)})
 
 
@@ -164,7 +176,7 @@ def _undistorted(keypoints_px: list[np.ndarray], visible: list[np.ndarray], came
 
 
 def _pair_distances(cameras: list[Camera], pair: _Pair) -> np.ndarray:
-    return distances(fundamental(cameras[pair.a], cameras[pair.b]), pair.xa, pair.xb)
+    return signed_symmetric_distances(fundamental_matrix(cameras[pair.a], cameras[pair.b]), pair.xa, pair.xb)
 
 
 def check_keypoints(cameras: list[Camera], keypoints_px: list[np.ndarray], visible: list[np.ndarray], *,
@@ -195,7 +207,7 @@ def check_keypoints(cameras: list[Camera], keypoints_px: list[np.ndarray], visib
         both = ok[a] & ok[b]
         n = int(both.sum())
         xa, xb = U[a, both], U[b, both]
-        d = np.abs(distances(fundamental(cameras[a], cameras[b]), xa, xb)) if n else np.zeros(0)
+        d = np.abs(signed_symmetric_distances(fundamental_matrix(cameras[a], cameras[b]), xa, xb)) if n else np.zeros(0)
         median, p90 = (float(np.median(d)), float(np.quantile(d, 0.9))) if n else (float("nan"), float("nan"))
         if n < MIN_PAIR_POINTS:
             figures.append(PairFigure(cameras[a].name, cameras[b].name, median, p90, n, float("nan"), float("nan"),
@@ -221,10 +233,21 @@ def check_keypoints(cameras: list[Camera], keypoints_px: list[np.ndarray], visib
     medians = {key: by_key[(cameras[key[0]].name, cameras[key[1]].name)].median_px for key in pairs}
     bad_pairs = {key for key in pairs if not by_key[(cameras[key[0]].name, cameras[key[1]].name)].consistent}
     shared = [int((ok[c] & (ok.sum(axis=0) >= 2)).sum()) for c in range(C)]
-    report = CheckReport(source=source, frames=len(keypoints_px), cameras=[], pairs=figures, notes=notes)
+    report = CheckReport(source=source, frames=len(keypoints_px), cameras=[], pairs=figures, notes=notes,
+                         hand_scale=_hand_scale(cameras, keypoints_px, visible))
     if C == 2:
         return _judge_pair(report, cameras, pairs, shared)
     return _judge_rig(report, cameras, pairs, bad_pairs, medians, shared, floors)
+
+
+def _hand_scale(cameras: list[Camera], keypoints_px: list[np.ndarray], visible: list[np.ndarray]) -> HandScale | None:
+    """The hand's size as the calibration triangulates it (plain DLT of the visible keypoints, no metric threshold),
+    judged against adult hands; None when the keypoints are not a hand's 21."""
+    if not keypoints_px or np.shape(keypoints_px[0])[1:] != (NUM_KEYPOINTS, 2):
+        return None
+    pixels = np.stack([np.where(np.asarray(vis, bool)[..., None], np.asarray(kp, np.float64), np.nan)
+                       for kp, vis in zip(keypoints_px, visible, strict=True)], axis=1)  # (C, N, 21, 2)
+    return estimate_hand_scale(triangulate_keypoints(pixels, cameras))
 
 
 def _judge_pair(report: CheckReport, cameras: list[Camera], pairs: dict[tuple[int, int], _Pair],
@@ -390,7 +413,7 @@ def _diagnose(c: int, cameras: list[Camera], pairs: dict[tuple[int, int], _Pair]
     fits = {"rotation": fit_correction(cameras[c], others, x_self, x_other, "rotation"),
             "translation": fit_correction(cameras[c], others, x_self, x_other, "translation")}
     scores = {kind: score(after) for kind, (_, after) in fits.items()}
-    pose_after = [distances(fundamental(corrected(cameras[c], pose, "pose"), o), xs, xo)
+    pose_after = [signed_symmetric_distances(fundamental_matrix(corrected(cameras[c], pose, "pose"), o), xs, xo)
                   for o, xs, xo in zip(others, x_self, x_other, strict=True)]
     degrees = float(np.rad2deg(np.linalg.norm(fits["rotation"][0])))
     shift = float(np.linalg.norm(fits["translation"][0]))
@@ -439,7 +462,7 @@ def _swap_test(cameras: list[Camera], pairs: dict[tuple[int, int], _Pair], bad_p
             xb = undistort_pixels(pair.raw_b, trial[pair.b]) if pair.b in (i, j) else pair.xb
             best = trimmed_rms(refit_pair(trial[pair.a], trial[pair.b], xa, xb))
             limit = max(floors[pair.a], floors[pair.b], best * np.sqrt(PAIR_RATIO ** 2 - 1))
-            d = distances(fundamental(trial[pair.a], trial[pair.b]), xa, xb)
+            d = signed_symmetric_distances(fundamental_matrix(trial[pair.a], trial[pair.b]), xa, xb)
             if np.sqrt(max(0.0, trimmed_rms(d) ** 2 - best ** 2)) > limit:
                 agree = False
                 break
@@ -580,4 +603,6 @@ def format_report(report: CheckReport) -> str:
     lines += [""] + [f"note: {n}" for n in report.notes]
     lines += [c.reason for c in report.cameras if c.flagged and c.reason != report.summary]
     lines.append(report.summary)
+    if report.hand_scale is not None:
+        lines.append(("SCALE: " if report.scale_wrong else "scale: ") + report.hand_scale.message())
     return "\n".join(lines)

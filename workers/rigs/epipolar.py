@@ -1,4 +1,5 @@
-"""Two-view epipolar geometry for the calibration check (workers/rigs/check.py).
+"""Two-view epipolar fits for the calibration check (workers/rigs/check.py); F and the distances themselves are
+workers/geometry/epipolar.py's.
 
 All pixels here are undistorted ("ideal") pixels of each camera's own K; x_b^T F x_a = 0 for a point seen as x_a by
 camera a and x_b by camera b. Distances are signed symmetric epipolar distances: the mean of x_b's distance to the
@@ -14,32 +15,11 @@ import cv2
 import numpy as np
 
 from workers.geometry.camera import Camera
+from workers.geometry.epipolar import fundamental_from_poses, signed_symmetric_distances
 
 # Robust weights (Cauchy) use this multiple of the residuals' robust spread (1.4826 MAD) as their scale.
 CAUCHY_SCALE = 2.4
 TRIM_KEEP = 0.8  # the figures judged leave out the largest 20 % of distances (detector outliers, wrong views)
-
-
-def _essential_to_f(Ka_inv: np.ndarray, Ra: np.ndarray, ta: np.ndarray, Kb_inv: np.ndarray, Rb: np.ndarray,
-                    tb: np.ndarray) -> np.ndarray:
-    R = Rb @ Ra.T
-    t = tb - R @ ta
-    tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
-    return Kb_inv.T @ tx @ R @ Ka_inv
-
-
-def fundamental(a: Camera, b: Camera) -> np.ndarray:
-    """(3, 3) F of the calibration: x_b^T F x_a = 0 for undistorted pixels of cameras a and b."""
-    return _essential_to_f(np.linalg.inv(a.K), a.R, a.t, np.linalg.inv(b.K), b.R, b.t)
-
-
-def distances(F: np.ndarray, xa: np.ndarray, xb: np.ndarray) -> np.ndarray:
-    """(N,) signed symmetric epipolar distance, pixels, of N correspondences xa, xb (N, 2)."""
-    line_b = xa @ F[:, :2].T + F[:, 2]  # the lines in b of xa, (N, 3)
-    line_a = xb @ F[:2, :] + F[2, :]  # the lines in a of xb
-    e = line_b[:, 0] * xb[:, 0] + line_b[:, 1] * xb[:, 1] + line_b[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return 0.5 * e * (1 / np.hypot(line_b[:, 0], line_b[:, 1]) + 1 / np.hypot(line_a[:, 0], line_a[:, 1]))
 
 
 def stacked_distances(Fs: np.ndarray, which: np.ndarray, xa: np.ndarray, xb: np.ndarray) -> np.ndarray:
@@ -113,7 +93,7 @@ def refit_pair(a: Camera, b: Camera, xa: np.ndarray, xb: np.ndarray) -> np.ndarr
         moved = t + p[3:] @ tangent
         moved = moved / np.linalg.norm(moved)
         tx = np.array([[0, -moved[2], moved[1]], [moved[2], 0, -moved[0]], [-moved[1], moved[0], 0]])
-        return distances(Kb_t @ tx @ _rotation(p[:3]) @ R @ Ka, xa, xb)
+        return signed_symmetric_distances(Kb_t @ tx @ _rotation(p[:3]) @ R @ Ka, xa, xb)
 
     if len(xa) < 8:
         return residuals(np.zeros(5))
@@ -156,8 +136,8 @@ def fit_correction(camera: Camera, partners: Sequence[Camera], x_self: Sequence[
         shift = params[3:] if kind == "pose" else params if kind == "translation" else np.zeros(3)
         R = _rotation(rvec) @ camera.R
         t = -R @ (center + shift)
-        return stacked_distances(np.stack([_essential_to_f(K_inv, R, t, *other) for other in others]), which, x_a,
-                                 x_b)
+        Fs = np.stack([fundamental_from_poses(K_inv, R, t, *other) for other in others])
+        return stacked_distances(Fs, which, x_a, x_b)
 
     params, d = robust_fit(residuals, n_params)
     return params, np.split(d, sizes)

@@ -37,6 +37,10 @@ ADULT_HAND_LENGTH_M = (0.165, 0.210)
 # (a hand 125..280 mm long). A wrong unit is off by 2.5x (inches), 10x, 100x or more.
 PLAUSIBLE_FACTOR = (REFERENCE_HAND_LENGTH_M / 0.280, REFERENCE_HAND_LENGTH_M / 0.125)
 MIN_BONES = 5  # bones measured in at least one frame, for a verdict
+# Keypoints whose bones disagree more than this (interquartile range of the per-bone factors over their median) are
+# no hand's: detector hands measured 0.14-0.39 a frame (0.24 over 12 frames of the real recording), random 21-point
+# clouds 0.61-1.8. No verdict on the scale is given from them.
+MAX_SPREAD = 0.55
 
 
 @dataclass(frozen=True)
@@ -47,7 +51,8 @@ class HandScale:
         factor: multiply the calibration's lengths by this to make the hand adult-sized (NaN: too few bones).
         hand_length: the hand's wrist -> middle fingertip length in the points' unit (REFERENCE_HAND_LENGTH_M /
             factor; NaN when unknown).
-        verdict: "plausible", "too large", "too small" or "unknown" (fewer than MIN_BONES bones measured).
+        verdict: "plausible", "too large", "too small" or "unknown" (fewer than MIN_BONES bones measured, or bones
+            that disagree more than MAX_SPREAD: not a hand's proportions).
         bones: bones measured in at least one frame.
         frames: frames with at least one bone measured.
         spread: the per-bone factors' interquartile range over their median (0 for a perfectly proportioned hand).
@@ -66,6 +71,9 @@ class HandScale:
 
     def message(self, unit: str = "m") -> str:
         """One sentence for people; `unit` names the points' length unit ("m" for handloop cameras)."""
+        if self.verdict == "unknown" and self.bones >= MIN_BONES:
+            return (f"the hand's size cannot be judged: its bones disagree (spread {self.spread:.2f}, a hand's is at "
+                    f"most {MAX_SPREAD}): the keypoints do not have a hand's proportions")
         if self.verdict == "unknown":
             return (f"the hand's size cannot be judged: {self.bones} of {len(SKELETON_EDGES)} bones measured "
                     f"(at least {MIN_BONES} needed)")
@@ -114,9 +122,10 @@ def estimate_hand_scale(points_3d: np.ndarray) -> HandScale:
     per_bone = np.nanmedian(log_ratio[:, measured], axis=0)
     factor = float(np.exp(np.median(per_bone)))
     q1, q3 = np.exp(np.percentile(per_bone, [25, 75]))
-    verdict = ("too large" if factor < PLAUSIBLE_FACTOR[0] else "too small" if factor > PLAUSIBLE_FACTOR[1]
-               else "plausible")
-    return HandScale(factor, REFERENCE_HAND_LENGTH_M / factor, verdict, bones, frames, float((q3 - q1) / factor))
+    spread = float((q3 - q1) / factor)
+    verdict = ("unknown" if spread > MAX_SPREAD else "too large" if factor < PLAUSIBLE_FACTOR[0]
+               else "too small" if factor > PLAUSIBLE_FACTOR[1] else "plausible")
+    return HandScale(factor, REFERENCE_HAND_LENGTH_M / factor, verdict, bones, frames, spread)
 
 
 def triangulate_keypoints(pixels: np.ndarray, cameras: list[Camera]) -> np.ndarray:

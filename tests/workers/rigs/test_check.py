@@ -16,6 +16,7 @@ from typer.testing import CliRunner
 
 import workers.detector
 from backend.cli.main import app
+from tests.support.hand_views import hand_track
 from workers.capture import (
     GroundTruth,
     HandModelInfo,
@@ -36,8 +37,9 @@ FRAMES = 6
 
 
 def _keypoints(rng: np.random.Generator) -> np.ndarray:
-    """(21, 3) a hand-sized cloud near the rig centre, metres."""
-    return rng.normal(0.0, 0.04, 3) + rng.normal(0.0, 0.05, (21, 3))
+    """(21, 3) an adult-sized hand, turned at random, near the rig centre, metres (the check also judges the rig's
+    scale by the hand's size)."""
+    return hand_track(rng, frames=1, reach_m=0.1)[0]
 
 
 def _write_capture(root: Path, cameras: list[Camera], seed: int = 0, working_width_px: int | None = None
@@ -85,6 +87,24 @@ def test_true_calibration_flags_nothing(capture: Path) -> None:
     assert report.flagged == [] and report.verdict == "consistent" and report.agrees
     assert all(c.epipolar_px < 0.01 and c.judged and c.partners == 7 for c in report.cameras)
     assert all(p.median_px < 0.01 and p.consistent for p in report.pairs) and len(report.pairs) == 28
+
+
+@pytest.mark.parametrize("unit", [20.0, 0.01])
+def test_a_wrong_unit_is_flagged_with_the_factor_that_makes_the_hand_adult(capture: Path, unit: float) -> None:
+    """Board squares read as metres (x20) or metres read as centimetres (x0.01): every pixel check still agrees (the
+    geometry is the same up to scale), but the triangulated hand is of no human size: the report says so, with the
+    factor, and the command would exit 1."""
+    cameras = read_capture(capture).cameras
+    _recalibrate(capture, [replace(c, t=c.t * unit) for c in cameras])
+    report = check_capture(capture)
+    assert report.verdict == "consistent" and report.scale_wrong and not report.agrees
+    assert report.hand_scale.factor == pytest.approx(1 / unit, rel=0.15)
+    assert report.hand_scale.verdict == ("too large" if unit > 1 else "too small")
+    record = report.to_dict()
+    assert record["hand_scale"]["scale_wrong"] is True and "looks wrong" in record["hand_scale"]["message"]
+    assert "SCALE: " in format_report(report)
+    _recalibrate(capture, list(cameras))
+    assert not check_capture(capture).scale_wrong
 
 
 @pytest.mark.parametrize("bad", [0, 3, 6])

@@ -67,6 +67,17 @@ def test_too_few_bones_give_no_verdict() -> None:
         estimate_hand_scale(np.zeros((21, 3)))
 
 
+@pytest.mark.parametrize("scale", [1.0, 20.0])
+def test_points_without_a_hands_proportions_give_no_verdict(scale: float) -> None:
+    """21 random points (no hand: a check run on made-up keypoints, a detector match gone wrong) are judged neither
+    right nor wrong in size, at any scale, and the message says why."""
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        size = estimate_hand_scale(scale * rng.normal(0.0, 0.05, (1, 21, 3)))  # one frame: spread 0.57-1.8 here
+        assert size.verdict == "unknown" and size.spread > 0.55, size
+    assert "do not have a hand's proportions" in size.message()
+
+
 @pytest.mark.parametrize("unit_scale", [1.0, 20.0, 0.01])
 def test_plain_dlt_works_in_the_rigs_own_unit(unit_scale: float) -> None:
     """The same pixels triangulated with a rig whose lengths are `unit_scale` times too large give a hand

@@ -7,7 +7,7 @@ import { epipolarCurve, projectPoint } from "./geometry.js";
 import { marker, segment } from "./draw.js";
 import { History } from "./history.js";
 import { DraftSaver } from "./drafts.js";
-import { decodeMask, loadView } from "./images.js";
+import { decodeMask, loadFullImage, loadView, needsFullImage } from "./images.js";
 import { colorOf, SPARSE, SPARSE_LABELS } from "./keypoints.js";
 import { LeaseKeeper } from "./lease.js";
 import { MaskLayer, MaskOverlay, StrokeRecorder, unionRect } from "./mask.js";
@@ -20,6 +20,11 @@ const LOUPE_OFFSET = 80; // its centre from the cursor, screen px (up and right,
 const LOUPE_ZOOM = 4; // times the view's zoom ...
 const LOUPE_MAX_PX = 24; // ... up to this many screen px per image pixel
 const DRAG_PX = 3; // movement below this is a click, not a drag
+// A view opens on the hand with the working copy's pixels at most this many screen px wide (more is visibly
+// blocky; zooming in further loads the full-resolution pixels), unless the whole image already shows larger.
+const OPEN_MAX_PX = 2;
+const MIN_CONF = 0.3; // a source's points below this confidence are not offered (annotation.js proposals())
+const ALTERNATE_PX = 2; // a detector point this close to the proposal shown is not drawn again
 const SOURCE_LETTER = { triangulated: "T", fit: "F", mvnet: "M", detector: "D" };
 // Enter accepts only proposals at least this confident; the others are ringed orange for a look (A takes
 // one anyway). A fit's projection has no confidence: it is always left for a look.
@@ -287,6 +292,28 @@ class AnnotatePage {
 
   updateProposals() {
     this.proposals = computeProposals(this.annotation, this.cameras, this.sources);
+    this.alternates = this.detectorAlternates();
+  }
+
+  // The detector's own points where another proposal (the fit made from them) is offered instead and lies
+  // more than ALTERNATE_PX away: drawn as a D ring beside it, so the annotator sees where the two disagree
+  // (click it to take the detector's point). view id -> keypoint -> proposal.
+  detectorAlternates() {
+    const out = new Map(this.annotation.viewIds.map((v) => [v, new Map()]));
+    const detector = (this.sources || []).find((s) => s.kind === "detector");
+    if (!detector) return out;
+    for (const viewId of this.annotation.viewIds) {
+      const cam = this.cameras.get(viewId);
+      const points = detector.views[String(viewId)] || [];
+      for (const [k, chosen] of this.proposals.get(viewId)) {
+        const p = points[k];
+        const confidence = detector.confidences ? detector.confidences[k] : null;
+        if (chosen.source === "detector" || !inside(p, cam) || (confidence !== null && confidence < MIN_CONF)) continue;
+        if (Math.hypot(p[0] - chosen.x, p[1] - chosen.y) <= ALTERNATE_PX) continue;
+        out.get(viewId).set(k, { x: p[0], y: p[1], source: "detector", confidence });
+      }
+    }
+    return out;
   }
 
   advance() {
@@ -308,8 +335,8 @@ class AnnotatePage {
     this.renderSide();
   }
 
-  acceptProposal(keypoint, { advance = true } = {}) {
-    const p = this.proposals.get(this.view.id).get(keypoint);
+  acceptProposal(keypoint, { advance = true, alternate = false } = {}) {
+    const p = (alternate ? this.alternates : this.proposals).get(this.view.id).get(keypoint);
     if (!p) return false;
     this.setClick(this.view.id, keypoint, { x: p.x, y: p.y, visibility: "visible", from: p.source,
       confidence: p.confidence }, "accept");
@@ -517,6 +544,7 @@ class AnnotatePage {
     };
     for (const [k, c] of this.annotation.clicks.get(this.view.id)) consider(k, c.x, c.y, "click");
     for (const [k, p] of this.proposals.get(this.view.id)) consider(k, p.x, p.y, "proposal");
+    for (const [k, p] of this.alternates.get(this.view.id)) consider(k, p.x, p.y, "alternate");
     return best;
   }
 
@@ -635,13 +663,13 @@ class AnnotatePage {
         const existing = this.annotation.get(this.view.id, d.keypoint);
         const visibility = existing && existing.visibility === "occluded" ? "occluded" : "visible";
         this.setClick(this.view.id, d.keypoint, { x: d.u, y: d.v, visibility }, "drag");
-        if (d.from === "proposal") this.advance();
+        if (d.from !== "click") this.advance();
       } else if (d.keypoint !== this.keypoint && currentUnset) {
         this.setClick(this.view.id, this.keypoint, { x: d.pressU, y: d.pressV, visibility: "visible" }, "click");
         this.advance();
-      } else if (d.from === "proposal") {
+      } else if (d.from === "proposal" || d.from === "alternate") {
         this.keypoint = d.keypoint;
-        this.acceptProposal(d.keypoint);
+        this.acceptProposal(d.keypoint, { alternate: d.from === "alternate" });
       } else {
         this.keypoint = d.keypoint;
         this.renderSide();
@@ -788,16 +816,39 @@ class AnnotatePage {
   fitView({ whole = false } = {}) {
     if (!this.task) return;
     const { width, height } = fitCanvas(this.canvas);
-    const box = whole ? null : this.handBox(this.view);
-    if (box) this.vp.fitRect(...box, width, height, 8);
-    else this.vp.fit(this.view.width, this.view.height, width, height);
-    this.vp.minScale = Math.min(this.vp.minScale, Math.min(width / this.view.width, height / this.view.height) / 2);
+    const view = this.view;
+    const box = whole ? null : this.handBox(view);
+    const wholeScale = Math.min((width - 16) / view.width, (height - 16) / view.height);
+    if (box) {
+      this.vp.fitRect(...box, width, height, 8);
+      // No closer than OPEN_MAX_PX screen px per working-copy pixel (unless the whole image shows larger):
+      // zoomed further, a 640 px copy opened at 483 % looked blocky. The hand stays centred.
+      const copyWidth = view.image ? view.image.width : view.width;
+      const most = Math.max(OPEN_MAX_PX * copyWidth / view.width, 1.25 * wholeScale);
+      if (this.vp.scale > most) {
+        const cx = (box[0] + box[2]) / 2, cy = (box[1] + box[3]) / 2;
+        this.vp.scale = most;
+        this.vp.ox = width / 2 - (cx + 0.5) * most;
+        this.vp.oy = height / 2 - (cy + 0.5) * most;
+        this.vp.minScale = most / 8;
+      }
+    } else {
+      this.vp.fit(view.width, view.height, width, height);
+    }
+    this.vp.minScale = Math.min(this.vp.minScale, Math.min(width / view.width, height / view.height) / 2);
   }
 
   // The image rectangle [x0, y0, x1, y1] around the hand in a view, with a margin; null if nothing shows it.
   handBox(view, margin = 0.35, minFraction = 0.2) {
     const xs = [], ys = [];
-    const add = (x, y) => { if (Number.isFinite(x) && Number.isFinite(y)) { xs.push(x); ys.push(y); } };
+    // Only points inside the image: a source's projection off the image once opened a view on a strip of arm
+    // at its edge.
+    const add = (x, y) => {
+      if (Number.isFinite(x) && Number.isFinite(y) && x >= 0 && y >= 0 && x <= view.width && y <= view.height) {
+        xs.push(x);
+        ys.push(y);
+      }
+    };
     for (const c of this.annotation.clicks.get(view.id).values()) add(c.x, c.y);
     for (const p of (this.proposals ? this.proposals.get(view.id) : new Map()).values()) add(p.x, p.y);
     for (const source of this.sources || []) for (const p of source.views[String(view.id)] || []) if (p) add(p[0], p[1]);
@@ -812,7 +863,8 @@ class AnnotatePage {
     const [x0, y0, x1, y1] = box;
     const w = Math.max((x1 - x0) * (1 + 2 * margin), view.width * minFraction);
     const hh = Math.max((y1 - y0) * (1 + 2 * margin), view.height * minFraction);
-    const cx = (x0 + x1) / 2, cy = (y0 + y1) / 2;
+    // Centred on the hand but kept inside the image where it fits (no blank beyond the image's edge).
+    const cx = clampCentre((x0 + x1) / 2, w, view.width), cy = clampCentre((y0 + y1) / 2, hh, view.height);
     return [cx - w / 2, cy - hh / 2, cx + w / 2, cy + hh / 2];
   }
 
@@ -912,7 +964,8 @@ class AnnotatePage {
     ctx.fillRect(0, 0, width, height);
     this.vp.apply(ctx, dpr);
     ctx.imageSmoothingEnabled = this.vp.scale < 3;
-    if (view.image) ctx.drawImage(view.image, 0, 0, view.width, view.height);  // a working-width copy: full-resolution units
+    const image = this.pixelsOf(view, dpr);
+    if (image) ctx.drawImage(image, 0, 0, view.width, view.height);  // a working-width copy: full-resolution units
     // Points mode shows the mask's outline only, so the skin under it stays visible.
     if (this.showMask && view.overlay) ctx.drawImage(this.mode === "points" ? view.overlay.outline() : view.overlay.canvas, 0, 0);
     ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
@@ -954,6 +1007,21 @@ class AnnotatePage {
         ` · O/N: ${labelFor(target.keypoint)}${target.justPlaced ? " (just placed)" : ""}`);
   }
 
+  // The pixels to draw a view with: its working-width copy, or once zoomed past that copy's own pixels, the
+  // full-resolution original (loaded the first time it is needed, then kept for the view).
+  pixelsOf(view, dpr) {
+    if (!view.fullImage && !view.fullLoading && needsFullImage(view, this.vp.scale, dpr)) {
+      const task = this.task;
+      view.fullLoading = loadFullImage(this.api, view).then((bitmap) => {
+        view.fullImage = bitmap;
+        if (this.task === task && this.view === view) this.requestRender();
+      }).catch((error) => {
+        toast(`full-resolution ${view.camera} did not load: ${error.message}`, "warn", 4000);
+      });
+    }
+    return view.fullImage || view.image;
+  }
+
   // The magnifier: up to LOUPE_ZOOM times the view's zoom around the cursor, in a circle beside it (clear of
   // the finger that points), with a crosshair on the pixel a click would place.
   loupeGeometry(point = this.hover) {
@@ -979,7 +1047,7 @@ class AnnotatePage {
     // Image point (u, v) at the loupe's centre: screen = (px + 0.5) * scale + o.
     ctx.setTransform(scale * dpr, 0, 0, scale * dpr, (g.cx - (u + 0.5) * scale) * dpr, (g.cy - (v + 0.5) * scale) * dpr);
     ctx.imageSmoothingEnabled = false;
-    ctx.drawImage(view.image, 0, 0, view.width, view.height);
+    ctx.drawImage(view.fullImage || view.image, 0, 0, view.width, view.height);
     if (this.showMask && view.overlay) ctx.drawImage(view.overlay.outline(), 0, 0);
     ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
     ctx.strokeStyle = "rgba(255, 255, 255, 0.9)";
@@ -1040,6 +1108,11 @@ class AnnotatePage {
         const c = clicks.get(k);
         if (c && c.x !== null) segment(ctx, vp.toScreen(...pos(0, wrist)), vp.toScreen(...pos(k, c)), colorOf(k), 1, [4, 4]);
       }
+    }
+    for (const [k, p] of this.alternates.get(view.id)) {
+      if (drag && drag.keypoint === k) continue;
+      const [x, y] = vp.toScreen(p.x, p.y);
+      marker(ctx, x, y, k, { style: "alternate", r, label: labels ? proposalLabel(p) : null });
     }
     for (const [k, p] of this.proposals.get(view.id)) {
       if (drag && drag.keypoint === k) continue;
@@ -1107,7 +1180,9 @@ class AnnotatePage {
     const rows = SPARSE.map((k, i) => {
       const status = this.annotation.status(view.id, k);
       const p = props.get(k);
-      const text = status === "unset" ? (p ? `proposal ${proposalLabel(p)}${confident(p) ? "" : " · look"}` : "–")
+      const alt = this.alternates.get(view.id).get(k);
+      const text = status === "unset" ? (p ? `proposal ${proposalLabel(p)}${confident(p) ? "" : " · look"}` +
+        (alt ? ` · ${proposalLabel(alt)} ${fmt(Math.hypot(alt.x - p.x, alt.y - p.y), 0, " px")} away` : "") : "–")
         : status.replace("_", " ") + (this.annotation.get(view.id, k).from ? " (accepted)" : "");
       return h("li", { class: `kp-row${k === this.keypoint ? " current" : ""} status-${status}`,
         onclick: () => this.pick(k) },
@@ -1156,6 +1231,12 @@ class AnnotatePage {
     );
     this.renderClock();
   }
+}
+
+// The centre of a span `size` wide about `c`, moved so the span lies within [0, limit] when it fits.
+function clampCentre(c, size, limit) {
+  if (size >= limit) return limit / 2;
+  return Math.min(Math.max(c, size / 2), limit - size / 2);
 }
 
 function labelFor(keypoint) {

@@ -45,7 +45,8 @@ const HELP = [
   ["+ / - / 0", "zoom in / out at the centre / fit the hand (again: the whole image); each view keeps its zoom"],
   ["H", "hide / show the mask"],
   ["Ctrl+Z / Ctrl+Shift+Z / Ctrl+Y", "undo / redo / redo"],
-  ["Ctrl+Enter", "submit and show the next task"],
+  ["X", "no hand in this view: every point here not annotated (again: undo the mark)"],
+  ["Ctrl+Enter", "submit and show the next task (asks first when points are not set; again: submit as is)"],
   ["Esc", "cancel a drag, give the keys back to the view (from any button)"],
   ["?", "open / close this list"],
 ];
@@ -81,6 +82,8 @@ class AnnotatePage {
     this.keys = new Set();
     this.zooms = new Map(); // "sample/view" -> {scale, ox, oy, minScale}: each view keeps its zoom and pan
     this.metrics = { shown: [] };
+    this.failedFits = []; // the fits that failed on this person's submissions (GET /api/annotate/fit-failures)
+    this.noHand = new Set();
     this.build();
     this.onKey = (e) => this.keydown(e);
     this.onKeyUp = (e) => this.keys.delete(e.code);
@@ -96,9 +99,12 @@ class AnnotatePage {
     this.thumbs = h("div", { class: "thumbs", "aria-label": "views" });
     this.hud = h("div", { class: "hud" });
     this.banner = h("div", { class: "lease-banner", role: "alert", hidden: true });
+    // A question before an action that loses or gives up something (an incomplete submit, a skip): in the page,
+    // answered by its buttons or keys (Ctrl+Enter again / Esc).
+    this.ask = h("div", { class: "lease-banner ask", role: "alertdialog", hidden: true });
     this.side = h("aside", { class: "side" });
     this.root.append(h("div", { class: "annotate-page" }, this.thumbs,
-      h("section", { class: "stage" }, this.canvas, this.hud, this.banner), this.side));
+      h("section", { class: "stage" }, this.canvas, this.hud, this.banner, this.ask), this.side));
     const c = this.canvas;
     c.addEventListener("pointerdown", (e) => this.pointerdown(e));
     c.addEventListener("pointermove", (e) => this.pointermove(e));
@@ -119,6 +125,7 @@ class AnnotatePage {
     window.removeEventListener("resize", this.onResize);
     clearInterval(this.clock);
     clearTimeout(this.emptyTimer);
+    clearTimeout(this.fitWatch);
     this.drafts.stop(); // what is not saved yet goes now (Back, another page): the next mount restores it
     // The prefetched sample goes back to the queue; the one on screen stays ours until its lease expires.
     if (this.prepared) this.leases.drop(this.prepared.task.sample_id, true);
@@ -196,6 +203,9 @@ class AnnotatePage {
     this.task = task;
     this.sources = proposals.sources;
     this.reviewNote = proposals.review_note;
+    this.fitFailure = proposals.fit_failure || null;
+    this.noHand = new Set(); // views marked "no hand here"
+    this.closeAsk();
     this.cameras = new Map(proposals.cameras.map((c) => [c.view_id, c]));
     this.views = views.map((v) => ({ ...v, mask: null, overlay: null, maskEdited: false }));
     this.decodeMask(this.views[0]);
@@ -210,7 +220,10 @@ class AnnotatePage {
       }).catch((error) => toast(`view ${view.camera} did not load: ${error.message}`, "error"));
     });
     this.annotation = new Annotation(this.views.map((v) => v.id), task.keypoints_to_click || SPARSE);
+    // The points placed before (a sample back from review or a failed fit); "not annotated" ones stay unset, to
+    // be decided again: a failed empty submission must not come back as every point done.
     for (const c of proposals.previous_clicks) {
+      if (c.x === null || c.x === undefined) continue;
       if (this.annotation.clicks.has(c.view_id) && this.annotation.keypoints.includes(c.keypoint)) {
         this.previousClicks = true;
         this.annotation.set(c.view_id, c.keypoint, { x: c.x, y: c.y, visibility: c.visibility });
@@ -449,7 +462,7 @@ class AnnotatePage {
       .map((v) => ({ view_id: v.id, width: v.width, height: v.height, rle: v.mask.toRLE() }));
     return { lease_token: this.task.lease_token, submission_id: this.submissionId,
       time_spent_s: Math.round(this.timer.spentSeconds() * 1000) / 1000, clicks, masks,
-      view_index: this.viewIndex, keypoint: this.keypoint };
+      view_index: this.viewIndex, keypoint: this.keypoint, no_hand_views: [...this.noHand] };
   }
 
   // Restore a saved draft over the freshly shown task (it holds the whole state: it replaces previous clicks).
@@ -469,6 +482,7 @@ class AnnotatePage {
       view.overlay = new MaskOverlay(view.mask);
       view.maskEdited = true;
     }
+    this.noHand = new Set((p.no_hand_views || []).filter((id) => this.annotation.clicks.has(id)));
     this.viewIndex = Math.min(p.view_index, this.views.length - 1);
     if (this.annotation.keypoints.includes(p.keypoint)) this.keypoint = p.keypoint;
     this.submissionId = p.submission_id;
@@ -709,11 +723,15 @@ class AnnotatePage {
     } else if (ctrl && (key === "y" || key === "Y")) {
       this.redo();
     } else if (ctrl && key === "Enter") {
-      this.submit();
+      this.submit({ confirmed: this.asking === "submit" });
     } else if (ctrl) {
       handled = false;
     } else if (key >= "1" && key <= "6") {
       this.pick(SPARSE[Number(key) - 1]);
+    } else if (key === "Escape" && this.asking) {
+      this.closeAsk();
+    } else if (key === "x" || key === "X") {
+      this.toggleNoHand();
     } else if (key === "Escape") {
       // Keys back to the view from whatever has the focus (a button, the list); a drag in progress ends.
       this.drag = null;
@@ -886,9 +904,143 @@ class AnnotatePage {
 
   // --- submit -------------------------------------------------------------------------------------
 
-  async submit() {
+  showAsk(kind, ...children) {
+    this.asking = kind;
+    fill(this.ask, ...children);
+    this.ask.hidden = false;
+    document.body.dataset.ask = kind;
+  }
+
+  closeAsk() {
+    this.asking = null;
+    this.ask.hidden = true;
+    fill(this.ask, );
+    delete document.body.dataset.ask;
+  }
+
+  // "No hand here" in the view on screen: every point of it not annotated (one undo step), the view sent as
+  // no_hand_views with the submission (kept out of the fit, counted). Again: the mark goes, the points unset.
+  toggleNoHand() {
+    const viewId = this.view.id;
+    const on = !this.noHand.has(viewId);
+    const changes = this.annotation.keypoints.map((keypoint) => ({ keypoint,
+      previous: this.annotation.get(viewId, keypoint),
+      value: on ? { x: null, y: null, visibility: "not_annotated" } : null }));
+    const apply = (which, mark) => {
+      for (const c of changes) this.annotation.set(viewId, c.keypoint, c[which]);
+      if (mark) this.noHand.add(viewId); else this.noHand.delete(viewId);
+      this.justPlaced = null;
+      this.changed(viewId);
+    };
+    this.history.record({ kind: "no_hand", undo: () => apply("previous", !on), redo: () => apply("value", on) });
+    this.timer.mark("not_annotated", { view_id: viewId });
+    apply("value", on);
+  }
+
+  // Skip the sample or mark it "no hand" (every view), with a reason, after asking.
+  askPass(kind) {
+    const input = h("input", { class: "pass-reason", type: "text", maxlength: "500", "aria-label": "reason",
+      value: kind === "no_hand" ? "no hand in any view" : "", placeholder: "why (required)" });
+    const send = () => this.passOn(kind, input.value);
+    input.addEventListener("keydown", (e) => { if (e.key === "Enter") { e.preventDefault(); send(); } });
+    this.showAsk(kind, h("strong", {}, kind === "no_hand" ? "No hand in this sample: " : "Skip this sample: "),
+      h("span", {}, kind === "no_hand" ? "it leaves the queue (nothing to label or fit). "
+        : "it goes to another annotator, not back to you. "),
+      input,
+      h("button", { class: "primary confirm-pass", onclick: send }, kind === "no_hand" ? "Mark no hand" : "Skip"),
+      h("button", { class: "keep", onclick: () => this.closeAsk() }, "Keep annotating (Esc)"));
+    input.focus();
+  }
+
+  async passOn(kind, reason) {
+    if (!this.task) return;
+    if (!reason.trim()) return toast("give a reason", "warn", 2500);
+    const task = this.task;
+    try {
+      let result;
+      const url = `/api/annotate/samples/${task.sample_id}/skip`;
+      const body = { kind, reason: reason.trim(), lease_token: task.lease_token };
+      try {
+        result = await this.api.post(url, body);
+      } catch (error) {
+        if (error.status !== 403 && error.status !== 409) throw error;
+        body.lease_token = await this.leases.retake(task.sample_id);
+        result = await this.api.post(url, body);
+      }
+      this.closeAsk();
+      this.drafts.forget();
+      this.leases.drop(task.sample_id, false);
+      toast(kind === "no_hand" ? `sample ${task.sample_id}: no hand (${result.state})`
+        : `skipped sample ${task.sample_id}: it goes to someone else`, "ok", 2500);
+      this.task = null;
+      await this.loadNext();
+    } catch (error) {
+      toast(`${kind === "no_hand" ? "no hand" : "skip"} failed: ${error.message}`, "error", 8000);
+    }
+  }
+
+  // After a submission, look for its fit failing (every 5 s, for 2 minutes): shown on the page, with why.
+  watchFit(submissionId, tries = 24) {
+    clearTimeout(this.fitWatch);
+    const look = async () => {
+      const failures = await this.api.get("/api/annotate/fit-failures").catch(() => null);
+      if (failures) {
+        const fresh = failures.filter((f) => !this.failedFits.some((g) => g.submission_id === f.submission_id));
+        const mine = failures.find((f) => f.submission_id === submissionId);
+        if (fresh.length) {
+          this.failedFits = failures.slice(0, 3);
+          for (const f of fresh) toast(`the fit of your work on sample ${f.sample_id} failed: ${f.reason}`, "warn", 10000);
+          if (this.lastSubmission && mine && this.lastSubmission.submission === submissionId) {
+            this.lastSubmission.failed = mine.reason;
+          }
+          document.body.dataset.fitFailed = String(failures[0].sample_id);
+          this.renderSide();
+        }
+        if (mine) return;
+      }
+      if (--tries > 0) this.fitWatch = setTimeout(look, 5000);
+    };
+    this.fitWatch = setTimeout(look, 1000);
+  }
+
+  // What a submit would leave out: points not set (they go as not annotated) outside the views marked "no hand",
+  // and whether anything at all is placed.
+  submitGaps() {
+    let unset = 0, placed = 0, views = 0;
+    for (const viewId of this.annotation.viewIds) {
+      if (this.noHand.has(viewId)) continue;
+      let here = 0;
+      for (const k of this.annotation.keypoints) {
+        const c = this.annotation.get(viewId, k);
+        if (c === null) here++;
+        else if (c.x !== null) placed++;
+      }
+      unset += here;
+      if (here) views++;
+    }
+    return { unset, placed, views, masks: this.views.some((v) => v.maskEdited) };
+  }
+
+  // Submit; an empty submission is not sent (nothing to fit) and an incomplete one asks first.
+  async submit({ confirmed = false } = {}) {
     if (!this.task || this.submitting) return;
     if (this.lostLease) return toast("this sample is no longer yours: take the next task", "warn", 3000);
+    const gaps = this.submitGaps();
+    if (gaps.placed === 0 && !gaps.masks) {
+      return this.showAsk("empty", h("strong", {}, "Nothing is placed: there is nothing to fit. "),
+        h("span", {}, "If no view shows the hand, mark the sample 'no hand'; if you cannot annotate it, skip it."),
+        h("button", { class: "no-hand-sample", onclick: () => this.askPass("no_hand") }, "No hand in this sample…"),
+        h("button", { class: "skip-sample", onclick: () => this.askPass("skip") }, "Skip…"),
+        h("button", { class: "keep", onclick: () => this.closeAsk() }, "Keep annotating (Esc)"));
+    }
+    if (gaps.unset > 0 && !confirmed) {
+      return this.showAsk("submit", h("strong", {}, `${gaps.unset} point(s) not set in ${gaps.views} view(s). `),
+        h("span", {}, "They are submitted as not annotated. Submit anyway?"),
+        h("button", { class: "primary confirm-submit", onclick: () => this.submit({ confirmed: true }) },
+          "Submit anyway (Ctrl+Enter)"),
+        h("button", { class: "keep", onclick: () => this.closeAsk() }, "Keep annotating (Esc)"));
+    }
+    this.closeAsk();
     const task = this.task;
     const masks = this.views.filter((v) => v.maskEdited && v.mask)
       .map((v) => ({ view_id: v.id, width: v.width, height: v.height, rle: v.mask.toRLE() }));
@@ -899,6 +1051,7 @@ class AnnotatePage {
       clicks: this.annotation.toClicks(),
       masks,
     };
+    if (this.noHand.size) body.no_hand_views = [...this.noHand];
     this.submitting = true;
     this.renderSide();
     try {
@@ -920,7 +1073,8 @@ class AnnotatePage {
       };
       this.api.post("/api/activity", log).catch((error) => toast(`time log not saved: ${error.message}`, "warn"));
       this.lastSubmission = { sample_id: task.sample_id, fit_job_id: result.fit_job_id, clicks: body.clicks.length,
-        masks: masks.length };
+        masks: masks.length, submission: result.id };
+      this.watchFit(result.id);
       toast(`submitted sample ${task.sample_id}: ${masks.length} mask(s), fit job ${result.fit_job_id ?? "–"} queued`,
         "ok", 2500);
       this.submitting = false;
@@ -1160,7 +1314,8 @@ class AnnotatePage {
     this.drawPoints(ctx, view, vp, { r: 3 });
     const done = this.annotation.doneIn(view.id);
     el.querySelector(".thumb-label").textContent =
-      `${index + 1} ${view.camera} ${done}/${this.annotation.keypoints.length}${view.maskEdited ? " ✎" : ""}`;
+      `${index + 1} ${view.camera} ${this.noHand.has(view.id) ? "no hand" : `${done}/${this.annotation.keypoints.length}`}` +
+      `${view.maskEdited ? " ✎" : ""}`;
     el.classList.toggle("complete", done === this.annotation.keypoints.length);
   }
 
@@ -1200,6 +1355,11 @@ class AnnotatePage {
         h("div", { class: "clock muted" }, ""),
         h("div", { class: "draft-state muted" }, draftLabel(document.body.dataset.draftState))),
       this.reviewNote ? h("div", { class: "callout" }, h("strong", {}, "Reviewer: "), this.reviewNote) : null,
+      this.fitFailure ? h("div", { class: "callout warn fit-failure-here" }, h("strong", {}, "The last fit failed: "),
+        this.fitFailure.reason, ". Its points are kept below; place what is missing, or skip the sample.") : null,
+      this.failedFits.length ? h("div", { class: "callout warn fit-failures" },
+        h("strong", {}, "Fits that failed on your work: "), this.failedFits.map((f) =>
+          h("div", {}, `sample ${f.sample_id}: ${f.reason} (it goes to another annotator)`))) : null,
       h("div", { class: "mode-switch", role: "group" },
         h("button", { class: this.mode === "points" ? "on" : "", onclick: () => this.setMode("points") }, "Points (P)"),
         h("button", { class: this.mode === "mask" && this.tool === "brush" ? "on" : "",
@@ -1213,19 +1373,25 @@ class AnnotatePage {
         h("button", { class: "accept-all", onclick: () => this.acceptAllInView(), disabled: props.size === 0 },
           `Accept ${[...props.values()].filter(confident).length} of ${props.size} proposals (Enter)`),
         h("button", { onclick: () => this.toggleOccluded() }, "Occluded (O)"),
-        h("button", { onclick: () => this.markNotAnnotated() }, "Not annotated (N)")),
+        h("button", { onclick: () => this.markNotAnnotated() }, "Not annotated (N)"),
+        h("button", { class: `no-hand-view${this.noHand.has(view.id) ? " on" : ""}`, onclick: () => this.toggleNoHand() },
+          this.noHand.has(view.id) ? "No hand here ✓ (X)" : "No hand here (X)")),
       h("div", { class: "button-row" },
         h("button", { onclick: () => this.undo(), disabled: !this.history.canUndo }, "Undo"),
         h("button", { onclick: () => this.redo(), disabled: !this.history.canRedo }, "Redo")),
       h("div", { class: "totals" }, `${total}/${this.views.length * this.annotation.keypoints.length} keypoints · ${masks} mask(s) corrected`),
       h("button", { class: "primary submit", onclick: () => this.submit(), disabled: this.submitting },
         this.submitting ? "Submitting…" : "Submit (Ctrl+Enter)"),
+      h("div", { class: "button-row" },
+        h("button", { class: "no-hand-sample", onclick: () => this.askPass("no_hand") }, "No hand in this sample…"),
+        h("button", { class: "skip-sample", onclick: () => this.askPass("skip") }, "Skip…")),
       h("div", { class: "muted legend" }, "proposals: T triangulated from your clicks, F current fit, M MVNet, " +
         `D detector; the number is its confidence (orange: below ${ACCEPT_CONF}, Enter leaves it)`),
       this.sources.map((source) => h("div", { class: source.label.includes("not MANO") ? "badge warn" : "badge" },
         `${SOURCE_LETTER[source.kind]}: ${source.label}`)),
-      this.lastSubmission ? h("div", { class: "muted" },
-        `last: sample ${this.lastSubmission.sample_id} → fit job ${this.lastSubmission.fit_job_id ?? "–"}`) : null,
+      this.lastSubmission ? h("div", { class: "muted last-submission" },
+        `last: sample ${this.lastSubmission.sample_id} → fit job ${this.lastSubmission.fit_job_id ?? "–"}` +
+        (this.lastSubmission.failed ? ` failed: ${this.lastSubmission.failed}` : "")) : null,
       h("details", { class: "help" }, h("summary", {}, "Keys (?)"),
         h("table", {}, HELP.map(([k, d]) => h("tr", {}, h("td", {}, h("kbd", {}, k)), h("td", {}, d))))),
     );

@@ -142,3 +142,5 @@ class DashboardPublic(Public):
     confidence_histogram: dict[str, Any]
     sparsification: dict[str, Any] | None
     human_time: dict[str, Any]
+    flags: dict[str, int] = Field(default_factory=dict, description="Annotation flags by kind: 'no_hand_view', "
+                                  "'no_hand', 'skip', 'fit_failed' (issue 38).")

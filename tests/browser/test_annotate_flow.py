@@ -51,7 +51,11 @@ def _rows(stack, sql: str, **params) -> list:
 
 def _open(t, stack, role: str = "annotator") -> None:
     user = stack.users[role]
-    sign_in(t, stack.base_url, user.email, user.password, "annotate")
+    # A reviewer lands on the (here empty) review queue.
+    sign_in(t, stack.base_url, user.email, user.password, "annotate" if role == "annotator" else "review-empty")
+    if role != "annotator":  # a reviewer lands on the review page; they may annotate too
+        t.page.goto(stack.base_url + "/#/annotate")
+        t.page.wait_for_selector("body[data-ready=annotate]", state="attached", timeout=60_000)
 
 
 def test_views_open_on_the_hand_unblocky_and_zoom_loads_full_resolution(real_stack, tab):
@@ -186,3 +190,45 @@ def test_a_failed_fit_is_shown_and_the_sample_goes_to_someone_else(real_stack, t
     assert other.page.evaluate("() => window.__handloop.page.task.sample_id") == first
     assert "nothing to fit" in other.page.inner_text(".side .fit-failure-here")
     assert not t.errors and not other.errors, (t.errors, other.errors)
+
+
+def test_the_detector_ring_is_drawn_beside_a_confident_fit(real_stack, tab):
+    """A pre-annotation's sources as the API sends them (the fit, carrying its agreement as confidence, then
+    the detector): Enter takes the confident F points; where the detector's own point lies apart from the fit's,
+    a D ring shows it (listed in the panel) and a click on it takes the detector's point."""
+    import json
+
+    t = tab()
+    page = t.page
+    fit_conf = {0: 0.9, 4: 0.9, 8: 0.9, 12: 0.9, 16: 0.9, 20: 0.4}
+
+    def with_pre_annotation(route) -> None:
+        response = route.fetch()
+        body = response.json()
+        fit, det = {}, {}
+        for camera in body["cameras"]:
+            points = [[300.0 + 4 * k, 360.0] for k in range(21)]
+            fit[str(camera["view_id"])] = points
+            det[str(camera["view_id"])] = [[x + (8.0 if k == 20 else 0.5), y] for k, (x, y) in enumerate(points)]
+        body["sources"] = [
+            {"kind": "fit", "label": "fit 1 (test)", "confidences": [fit_conf.get(k, 0.9) for k in range(21)],
+             "views": fit},
+            {"kind": "detector", "label": "detector (confidence 0.45)", "confidences": [0.8] * 21, "views": det}]
+        route.fulfill(response=response, body=json.dumps(body))
+
+    page.route("**/proposals", with_pre_annotation)
+    _open(t, real_stack)
+    rings = page.evaluate("() => { const p = window.__handloop.page;"
+                          " return [...p.alternates.get(p.view.id).entries()].map(([k, a]) => [k, a.x, a.y]); }")
+    assert rings == [[20, 388.0, 360.0]], rings  # only where the detector lies apart (8 px; not 0.5 px)
+    assert "D 0.80 8 px away" in page.inner_text(".kp-list")
+    page.keyboard.press("Enter")  # the five confident F points; the pinky (F 0.40) is left for a look
+    got = page.evaluate("() => { const p = window.__handloop.page; return [0, 4, 8, 12, 16, 20].map((k) => {"
+                        " const c = p.annotation.get(p.view.id, k); return c && c.from; }); }")
+    assert got == ["fit", "fit", "fit", "fit", "fit", None], got
+    at = page.evaluate(SCREEN_OF, [388.0, 360.0])
+    page.mouse.click(*at)  # the D ring
+    # (the view is then complete: the page moves on to the next one)
+    pinky = page.evaluate("() => { const p = window.__handloop.page; return p.annotation.get(p.views[0].id, 20); }")
+    assert pinky["from"] == "detector" and pinky["x"] == 388.0, pinky
+    assert not t.errors, t.errors

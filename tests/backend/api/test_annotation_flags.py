@@ -60,6 +60,8 @@ def test_skip_needs_a_reason_and_sends_the_sample_to_someone_else(env, h):
     assert h.next_task(env)["sample_id"] == ids[1]  # not back to the one who skipped it
     assert h.next_task(env, Role.reviewer)["sample_id"] == ids[0]  # someone else gets it
     assert _flags(env) == [(ids[0], None, env.user_ids[Role.annotator], "skip", "too blurred")]
+    flags = env.client.get("/api/admin/dashboard", headers=env.headers(Role.admin)).json()["flags"]
+    assert flags == {"no_hand_view": 0, "no_hand": 0, "skip": 1, "fit_failed": 0}
     again = env.client.post(url, json={"kind": "skip", "reason": "x"}, headers=env.headers(Role.annotator))
     assert again.status_code in (403, 409)  # no lease on it any more
 

@@ -850,6 +850,8 @@ class AnnotatePage {
         this.vp.oy = height / 2 - (cy + 0.5) * most;
         this.vp.minScale = most / 8;
       }
+      // No blank beyond the image's edge: a hand at the edge once opened as a strip of arm beside empty canvas.
+      this.vp.keepInside(view.width, view.height, width, height);
     } else {
       this.vp.fit(view.width, view.height, width, height);
     }
@@ -881,8 +883,7 @@ class AnnotatePage {
     const [x0, y0, x1, y1] = box;
     const w = Math.max((x1 - x0) * (1 + 2 * margin), view.width * minFraction);
     const hh = Math.max((y1 - y0) * (1 + 2 * margin), view.height * minFraction);
-    // Centred on the hand but kept inside the image where it fits (no blank beyond the image's edge).
-    const cx = clampCentre((x0 + x1) / 2, w, view.width), cy = clampCentre((y0 + y1) / 2, hh, view.height);
+    const cx = (x0 + x1) / 2, cy = (y0 + y1) / 2;
     return [cx - w / 2, cy - hh / 2, cx + w / 2, cy + hh / 2];
   }
 
@@ -1397,12 +1398,6 @@ class AnnotatePage {
     );
     this.renderClock();
   }
-}
-
-// The centre of a span `size` wide about `c`, moved so the span lies within [0, limit] when it fits.
-function clampCentre(c, size, limit) {
-  if (size >= limit) return limit / 2;
-  return Math.min(Math.max(c, size / 2), limit - size / 2);
 }
 
 function labelFor(keypoint) {

@@ -59,21 +59,41 @@ def _open(t, stack, role: str = "annotator") -> None:
 
 
 def test_views_open_on_the_hand_unblocky_and_zoom_loads_full_resolution(real_stack, tab):
+    import json
+
     t = tab()
     page = t.page
+
+    def with_pre_annotation(route) -> None:
+        # A pre-annotation fit of a hand at the image's right edge, as the recording's last frames show it.
+        response = route.fetch()
+        body = response.json()
+        points = [[680.0 + 35.0 * (k % 5) / 4, 330.0 + 3.0 * k] for k in range(21)]
+        body["sources"] = [{"kind": "fit", "label": "fit 1 (test)", "confidences": [0.9] * 21,
+                            "views": {str(c["view_id"]): points for c in body["cameras"]}}]
+        route.fulfill(response=response, body=json.dumps(body))
+
+    page.route("**/proposals", with_pre_annotation)
     _open(t, real_stack)
     view = page.evaluate("() => { const p = window.__handloop.page; return {w: p.view.width,"
                          " copy: p.view.image.width, scale: p.vp.scale, full: Boolean(p.view.fullImage)}; }")
     assert view["w"] == 720 and view["copy"] == 640, view
-    # At most 2 screen px per working-copy pixel (it opened at 243-483 % before).
+    # At most 2 screen px per working-copy pixel (the 640 px copies opened at 243-483 % before).
     assert view["scale"] * view["w"] / view["copy"] <= 2.0 + 1e-9, view
-    # The image fills the canvas: no blank beyond the image's edge on the side the hand is (the "strip of arm").
+    # No blank beyond the image's edge (the hand at the edge opened as a strip of arm beside empty canvas).
     box = page.evaluate("""() => { const p = window.__handloop.page; const r = p.canvas.getBoundingClientRect();
         const [x0, y0] = p.vp.toImage(0, 0), [x1, y1] = p.vp.toImage(r.width, r.height);
         return [x0, y0, x1, y1, p.view.width, p.view.height]; }""")
     x0, y0, x1, y1, w, h = box
-    assert (x0 >= -1 or x1 >= w) and (x1 <= w + 1 or x0 <= 0), box
-    assert (y0 >= -1 or y1 >= h) and (y1 <= h + 1 or y0 <= 0), box
+    for lo, hi, size in ((x0, x1, w), (y0, y1, h)):
+        if hi - lo <= size:  # the canvas shows part of the image along this axis: all of it image
+            assert lo >= -0.5 - 1e-6 and hi <= size - 0.5 + 1e-6, box
+        else:  # the whole image along this axis, centred
+            assert lo <= -0.5 and hi >= size - 0.5, box
+    # The hand is on screen.
+    hx, hy = page.evaluate(SCREEN_OF, [697.0, 360.0])
+    canvas = page.locator("canvas.main-canvas").bounding_box()
+    assert canvas["x"] <= hx <= canvas["x"] + canvas["width"] and canvas["y"] <= hy <= canvas["y"] + canvas["height"]
     for _ in range(6):
         page.keyboard.press("+")
     page.wait_for_function("() => { const v = window.__handloop.page.view; return v.fullImage &&"

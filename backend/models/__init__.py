@@ -5,6 +5,7 @@ from backend.models.capture import CameraCalibration, Project, Sample, Sequence,
 from backend.models.drafts import Draft
 from backend.models.enums import (
     DecisionKind,
+    FlagKind,
     JobKind,
     JobState,
     LeaseKind,
@@ -17,14 +18,15 @@ from backend.models.enums import (
     Visibility,
 )
 from backend.models.fits import Fit, Prediction
+from backend.models.flags import AnnotationFlag
 from backend.models.jobs import Job
 from backend.models.labels import Click, Mask, Submission
 from backend.models.review import Decision, Round, RoundMember
 from backend.models.users import User
 
 __all__ = [
-    "AuditEvent", "CameraCalibration", "Click", "Decision", "DecisionKind", "Draft", "Fit", "Job", "JobKind",
-    "JobState", "LeaseKind", "Mask", "MaskKind", "Prediction", "Project", "Role", "Round", "RoundMember",
-    "RoundState", "Sample", "SampleState", "Sequence", "Split", "Stream", "Subject", "Submission", "User",
-    "View", "Visibility",
+    "AnnotationFlag", "AuditEvent", "CameraCalibration", "Click", "Decision", "DecisionKind", "Draft", "Fit",
+    "FlagKind", "Job", "JobKind", "JobState", "LeaseKind", "Mask", "MaskKind", "Prediction", "Project", "Role",
+    "Round", "RoundMember", "RoundState", "Sample", "SampleState", "Sequence", "Split", "Stream", "Subject",
+    "Submission", "User", "View", "Visibility",
 ]  # fmt: skip

@@ -33,6 +33,15 @@ class SampleState(StrEnum):
     rejected = "rejected"
 
 
+class FlagKind(StrEnum):
+    """What an annotator said instead of clicking, or a fit that failed on their work (models.flags)."""
+
+    no_hand_view = "no_hand_view"
+    no_hand = "no_hand"
+    skip = "skip"
+    fit_failed = "fit_failed"
+
+
 class Split(StrEnum):
     train = "train"
     evaluation = "evaluation"

@@ -8,7 +8,7 @@ from typing import Any
 from pydantic import Field
 
 from backend.models.enums import DecisionKind
-from backend.schemas.base import Finite, Public, Strict
+from backend.schemas.base import Finite, Id, Public, Strict
 from backend.schemas.tasks import ClickIn, ClientId, LeaseToken, MaskIn
 
 MAX_DRAFT_VIEWS = 64
@@ -27,6 +27,8 @@ class AnnotateDraftIn(Strict):
     masks: list[MaskIn] = Field(default_factory=list, max_length=MAX_DRAFT_VIEWS)
     view_index: int = Field(default=0, ge=0, lt=MAX_DRAFT_VIEWS)
     keypoint: int = Field(default=0, ge=0, le=20)
+    no_hand_views: list[Id] = Field(default_factory=list, max_length=MAX_DRAFT_VIEWS,
+                                    description="Views marked 'no hand here' so far.")
 
 
 class ReviewDraftIn(Strict):

@@ -105,11 +105,18 @@ class SubmissionCreate(Strict):
     time_spent_s: Finite = Field(ge=0, le=24 * 3600)
     clicks: list[ClickIn] = Field(default_factory=list, max_length=100_000)
     masks: list[MaskIn] = Field(default_factory=list, max_length=64)
+    no_hand_views: list[Id] = Field(default_factory=list, max_length=64, description=(
+        "Views the annotator marked 'no hand here': their clicks must all be not annotated; stored and counted, "
+        "kept out of the fit. A sample with no hand in any view is marked with POST .../skip (kind 'no_hand')."))
 
     @model_validator(mode="after")
     def _not_empty(self) -> SubmissionCreate:
         if not self.clicks and not self.masks:
             raise ValueError("a submission needs clicks or masks")
+        if not self.masks and all(c.visibility is Visibility.not_annotated for c in self.clicks):
+            # Nothing for the fit to fit: it would fail and send the sample straight back (issue 38).
+            raise ValueError("every keypoint is 'not_annotated' and no mask is corrected: nothing to fit; place "
+                             "points, or mark the sample 'no hand' or skip it (POST .../skip)")
         return self
 
 
@@ -122,6 +129,35 @@ class SubmissionPublic(Public):
     fit_job_id: int | None
     duplicate: bool
     created_at: datetime
+
+
+class SkipCreate(Strict):
+    """An annotator passing on a leased sample instead of clicking it, with the reason."""
+
+    kind: Literal["skip", "no_hand"] = Field(description="'skip': back to the queue, for someone else; 'no_hand': "
+                                             "no hand in any view, out of the queue as rejected.")
+    reason: str = Field(min_length=1, max_length=500)
+    lease_token: LeaseToken | None = None
+
+    @field_validator("reason")
+    @classmethod
+    def _reason_not_blank(cls, value: str) -> str:
+        if not value.strip():
+            raise ValueError("a skip or 'no hand' needs a reason")
+        return value.strip()
+
+
+class SkipPublic(Public):
+    sample_id: int
+    kind: str
+    state: SampleState
+
+
+class FitFailurePublic(Public):
+    sample_id: int
+    submission_id: int | None
+    reason: str
+    at: datetime
 
 
 class DecisionCreate(Strict):

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+from datetime import datetime
 from typing import Annotated, Any, Literal
 
 from pydantic import ConfigDict, Field
@@ -41,11 +42,18 @@ class ClickPublic(Public):
 class ProposalSource(Public):
     kind: Literal["detector", "mvnet", "fit"]
     label: str
-    confidences: list[float] | None = Field(description="Per keypoint (21): MVNet's, or the detector's lifted ones.")
+    confidences: list[float | None] | None = Field(
+        description="Per keypoint (21): MVNet's, the detector's lifted ones, or a fit's agreement with what it was "
+        "fitted to (the detector's keypoints or the hand-placed clicks; null where nothing observed the keypoint).")
     views: dict[str, list[Pixel2 | None]] = Field(description="View id -> 21 projected keypoints (px) or null.")
     hidden: dict[str, list[bool]] | None = Field(
         default=None, description="The fit's only: view id -> 21 flags, true where the fit's mesh hides the keypoint "
                                   "from that camera (accepted as occluded); null for other sources or without a mesh.")
+
+
+class FitFailureNote(Public):
+    reason: str
+    at: datetime
 
 
 class ProposalsPublic(Public):
@@ -55,6 +63,8 @@ class ProposalsPublic(Public):
     sources: list[ProposalSource]
     previous_clicks: list[ClickPublic]
     review_note: str | None
+    fit_failure: FitFailureNote | None = Field(
+        default=None, description="Why the sample's newest fit failed, when it did and no fit was made since.")
 
 
 class HandModelPublic(Public):
@@ -135,3 +145,5 @@ class DashboardPublic(Public):
     confidence_histogram: dict[str, Any]
     sparsification: dict[str, Any] | None
     human_time: dict[str, Any]
+    flags: dict[str, int] = Field(default_factory=dict, description="Annotation flags by kind: 'no_hand_view', "
+                                  "'no_hand', 'skip', 'fit_failed' (issue 38).")

@@ -14,7 +14,7 @@ from backend.models.audit import AuditEvent
 from backend.models.capture import Sample
 from backend.models.enums import LeaseKind, SampleState
 from backend.models.fits import Fit, Prediction
-from backend.services import activity, queues, rounds
+from backend.services import activity, annotation_flags, queues, rounds
 from backend.viewer.hand_mesh import hand_model_label
 from workers.nets.sparsification import sparsification
 
@@ -113,4 +113,5 @@ def dashboard(session: Session, min_training_samples: int = 1) -> dict[str, Any]
         "confidence_histogram": confidence_histogram(session),
         "sparsification": sparsification_curve(session),
         "human_time": human_time(session),
+        "flags": annotation_flags.counts(session),
     }

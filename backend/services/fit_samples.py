@@ -12,7 +12,7 @@ from sqlalchemy.orm import Session
 from backend.models.capture import Sample
 from backend.models.enums import JobKind, JobState, SampleState
 from backend.models.jobs import Job
-from backend.services import queues
+from backend.services import annotation_flags, queues
 from backend.services.state_machine import transition
 
 
@@ -20,6 +20,8 @@ def release_failed_fit(session: Session, sample: Sample, error: str) -> None:
     """A fit that could not be made sends its (locked) sample back to the annotators."""
     if sample.state == SampleState.fitting:
         transition(session, sample, SampleState.needs_annotation, None, reason=f"fit failed: {error}")
+        # Shown to the submission's author, and the queue gives the sample to someone else (not back in a loop).
+        annotation_flags.record_fit_failure(session, sample, error)
 
 
 def release_cancelled_fit(session: Session, sample_id: int, job_id: int) -> None:

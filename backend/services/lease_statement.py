@@ -42,6 +42,7 @@ from backend.models.capture import CameraCalibration, Sample, Sequence, View
 from backend.models.drafts import Draft
 from backend.models.enums import LeaseKind, SampleState
 from backend.models.labels import Mask
+from backend.services.passed_over import passed_over
 
 _SAMPLES, _DRAFTS, _VIEWS = Sample.__table__, Draft.__table__, View.__table__
 QUEUE_STATE = {LeaseKind.annotate: SampleState.needs_annotation, LeaseKind.review: SampleState.in_review}
@@ -98,8 +99,10 @@ def acquire_statement(kind: LeaseKind) -> Select:
                 .returning(*head).cte(cte_name))
 
     mine_drafts = select(_DRAFTS.c.sample_id).where(_DRAFTS.c.user_id == user_id, _DRAFTS.c.kind == kind.value)
-    drafted_free = take("drafted", c.id.in_(mine_drafts), before=(own,))
-    free = take("free", before=(own, drafted_free))
+    # Not a sample this person skipped or whose fit failed on their work: it goes to someone else (issue 38).
+    fresh = (passed_over(c.id, user_id),) if kind is LeaseKind.annotate else ()
+    drafted_free = take("drafted", c.id.in_(mine_drafts), *fresh, before=(own,))
+    free = take("free", *fresh, before=(own, drafted_free))
 
     new = union_all(select(drafted_free.c.id), select(free.c.id)).subquery("new")
     a = AuditEvent.__table__.c

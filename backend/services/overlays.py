@@ -22,9 +22,11 @@ from backend.models.fits import Fit, Prediction
 from backend.models.labels import Click, Submission
 from backend.models.review import Decision
 from backend.services import queues, scene_tickets
+from backend.services.annotation_flags import last_fit_failure
 from backend.services.detection_points import SOURCE as DETECTOR_SOURCE
 from backend.services.detection_points import fitted_detections
 from backend.services.errors import ConflictError, NotFoundError
+from backend.services.fit_agreement import fit_confidences
 from backend.services.samples import get_sample
 from backend.services.users import Actor
 from backend.services.view_geometry import ViewCamera, pixels_or_none, project, view_cameras
@@ -107,13 +109,22 @@ def annotate_proposals(session: Session, user: Actor, sample_id: int, *, mano_pa
         select(Decision.reason).where(Decision.sample_id == sample_id, Decision.decision == DecisionKind.annotate)
         .order_by(Decision.id.desc()).limit(1)).scalar_one_or_none()
     previous = clicks_of(session, sample_id)
+    fit_failure = last_fit_failure(session, sample)
     end_reads(session)
     sources = []
     fitted = None
     if fit is not None:
         projected = _projections(fit.keypoints_m, cameras)
+        # F's confidence: the fit's agreement with what it was fitted to, per keypoint (services.fit_agreement).
+        observed = fitted_detections(fit.inputs, cameras)
+        if observed is None:
+            observed = {}
+            for c in previous:
+                if c.x is not None and c.y is not None and not c.from_proposal:
+                    observed.setdefault(c.view_id, {})[c.keypoint] = (c.x, c.y)
         fitted = {"kind": "fit", "label": f"fit {fit.id} ({hand_model_label(fit.model_file)})",
-                  "confidences": None, "views": {str(v): pixels_or_none(p) for v, p in projected.items()},
+                  "confidences": fit_confidences(projected, observed),
+                  "views": {str(v): pixels_or_none(p) for v, p in projected.items()},
                   "hidden": hidden_keypoints(fit, cameras, mano_path)}
     detection = detector_proposal(fit, cameras) if fit is not None else None
     if detection is not None:
@@ -129,7 +140,8 @@ def annotate_proposals(session: Session, user: Actor, sample_id: int, *, mano_pa
         sources.append(fitted)
     return {"sample_id": sample_id, "cameras": [c.to_public() for c in cameras],
             "keypoints_to_click": list(SPARSE_KEYPOINTS), "sources": sources,
-            "previous_clicks": [c.to_public() for c in previous], "review_note": note}
+            "previous_clicks": [c.to_public() for c in previous], "review_note": note,
+            "fit_failure": fit_failure}
 
 
 def hidden_keypoints(fit: Fit, cameras: list[ViewCamera], mano_path: Path | None) -> dict[str, list[bool]] | None:

@@ -23,6 +23,7 @@ from backend.models.enums import LeaseKind
 from backend.services import audit
 from backend.services.errors import ConflictError, LeaseExpiredError, NotFoundError, PermissionDeniedError
 from backend.services.lease_statement import QUEUE_STATE, acquire_statement, free_pick
+from backend.services.passed_over import passed_over
 from backend.services.samples import ViewInfo
 from backend.services.users import Actor
 
@@ -127,6 +128,8 @@ def take_free(session: Session, user: Actor, kind: LeaseKind, expires: datetime,
     conditions = []
     if exclude_sample_id is not None:
         conditions.append(c.id != exclude_sample_id)
+    if kind is LeaseKind.annotate:  # not a sample this person skipped or whose fit failed on their work
+        conditions.append(passed_over(c.id, user.id))
     if drafted_by is not None:
         conditions.append(c.id.in_(select(_DRAFTS.c.sample_id).where(_DRAFTS.c.user_id == drafted_by,
                                                                      _DRAFTS.c.kind == kind.value)))

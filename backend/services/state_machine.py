@@ -5,6 +5,7 @@
         +--(predictions)-------|-------------------------> +  |        |  +--> accepted   (heuristic)
                                +----- fit failed ----------+  |        |
                                +------------------------------|--------+----------- annotate
+                               +-- no hand (annotator) --> rejected
                                                               +-- refit (new predictions)
 
 No skipping: nothing reaches `accepted` without a fit, and only reviewers (or the heuristic) accept.
@@ -21,7 +22,7 @@ from backend.services.errors import ConflictError
 
 TRANSITIONS: dict[S, frozenset[S]] = {
     S.unlabeled: frozenset({S.needs_annotation, S.fitting}),
-    S.needs_annotation: frozenset({S.annotated}),
+    S.needs_annotation: frozenset({S.annotated, S.rejected}),  # rejected: an annotator saw no hand in it
     S.annotated: frozenset({S.fitting}),
     S.fitting: frozenset({S.fitted, S.needs_annotation}),
     S.fitted: frozenset({S.in_review, S.accepted, S.fitting, S.needs_annotation}),

@@ -27,7 +27,7 @@ from backend.models.capture import Sample, View
 from backend.models.enums import JobKind, LeaseKind, MaskKind, SampleState, Visibility
 from backend.models.labels import Click, Mask, Submission
 from backend.schemas.tasks import SubmissionCreate
-from backend.services import audit, drafts, jobs, queues, submit_statement
+from backend.services import annotation_flags, audit, drafts, jobs, queues, submit_statement
 from backend.services.annotation_input import check_clicks, check_masks
 from backend.services.errors import (
     ConflictError,
@@ -160,6 +160,7 @@ def submit(session: Session, queue: jobs.JobQueue, storage: Storage, user: Actor
 
     views = {r.view_id: (r.view_width, r.view_height) for r in rows if r.view_id is not None}
     check_clicks(views, body.clicks, sample_id)
+    _check_no_hand_views(views, body, sample_id)
     decoded = check_masks(views, body.masks, sample_id)
 
     now = utcnow()
@@ -178,9 +179,25 @@ def submit(session: Session, queue: jobs.JobQueue, storage: Storage, user: Actor
                                                   payload, now)
     if decoded:
         _write_masks(session, user, body.submission_id, submission_id, decoded, storage, now)
+    annotation_flags.record_no_hand_views(session, user.id, sample_id, submission_id, body.no_hand_views, now)
     info = SubmissionInfo(submission_id, body.submission_id, sample_id, user.id, len(body.clicks), len(decoded),
                           job_id, now)
     return SubmitResult(info, duplicate=False)
+
+
+def _check_no_hand_views(views: dict[int, tuple[int, int]], body: SubmissionCreate, sample_id: int) -> None:
+    """Views marked 'no hand here' are views of the sample, each once, with no point placed in them."""
+    seen: set[int] = set()
+    for i, view_id in enumerate(body.no_hand_views):
+        if view_id not in views:
+            raise InvalidInputError(f"no_hand_views[{i}]: view {view_id} is not a view of sample {sample_id}")
+        if view_id in seen:
+            raise InvalidInputError(f"no_hand_views[{i}]: view {view_id} given twice")
+        seen.add(view_id)
+    for i, c in enumerate(body.clicks):
+        if c.view_id in seen and c.visibility != Visibility.not_annotated:
+            raise InvalidInputError(f"clicks[{i}]: a point is placed in view {c.view_id}, which is marked 'no hand "
+                                    "here'; clear the point or the mark")
 
 
 def _submit_alone(session: Session, queue: jobs.JobQueue, user: Actor, sample_id: int, body: SubmissionCreate,
@@ -190,6 +207,7 @@ def _submit_alone(session: Session, queue: jobs.JobQueue, user: Actor, sample_id
     nothing. Whatever makes it step aside, the checked path gives the answer it gave before, with the same
     precedence of errors."""
     if (session.get_bind().dialect.name != "postgresql" or session.in_transaction() or body.masks
+            or body.no_hand_views
             or len(body.clicks) > max_clicks
             or len({(c.view_id, c.keypoint) for c in body.clicks}) != len(body.clicks)):
         return None

@@ -90,6 +90,9 @@ class AdminPage {
       h("div", { class: "muted" }, `${total} samples · ${s.submissions} submissions · ${s.clicks} clicks · ` +
         `${d.fits} fits · queues: ${d.queues.annotate} to annotate (+${d.queues.annotate_leased ?? 0} being annotated), ` +
         `${d.queues.review} to review (+${d.queues.review_leased ?? 0} being reviewed)`),
+      d.flags ? h("div", { class: "muted annotation-flags" }, `annotators said: no hand in ${d.flags.no_hand_view} ` +
+        `view(s) and ${d.flags.no_hand} sample(s) · ${d.flags.skip} skipped · ${d.flags.fit_failed} fit(s) failed on ` +
+        "their work (each such sample goes to another annotator)") : null,
       Object.keys(d.fits_by_hand_model).length ? h("div", { class: "fit-models" }, "Fits made with: ",
         Object.entries(d.fits_by_hand_model).map(([label, n]) => h("span", { class: label.includes("not MANO")
           ? "badge warn" : "badge" }, `${label} (${n})`))) : null,

@@ -7,7 +7,7 @@ import { epipolarCurve, projectPoint } from "./geometry.js";
 import { marker, segment } from "./draw.js";
 import { History } from "./history.js";
 import { DraftSaver } from "./drafts.js";
-import { decodeMask, loadView } from "./images.js";
+import { decodeMask, loadFullImage, loadView, needsFullImage } from "./images.js";
 import { colorOf, SPARSE, SPARSE_LABELS } from "./keypoints.js";
 import { LeaseKeeper } from "./lease.js";
 import { MaskLayer, MaskOverlay, StrokeRecorder, unionRect } from "./mask.js";
@@ -20,6 +20,11 @@ const LOUPE_OFFSET = 80; // its centre from the cursor, screen px (up and right,
 const LOUPE_ZOOM = 4; // times the view's zoom ...
 const LOUPE_MAX_PX = 24; // ... up to this many screen px per image pixel
 const DRAG_PX = 3; // movement below this is a click, not a drag
+// A view opens on the hand with the working copy's pixels at most this many screen px wide (more is visibly
+// blocky; zooming in further loads the full-resolution pixels), unless the whole image already shows larger.
+const OPEN_MAX_PX = 2;
+const MIN_CONF = 0.3; // a source's points below this confidence are not offered (annotation.js proposals())
+const ALTERNATE_PX = 2; // a detector point this close to the proposal shown is not drawn again
 const SOURCE_LETTER = { triangulated: "T", fit: "F", mvnet: "M", detector: "D" };
 // Enter accepts only proposals at least this confident; the others are ringed orange for a look (A takes
 // one anyway). A fit's projection has no confidence: it is always left for a look.
@@ -41,7 +46,8 @@ const HELP = [
   ["+ / - / 0", "zoom in / out at the centre / fit the hand (again: the whole image); each view keeps its zoom"],
   ["H", "hide / show the mask"],
   ["Ctrl+Z / Ctrl+Shift+Z / Ctrl+Y", "undo / redo / redo"],
-  ["Ctrl+Enter", "submit and show the next task"],
+  ["X", "no hand in this view: every point here not annotated (again: undo the mark)"],
+  ["Ctrl+Enter", "submit and show the next task (asks first when points are not set; again: submit as is)"],
   ["Esc", "cancel a drag, give the keys back to the view (from any button)"],
   ["?", "open / close this list"],
 ];
@@ -77,6 +83,8 @@ class AnnotatePage {
     this.keys = new Set();
     this.zooms = new Map(); // "sample/view" -> {scale, ox, oy, minScale}: each view keeps its zoom and pan
     this.metrics = { shown: [] };
+    this.failedFits = []; // the fits that failed on this person's submissions (GET /api/annotate/fit-failures)
+    this.noHand = new Set();
     this.build();
     this.onKey = (e) => this.keydown(e);
     this.onKeyUp = (e) => this.keys.delete(e.code);
@@ -95,9 +103,12 @@ class AnnotatePage {
     this.thumbs = h("div", { class: "thumbs", "aria-label": "views" });
     this.hud = h("div", { class: "hud" });
     this.banner = h("div", { class: "lease-banner", role: "alert", hidden: true });
+    // A question before an action that loses or gives up something (an incomplete submit, a skip): in the page,
+    // answered by its buttons or keys (Ctrl+Enter again / Esc).
+    this.ask = h("div", { class: "lease-banner ask", role: "alertdialog", hidden: true });
     this.side = h("aside", { class: "side" });
     this.root.append(h("div", { class: "annotate-page" }, this.thumbs,
-      h("section", { class: "stage" }, this.canvas, this.hud, this.banner), this.side));
+      h("section", { class: "stage" }, this.canvas, this.hud, this.banner, this.ask), this.side));
     const c = this.canvas;
     c.addEventListener("pointerdown", (e) => this.pointerdown(e));
     c.addEventListener("pointermove", (e) => this.pointermove(e));
@@ -119,6 +130,7 @@ class AnnotatePage {
     document.removeEventListener("visibilitychange", this.onVisibility);
     clearInterval(this.clock);
     clearTimeout(this.emptyTimer);
+    clearTimeout(this.fitWatch);
     this.drafts.stop(); // what is not saved yet goes now (Back, another page): the next mount restores it
     // The prefetched sample goes back to the queue; the one on screen stays ours until its lease expires.
     if (this.prepared) this.leases.drop(this.prepared.task.sample_id, true);
@@ -196,6 +208,9 @@ class AnnotatePage {
     this.task = task;
     this.sources = proposals.sources;
     this.reviewNote = proposals.review_note;
+    this.fitFailure = proposals.fit_failure || null;
+    this.noHand = new Set(); // views marked "no hand here"
+    this.closeAsk();
     this.cameras = new Map(proposals.cameras.map((c) => [c.view_id, c]));
     this.views = views.map((v) => ({ ...v, mask: null, overlay: null, maskEdited: false }));
     this.decodeMask(this.views[0]);
@@ -210,7 +225,10 @@ class AnnotatePage {
       }).catch((error) => toast(`view ${view.camera} did not load: ${error.message}`, "error"));
     });
     this.annotation = new Annotation(this.views.map((v) => v.id), task.keypoints_to_click || SPARSE);
+    // The points placed before (a sample back from review or a failed fit); "not annotated" ones stay unset, to
+    // be decided again: a failed empty submission must not come back as every point done.
     for (const c of proposals.previous_clicks) {
+      if (c.x === null || c.x === undefined) continue;
       if (this.annotation.clicks.has(c.view_id) && this.annotation.keypoints.includes(c.keypoint)) {
         this.previousClicks = true;
         this.annotation.set(c.view_id, c.keypoint, { x: c.x, y: c.y, visibility: c.visibility });
@@ -292,6 +310,28 @@ class AnnotatePage {
 
   updateProposals() {
     this.proposals = computeProposals(this.annotation, this.cameras, this.sources);
+    this.alternates = this.detectorAlternates();
+  }
+
+  // The detector's own points where another proposal (the fit made from them) is offered instead and lies
+  // more than ALTERNATE_PX away: drawn as a D ring beside it, so the annotator sees where the two disagree
+  // (click it to take the detector's point). view id -> keypoint -> proposal.
+  detectorAlternates() {
+    const out = new Map(this.annotation.viewIds.map((v) => [v, new Map()]));
+    const detector = (this.sources || []).find((s) => s.kind === "detector");
+    if (!detector) return out;
+    for (const viewId of this.annotation.viewIds) {
+      const cam = this.cameras.get(viewId);
+      const points = detector.views[String(viewId)] || [];
+      for (const [k, chosen] of this.proposals.get(viewId)) {
+        const p = points[k];
+        const confidence = detector.confidences ? detector.confidences[k] : null;
+        if (chosen.source === "detector" || !inside(p, cam) || (confidence !== null && confidence < MIN_CONF)) continue;
+        if (Math.hypot(p[0] - chosen.x, p[1] - chosen.y) <= ALTERNATE_PX) continue;
+        out.get(viewId).set(k, { x: p[0], y: p[1], source: "detector", confidence });
+      }
+    }
+    return out;
   }
 
   // Pick the next keypoint to work on: after a placement (afterClick) the next one without a position in
@@ -320,8 +360,8 @@ class AnnotatePage {
     this.renderSide();
   }
 
-  acceptProposal(keypoint, { advance = true } = {}) {
-    const p = this.proposals.get(this.view.id).get(keypoint);
+  acceptProposal(keypoint, { advance = true, alternate = false } = {}) {
+    const p = (alternate ? this.alternates : this.proposals).get(this.view.id).get(keypoint);
     if (!p) return false;
     // One gesture for occlusion: a keypoint the fit's mesh hides here is accepted as occluded (O flips it).
     this.setClick(this.view.id, keypoint, { x: p.x, y: p.y, visibility: p.hidden ? "occluded" : "visible",
@@ -439,7 +479,7 @@ class AnnotatePage {
       .map((v) => ({ view_id: v.id, width: v.width, height: v.height, rle: v.mask.toRLE() }));
     return { lease_token: this.task.lease_token, submission_id: this.submissionId,
       time_spent_s: Math.round(this.timer.spentSeconds() * 1000) / 1000, clicks, masks,
-      view_index: this.viewIndex, keypoint: this.keypoint };
+      view_index: this.viewIndex, keypoint: this.keypoint, no_hand_views: [...this.noHand] };
   }
 
   // Restore a saved draft over the freshly shown task (it holds the whole state: it replaces previous clicks).
@@ -463,6 +503,7 @@ class AnnotatePage {
       view.overlay = new MaskOverlay(view.mask);
       view.maskEdited = true;
     }
+    this.noHand = new Set((p.no_hand_views || []).filter((id) => this.annotation.clicks.has(id)));
     this.viewIndex = Math.min(p.view_index, this.views.length - 1);
     if (this.annotation.keypoints.includes(p.keypoint)) this.keypoint = p.keypoint;
     this.submissionId = p.submission_id;
@@ -539,6 +580,7 @@ class AnnotatePage {
     };
     for (const [k, c] of this.annotation.clicks.get(this.view.id)) consider(k, c.x, c.y, "click");
     for (const [k, p] of this.proposals.get(this.view.id)) consider(k, p.x, p.y, "proposal");
+    for (const [k, p] of this.alternates.get(this.view.id)) consider(k, p.x, p.y, "alternate");
     return best;
   }
 
@@ -665,15 +707,15 @@ class AnnotatePage {
         const offered = d.from === "proposal" ? this.proposals.get(this.view.id).get(d.keypoint) : null;
         const occluded = existing ? existing.visibility === "occluded" : Boolean(offered && offered.hidden);
         this.setClick(this.view.id, d.keypoint, { x: d.u, y: d.v, visibility: occluded ? "occluded" : "visible" }, "drag");
-        if (d.from === "proposal") this.advance();
+        if (d.from !== "click") this.advance();
       } else if (d.keypoint !== this.keypoint && currentUnset) {
         if (this.placeable(d.pressU, d.pressV)) {
           this.setClick(this.view.id, this.keypoint, { x: d.pressU, y: d.pressV, visibility: "visible" }, "click");
           this.advance({ afterClick: true });
         }
-      } else if (d.from === "proposal") {
+      } else if (d.from === "proposal" || d.from === "alternate") {
         this.keypoint = d.keypoint;
-        this.acceptProposal(d.keypoint);
+        this.acceptProposal(d.keypoint, { alternate: d.from === "alternate" });
       } else {
         this.keypoint = d.keypoint;
         this.renderSide();
@@ -723,11 +765,15 @@ class AnnotatePage {
     } else if (ctrl && (key === "y" || key === "Y")) {
       this.redo();
     } else if (ctrl && key === "Enter") {
-      this.submit();
+      this.submit({ confirmed: this.asking === "submit" });
     } else if (ctrl) {
       handled = false;
     } else if (key >= "1" && key <= "6") {
       this.pick(SPARSE[Number(key) - 1]);
+    } else if (key === "Escape" && this.asking) {
+      this.closeAsk();
+    } else if (key === "x" || key === "X") {
+      this.toggleNoHand();
     } else if (key === "Escape") {
       // Keys back to the view from whatever has the focus (a button, the list); a drag in progress ends.
       this.drag = null;
@@ -831,16 +877,41 @@ class AnnotatePage {
   fitView({ whole = false } = {}) {
     if (!this.task) return;
     const { width, height } = fitCanvas(this.canvas);
-    const box = whole ? null : this.handBox(this.view);
-    if (box) this.vp.fitRect(...box, width, height, 8);
-    else this.vp.fit(this.view.width, this.view.height, width, height);
-    this.vp.minScale = Math.min(this.vp.minScale, Math.min(width / this.view.width, height / this.view.height) / 2);
+    const view = this.view;
+    const box = whole ? null : this.handBox(view);
+    const wholeScale = Math.min((width - 16) / view.width, (height - 16) / view.height);
+    if (box) {
+      this.vp.fitRect(...box, width, height, 8);
+      // No closer than OPEN_MAX_PX screen px per working-copy pixel (unless the whole image shows larger):
+      // zoomed further, a 640 px copy opened at 483 % looked blocky. The hand stays centred.
+      const copyWidth = view.image ? view.image.width : view.width;
+      const most = Math.max(OPEN_MAX_PX * copyWidth / view.width, 1.25 * wholeScale);
+      if (this.vp.scale > most) {
+        const cx = (box[0] + box[2]) / 2, cy = (box[1] + box[3]) / 2;
+        this.vp.scale = most;
+        this.vp.ox = width / 2 - (cx + 0.5) * most;
+        this.vp.oy = height / 2 - (cy + 0.5) * most;
+        this.vp.minScale = most / 8;
+      }
+      // No blank beyond the image's edge: a hand at the edge once opened as a strip of arm beside empty canvas.
+      this.vp.keepInside(view.width, view.height, width, height);
+    } else {
+      this.vp.fit(view.width, view.height, width, height);
+    }
+    this.vp.minScale = Math.min(this.vp.minScale, Math.min(width / view.width, height / view.height) / 2);
   }
 
   // The image rectangle [x0, y0, x1, y1] around the hand in a view, with a margin; null if nothing shows it.
   handBox(view, margin = 0.35, minFraction = 0.2) {
     const xs = [], ys = [];
-    const add = (x, y) => { if (Number.isFinite(x) && Number.isFinite(y)) { xs.push(x); ys.push(y); } };
+    // Only points inside the image: a source's projection off the image once opened a view on a strip of arm
+    // at its edge.
+    const add = (x, y) => {
+      if (Number.isFinite(x) && Number.isFinite(y) && x >= 0 && y >= 0 && x <= view.width && y <= view.height) {
+        xs.push(x);
+        ys.push(y);
+      }
+    };
     for (const c of this.annotation.clicks.get(view.id).values()) add(c.x, c.y);
     for (const p of (this.proposals ? this.proposals.get(view.id) : new Map()).values()) add(p.x, p.y);
     for (const source of this.sources || []) for (const p of source.views[String(view.id)] || []) if (p) add(p[0], p[1]);
@@ -877,9 +948,143 @@ class AnnotatePage {
 
   // --- submit -------------------------------------------------------------------------------------
 
-  async submit() {
+  showAsk(kind, ...children) {
+    this.asking = kind;
+    fill(this.ask, ...children);
+    this.ask.hidden = false;
+    document.body.dataset.ask = kind;
+  }
+
+  closeAsk() {
+    this.asking = null;
+    this.ask.hidden = true;
+    fill(this.ask, );
+    delete document.body.dataset.ask;
+  }
+
+  // "No hand here" in the view on screen: every point of it not annotated (one undo step), the view sent as
+  // no_hand_views with the submission (kept out of the fit, counted). Again: the mark goes, the points unset.
+  toggleNoHand() {
+    const viewId = this.view.id;
+    const on = !this.noHand.has(viewId);
+    const changes = this.annotation.keypoints.map((keypoint) => ({ keypoint,
+      previous: this.annotation.get(viewId, keypoint),
+      value: on ? { x: null, y: null, visibility: "not_annotated" } : null }));
+    const apply = (which, mark) => {
+      for (const c of changes) this.annotation.set(viewId, c.keypoint, c[which]);
+      if (mark) this.noHand.add(viewId); else this.noHand.delete(viewId);
+      this.justPlaced = null;
+      this.changed(viewId);
+    };
+    this.history.record({ kind: "no_hand", undo: () => apply("previous", !on), redo: () => apply("value", on) });
+    this.timer.mark("not_annotated", { view_id: viewId });
+    apply("value", on);
+  }
+
+  // Skip the sample or mark it "no hand" (every view), with a reason, after asking.
+  askPass(kind) {
+    const input = h("input", { class: "pass-reason", type: "text", maxlength: "500", "aria-label": "reason",
+      value: kind === "no_hand" ? "no hand in any view" : "", placeholder: "why (required)" });
+    const send = () => this.passOn(kind, input.value);
+    input.addEventListener("keydown", (e) => { if (e.key === "Enter") { e.preventDefault(); send(); } });
+    this.showAsk(kind, h("strong", {}, kind === "no_hand" ? "No hand in this sample: " : "Skip this sample: "),
+      h("span", {}, kind === "no_hand" ? "it leaves the queue (nothing to label or fit). "
+        : "it goes to another annotator, not back to you. "),
+      input,
+      h("button", { class: "primary confirm-pass", onclick: send }, kind === "no_hand" ? "Mark no hand" : "Skip"),
+      h("button", { class: "keep", onclick: () => this.closeAsk() }, "Keep annotating (Esc)"));
+    input.focus();
+  }
+
+  async passOn(kind, reason) {
+    if (!this.task) return;
+    if (!reason.trim()) return toast("give a reason", "warn", 2500);
+    const task = this.task;
+    try {
+      let result;
+      const url = `/api/annotate/samples/${task.sample_id}/skip`;
+      const body = { kind, reason: reason.trim(), lease_token: task.lease_token };
+      try {
+        result = await this.api.post(url, body);
+      } catch (error) {
+        if (error.status !== 403 && error.status !== 409) throw error;
+        body.lease_token = await this.leases.retake(task.sample_id);
+        result = await this.api.post(url, body);
+      }
+      this.closeAsk();
+      this.drafts.forget();
+      this.leases.drop(task.sample_id, false);
+      toast(kind === "no_hand" ? `sample ${task.sample_id}: no hand (${result.state})`
+        : `skipped sample ${task.sample_id}: it goes to someone else`, "ok", 2500);
+      this.task = null;
+      await this.loadNext();
+    } catch (error) {
+      toast(`${kind === "no_hand" ? "no hand" : "skip"} failed: ${error.message}`, "error", 8000);
+    }
+  }
+
+  // After a submission, look for its fit failing (every 5 s, for 2 minutes): shown on the page, with why.
+  watchFit(submissionId, tries = 24) {
+    clearTimeout(this.fitWatch);
+    const look = async () => {
+      const failures = await this.api.get("/api/annotate/fit-failures").catch(() => null);
+      if (failures) {
+        const fresh = failures.filter((f) => !this.failedFits.some((g) => g.submission_id === f.submission_id));
+        const mine = failures.find((f) => f.submission_id === submissionId);
+        if (fresh.length) {
+          this.failedFits = failures.slice(0, 3);
+          for (const f of fresh) toast(`the fit of your work on sample ${f.sample_id} failed: ${f.reason}`, "warn", 10000);
+          if (this.lastSubmission && mine && this.lastSubmission.submission === submissionId) {
+            this.lastSubmission.failed = mine.reason;
+          }
+          document.body.dataset.fitFailed = String(failures[0].sample_id);
+          this.renderSide();
+        }
+        if (mine) return;
+      }
+      if (--tries > 0) this.fitWatch = setTimeout(look, 5000);
+    };
+    this.fitWatch = setTimeout(look, 1000);
+  }
+
+  // What a submit would leave out: points not set (they go as not annotated) outside the views marked "no hand",
+  // and whether anything at all is placed.
+  submitGaps() {
+    let unset = 0, placed = 0, views = 0;
+    for (const viewId of this.annotation.viewIds) {
+      if (this.noHand.has(viewId)) continue;
+      let here = 0;
+      for (const k of this.annotation.keypoints) {
+        const c = this.annotation.get(viewId, k);
+        if (c === null) here++;
+        else if (c.x !== null) placed++;
+      }
+      unset += here;
+      if (here) views++;
+    }
+    return { unset, placed, views, masks: this.views.some((v) => v.maskEdited) };
+  }
+
+  // Submit; an empty submission is not sent (nothing to fit) and an incomplete one asks first.
+  async submit({ confirmed = false } = {}) {
     if (!this.task || this.submitting) return;
     if (this.lostLease) return toast("this sample is no longer yours: take the next task", "warn", 3000);
+    const gaps = this.submitGaps();
+    if (gaps.placed === 0 && !gaps.masks) {
+      return this.showAsk("empty", h("strong", {}, "Nothing is placed: there is nothing to fit. "),
+        h("span", {}, "If no view shows the hand, mark the sample 'no hand'; if you cannot annotate it, skip it."),
+        h("button", { class: "no-hand-sample", onclick: () => this.askPass("no_hand") }, "No hand in this sample…"),
+        h("button", { class: "skip-sample", onclick: () => this.askPass("skip") }, "Skip…"),
+        h("button", { class: "keep", onclick: () => this.closeAsk() }, "Keep annotating (Esc)"));
+    }
+    if (gaps.unset > 0 && !confirmed) {
+      return this.showAsk("submit", h("strong", {}, `${gaps.unset} point(s) not set in ${gaps.views} view(s). `),
+        h("span", {}, "They are submitted as not annotated. Submit anyway?"),
+        h("button", { class: "primary confirm-submit", onclick: () => this.submit({ confirmed: true }) },
+          "Submit anyway (Ctrl+Enter)"),
+        h("button", { class: "keep", onclick: () => this.closeAsk() }, "Keep annotating (Esc)"));
+    }
+    this.closeAsk();
     const task = this.task;
     const masks = this.views.filter((v) => v.maskEdited && v.mask)
       .map((v) => ({ view_id: v.id, width: v.width, height: v.height, rle: v.mask.toRLE() }));
@@ -890,6 +1095,7 @@ class AnnotatePage {
       clicks: this.annotation.toClicks(),
       masks,
     };
+    if (this.noHand.size) body.no_hand_views = [...this.noHand];
     this.submitting = true;
     this.renderSide();
     try {
@@ -911,7 +1117,8 @@ class AnnotatePage {
       };
       this.api.post("/api/activity", log).catch((error) => toast(`time log not saved: ${error.message}`, "warn"));
       this.lastSubmission = { sample_id: task.sample_id, fit_job_id: result.fit_job_id, clicks: body.clicks.length,
-        masks: masks.length };
+        masks: masks.length, submission: result.id };
+      this.watchFit(result.id);
       toast(`submitted sample ${task.sample_id}: ${masks.length} mask(s), fit job ${result.fit_job_id ?? "–"} queued`,
         "ok", 2500);
       this.submitting = false;
@@ -955,7 +1162,8 @@ class AnnotatePage {
     ctx.fillRect(0, 0, width, height);
     this.vp.apply(ctx, dpr);
     ctx.imageSmoothingEnabled = this.vp.scale < 3;
-    if (view.image) ctx.drawImage(view.image, 0, 0, view.width, view.height);  // a working-width copy: full-resolution units
+    const image = this.pixelsOf(view, dpr);
+    if (image) ctx.drawImage(image, 0, 0, view.width, view.height);  // a working-width copy: full-resolution units
     // Points mode shows the mask's outline only, so the skin under it stays visible.
     if (this.showMask && view.overlay) ctx.drawImage(this.mode === "points" ? view.overlay.outline() : view.overlay.canvas, 0, 0);
     ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
@@ -997,6 +1205,21 @@ class AnnotatePage {
         ` · O/N: ${labelFor(target.keypoint)}${target.justPlaced ? " (just placed)" : ""}`);
   }
 
+  // The pixels to draw a view with: its working-width copy, or once zoomed past that copy's own pixels, the
+  // full-resolution original (loaded the first time it is needed, then kept for the view).
+  pixelsOf(view, dpr) {
+    if (!view.fullImage && !view.fullLoading && needsFullImage(view, this.vp.scale, dpr)) {
+      const task = this.task;
+      view.fullLoading = loadFullImage(this.api, view).then((bitmap) => {
+        view.fullImage = bitmap;
+        if (this.task === task && this.view === view) this.requestRender();
+      }).catch((error) => {
+        toast(`full-resolution ${view.camera} did not load: ${error.message}`, "warn", 4000);
+      });
+    }
+    return view.fullImage || view.image;
+  }
+
   // The magnifier: up to LOUPE_ZOOM times the view's zoom around the cursor, in a circle beside it (clear of
   // the finger that points), with a crosshair on the pixel a click would place.
   loupeGeometry(point = this.hover) {
@@ -1022,7 +1245,7 @@ class AnnotatePage {
     // Image point (u, v) at the loupe's centre: screen = (px + 0.5) * scale + o.
     ctx.setTransform(scale * dpr, 0, 0, scale * dpr, (g.cx - (u + 0.5) * scale) * dpr, (g.cy - (v + 0.5) * scale) * dpr);
     ctx.imageSmoothingEnabled = false;
-    ctx.drawImage(view.image, 0, 0, view.width, view.height);
+    ctx.drawImage(view.fullImage || view.image, 0, 0, view.width, view.height);
     if (this.showMask && view.overlay) ctx.drawImage(view.overlay.outline(), 0, 0);
     ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
     ctx.strokeStyle = "rgba(255, 255, 255, 0.9)";
@@ -1084,6 +1307,11 @@ class AnnotatePage {
         if (c && c.x !== null) segment(ctx, vp.toScreen(...pos(0, wrist)), vp.toScreen(...pos(k, c)), colorOf(k), 1, [4, 4]);
       }
     }
+    for (const [k, p] of this.alternates.get(view.id)) {
+      if (drag && drag.keypoint === k) continue;
+      const [x, y] = vp.toScreen(p.x, p.y);
+      marker(ctx, x, y, k, { style: "alternate", r, label: labels ? proposalLabel(p) : null });
+    }
     for (const [k, p] of this.proposals.get(view.id)) {
       if (drag && drag.keypoint === k) continue;
       const [x, y] = vp.toScreen(p.x, p.y);
@@ -1131,8 +1359,10 @@ class AnnotatePage {
     // Placed points out of the keypoints; those marked not annotated apart ("· 2 N"): they are decided, not done.
     const done = this.annotation.doneIn(view.id);
     const skipped = this.annotation.notAnnotatedIn(view.id);
-    el.querySelector(".thumb-label").textContent = `${index + 1} ${view.camera} ${done}/${this.annotation.keypoints.length}` +
-      `${skipped ? ` · ${skipped} N` : ""}${view.maskEdited ? " ✎" : ""}`;
+    el.querySelector(".thumb-label").textContent =
+      `${index + 1} ${view.camera} ${this.noHand.has(view.id) ? "no hand"
+        : `${done}/${this.annotation.keypoints.length}${skipped ? ` · ${skipped} N` : ""}`}` +
+      `${view.maskEdited ? " ✎" : ""}`;
     el.classList.toggle("complete", done === this.annotation.keypoints.length);
   }
 
@@ -1153,8 +1383,10 @@ class AnnotatePage {
     const rows = SPARSE.map((k, i) => {
       const status = this.annotation.status(view.id, k);
       const p = props.get(k);
+      const alt = this.alternates.get(view.id).get(k);
       const text = status === "unset" ? (p ? `proposal ${proposalLabel(p)}${p.hidden ? " · hidden" : ""}` +
-        `${confident(p) ? "" : " · look"}` : "–")
+        `${confident(p) ? "" : " · look"}` +
+        (alt ? ` · ${proposalLabel(alt)} ${fmt(Math.hypot(alt.x - p.x, alt.y - p.y), 0, " px")} away` : "") : "–")
         : status.replace("_", " ") + (this.annotation.get(view.id, k).from ? " (accepted)" : "");
       return h("li", { class: `kp-row${k === this.keypoint ? " current" : ""} status-${status}`,
         onclick: () => this.pick(k) },
@@ -1174,6 +1406,11 @@ class AnnotatePage {
         h("div", { class: "clock muted" }, ""),
         h("div", { class: "draft-state muted" }, draftLabel(document.body.dataset.draftState))),
       this.reviewNote ? h("div", { class: "callout" }, h("strong", {}, "Reviewer: "), this.reviewNote) : null,
+      this.fitFailure ? h("div", { class: "callout warn fit-failure-here" }, h("strong", {}, "The last fit failed: "),
+        this.fitFailure.reason, ". Its points are kept below; place what is missing, or skip the sample.") : null,
+      this.failedFits.length ? h("div", { class: "callout warn fit-failures" },
+        h("strong", {}, "Fits that failed on your work: "), this.failedFits.map((f) =>
+          h("div", {}, `sample ${f.sample_id}: ${f.reason} (it goes to another annotator)`))) : null,
       h("div", { class: "mode-switch", role: "group" },
         h("button", { class: this.mode === "points" ? "on" : "", onclick: () => this.setMode("points") }, "Points (P)"),
         h("button", { class: this.mode === "mask" && this.tool === "brush" ? "on" : "",
@@ -1188,7 +1425,9 @@ class AnnotatePage {
           `Accept ${[...props.values()].filter(confident).length} of ${props.size} proposals (Enter)` +
           `${hiddenCount ? ` · ${hiddenCount} as occluded` : ""}`),
         h("button", { onclick: () => this.toggleOccluded() }, "Occluded (O)"),
-        h("button", { onclick: () => this.markNotAnnotated() }, "Not annotated (N)")),
+        h("button", { onclick: () => this.markNotAnnotated() }, "Not annotated (N)"),
+        h("button", { class: `no-hand-view${this.noHand.has(view.id) ? " on" : ""}`, onclick: () => this.toggleNoHand() },
+          this.noHand.has(view.id) ? "No hand here ✓ (X)" : "No hand here (X)")),
       h("div", { class: "button-row" },
         h("button", { onclick: () => this.undo(), disabled: !this.history.canUndo }, "Undo"),
         h("button", { onclick: () => this.redo(), disabled: !this.history.canRedo }, "Redo")),
@@ -1196,12 +1435,16 @@ class AnnotatePage {
         `${skipped} not annotated · ${masks} mask(s) corrected`),
       h("button", { class: "primary submit", onclick: () => this.submit(), disabled: this.submitting },
         this.submitting ? "Submitting…" : "Submit (Ctrl+Enter)"),
+      h("div", { class: "button-row" },
+        h("button", { class: "no-hand-sample", onclick: () => this.askPass("no_hand") }, "No hand in this sample…"),
+        h("button", { class: "skip-sample", onclick: () => this.askPass("skip") }, "Skip…")),
       h("div", { class: "muted legend" }, "proposals: T triangulated from your clicks, F current fit, M MVNet, " +
         `D detector; the number is its confidence (orange: below ${ACCEPT_CONF}, Enter leaves it)`),
       this.sources.map((source) => h("div", { class: source.label.includes("not MANO") ? "badge warn" : "badge" },
         `${SOURCE_LETTER[source.kind]}: ${source.label}`)),
-      this.lastSubmission ? h("div", { class: "muted" },
-        `last: sample ${this.lastSubmission.sample_id} → fit job ${this.lastSubmission.fit_job_id ?? "–"}`) : null,
+      this.lastSubmission ? h("div", { class: "muted last-submission" },
+        `last: sample ${this.lastSubmission.sample_id} → fit job ${this.lastSubmission.fit_job_id ?? "–"}` +
+        (this.lastSubmission.failed ? ` failed: ${this.lastSubmission.failed}` : "")) : null,
       h("details", { class: "help" }, h("summary", {}, "Keys (?)"),
         h("table", {}, HELP.map(([k, d]) => h("tr", {}, h("td", {}, h("kbd", {}, k)), h("td", {}, d))))),
     );

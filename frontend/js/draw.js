@@ -30,6 +30,20 @@ export function marker(ctx, x, y, keypoint, { style = "solid", r = 6, label = nu
       ctx.arc(x, y, r + 6, 0, 2 * Math.PI);
       ctx.stroke();
     }
+  } else if (style === "alternate") {
+    // A second source's point for the same keypoint (the detector's beside the fit's): a thin dotted ring.
+    ctx.strokeStyle = "rgba(0, 0, 0, 0.75)";
+    ctx.lineWidth = 3;
+    ctx.beginPath();
+    ctx.arc(x, y, r, 0, 2 * Math.PI);
+    ctx.stroke();
+    ctx.lineWidth = 1.5;
+    ctx.setLineDash([1, 3]);
+    ctx.strokeStyle = color;
+    ctx.beginPath();
+    ctx.arc(x, y, r, 0, 2 * Math.PI);
+    ctx.stroke();
+    ctx.setLineDash([]);
   } else if (style === "occluded") {
     ctx.strokeStyle = "#fff";
     ctx.fillStyle = color;

@@ -35,3 +35,16 @@ export async function loadView(api, view, { masks = true } = {}) {
 export async function loadViews(api, task, options = {}) {
   return Promise.all(task.views.map(async (view) => ({ ...view, ...(await loadView(api, view, options)) })));
 }
+
+// The full-resolution original of a view (its image_url serves the working-width copy where the project has
+// a narrower working width): loaded when the annotator zooms past the copy's own pixels.
+export async function loadFullImage(api, view) {
+  const sep = view.image_url.includes("?") ? "&" : "?";
+  return loadBitmap(api, `${view.image_url}${sep}full=true`);
+}
+
+// Whether a view drawn at `scale` screen px per full-resolution pixel (times devicePixelRatio) shows the
+// working copy's pixels larger than a device pixel, so the full-resolution original would show more.
+export function needsFullImage(view, scale, dpr = 1) {
+  return Boolean(view.image) && view.image.width < view.width && scale * dpr * view.width / view.image.width > 1;
+}

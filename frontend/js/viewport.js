@@ -29,6 +29,15 @@ export class Viewport {
     return this;
   }
 
+  // Pan so the image covers the canvas along each axis where it is larger than the canvas (no blank beyond its
+  // edge), else centre it along that axis; the zoom stays.
+  keepInside(imageW, imageH, canvasW, canvasH) {
+    const fit = (o, size, room) => (size >= room ? Math.min(0, Math.max(room - size, o)) : (room - size) / 2);
+    this.ox = fit(this.ox, imageW * this.scale, canvasW);
+    this.oy = fit(this.oy, imageH * this.scale, canvasH);
+    return this;
+  }
+
   toScreen(u, v) {
     return [(u + 0.5) * this.scale + this.ox, (v + 0.5) * this.scale + this.oy];
   }

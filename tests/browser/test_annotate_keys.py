@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from tests.browser.conftest import sign_in
+from tests.browser.conftest import sign_in, submit_as_is
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
@@ -125,7 +125,7 @@ def test_every_listed_key_does_what_the_panel_says(live_stack, tab):
     assert state()["focus"] == "canvas" and state()["help"] is False
 
     sample = page.evaluate("() => window.__handloop.page.task.sample_id")
-    page.keyboard.press("Control+Enter")
+    submit_as_is(page)
     page.wait_for_function(f"() => document.body.dataset.sample !== '{sample}' || "
                            "document.body.dataset.ready === 'annotate-empty'", timeout=30_000)
     assert not t.errors, t.errors
@@ -133,7 +133,7 @@ def test_every_listed_key_does_what_the_panel_says(live_stack, tab):
 
 # The Keys panel, row by row (a row added to the panel without a test here fails the next test).
 PANEL = ["1 … 6", "click", "drag", "A / Enter", "O", "N", "Del / Backspace", "Tab / Shift+Tab", "M", "[ ] / wheel",
-         "P", "wheel, right-drag", "+ / - / 0", "H", "Ctrl+Z / Ctrl+Shift+Z / Ctrl+Y", "Ctrl+Enter", "Esc", "?"]
+         "P", "wheel, right-drag", "+ / - / 0", "H", "Ctrl+Z / Ctrl+Shift+Z / Ctrl+Y", "X", "Ctrl+Enter", "Esc", "?"]
 VIEWPORT = "() => { const p = window.__handloop.page; return [p.vp.scale, p.vp.ox, p.vp.oy]; }"
 CLICK = "([v, k]) => { const p = window.__handloop.page; return p.annotation.get(p.views[v].id, k); }"
 

@@ -9,7 +9,7 @@ import pytest
 from sqlalchemy import text
 
 from backend.db.base import utcnow
-from tests.browser.conftest import sign_in
+from tests.browser.conftest import sign_in, submit_as_is
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
@@ -176,7 +176,7 @@ def test_a_lapsed_lease_on_a_free_sample_is_retaken_and_the_work_submits(live_st
                            "document.body.dataset.draftState === 'saved'", timeout=30_000)
     assert page.get_attribute("body", "data-lease") is None
     lapse_lease(stack, sample)
-    page.keyboard.press("Control+Enter")  # refused as expired, re-taken, submitted
+    submit_as_is(page)  # refused as expired, re-taken, submitted (the points not set: asked first)
     page.wait_for_function(f"() => document.body.dataset.sample !== '{sample}' || "
                            "document.body.dataset.ready === 'annotate-empty'", timeout=30_000)
     with stack.session_factory()() as session:

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from tests.browser.conftest import sign_in, wait_for_every_view
+from tests.browser.conftest import sign_in, submit_as_is, wait_for_every_view
 from tests.support.annotate import ground_truth_of
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
@@ -99,7 +99,7 @@ def test_views_open_on_the_hand_keep_their_zoom_and_show_a_magnifier_and_an_outl
     page.keyboard.press("+")
     zoomed = page.evaluate("() => [window.__handloop.page.vp.scale, window.__handloop.page.vp.ox]")
     sample = page.evaluate("() => window.__handloop.page.task.sample_id")
-    page.keyboard.press("Control+Enter")
+    submit_as_is(page)
     page.wait_for_function(f"() => document.body.dataset.sample !== '{sample}' && "
                            "document.body.dataset.ready === 'annotate'", timeout=30_000)
     page.click(".thumb >> nth=2")

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from sqlalchemy import text
 
-from tests.browser.conftest import sign_in
+from tests.browser.conftest import sign_in, submit_as_is
 from tests.support.annotate import ground_truth_of
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
@@ -87,7 +87,7 @@ def test_enter_accepts_only_confident_proposals_and_a_click_reprojects_the_accep
     page.keyboard.press("Control+Shift+z")
     assert page.evaluate(CLICK, [0, 0])["from"] == "triangulated"
 
-    page.keyboard.press("Control+Enter")
+    submit_as_is(page)
     page.wait_for_function(f"() => document.body.dataset.sample !== '{task['sample_id']}' || "
                            "document.body.dataset.ready === 'annotate-empty'", timeout=30_000)
     with stack.session_factory()() as session:

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from sqlalchemy import select
 
-from tests.browser.conftest import sign_in
+from tests.browser.conftest import sign_in, submit_as_is
 from tests.support.annotate import ground_truth_of, queue_for_annotation, wait_until
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
@@ -60,7 +60,7 @@ def annotate_in_browser(tab, stack) -> dict:
     state = page.evaluate("""() => { const p = window.__handloop.page;
         return {clicks: p.annotation.toClicks(), edited: p.views.filter((v) => v.maskEdited).map((v) => v.id)}; }""")
     tab.shot("01-annotate-before-submit")
-    page.keyboard.press("Control+Enter")
+    submit_as_is(page)
     page.wait_for_function(f"() => document.body.dataset.sample !== '{task['sample_id']}'", timeout=30_000)
     tab.shot("02-annotate-next-task")
     state["task"], state["gt"], state["names"] = task, gt, names

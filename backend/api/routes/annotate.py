@@ -4,14 +4,21 @@ from typing import Any
 
 from fastapi import APIRouter, Request, Response
 
-from backend.api.deps import AnnotatorUser, JobQueueDep, SettingsDep, StorageDep, state_session
+from backend.api.deps import AnnotatorUser, JobQueueDep, SessionDep, SettingsDep, StorageDep, state_session
 from backend.api.routes.leases import lease_routes
 from backend.api.routes.tasks_common import json_response, task_of
-from backend.models.enums import LeaseKind
+from backend.models.enums import FlagKind, LeaseKind
 from backend.schemas.base import Id
 from backend.schemas.drafts import AnnotateDraftIn
-from backend.schemas.tasks import SubmissionCreate, SubmissionPublic, TaskPublic
-from backend.services import queues, submissions
+from backend.schemas.tasks import (
+    FitFailurePublic,
+    SkipCreate,
+    SkipPublic,
+    SubmissionCreate,
+    SubmissionPublic,
+    TaskPublic,
+)
+from backend.services import annotation_flags, queues, submissions
 from backend.services.users import Principal
 
 router = APIRouter(prefix="/annotate", tags=["annotator queue"])
@@ -30,6 +37,20 @@ def submit(sample_id: Id, body: SubmissionCreate, request: Request, settings: Se
            storage: StorageDep, user: AnnotatorUser) -> Response:
     """Clicks and mask corrections for a leased sample; queues a fit. Idempotent on `submission_id`."""
     return submit_response(request.app.state, user, sample_id, body)
+
+
+@router.post("/samples/{sample_id}/skip", response_model=SkipPublic)
+def skip(sample_id: Id, body: SkipCreate, session: SessionDep, user: AnnotatorUser) -> SkipPublic:
+    """Pass on a leased sample with a reason: 'skip' (it goes to another annotator, never back to you) or
+    'no_hand' (no hand in any view: out of the queue as rejected). Nothing is submitted or fitted."""
+    result = annotation_flags.pass_on(session, user, sample_id, FlagKind(body.kind), body.reason, body.lease_token)
+    return SkipPublic(sample_id=result.sample_id, kind=result.kind.value, state=result.state)
+
+
+@router.get("/fit-failures", response_model=list[FitFailurePublic])
+def fit_failures(session: SessionDep, user: AnnotatorUser) -> list[FitFailurePublic]:
+    """The fits that failed on your submissions, newest first (at most 10), with why: the page shows them."""
+    return [FitFailurePublic(**f) for f in annotation_flags.fit_failures_of(session, user)]
 
 
 # The two routes' work, in the route's thread; backend.api.hot_path calls them too, without FastAPI's layers.

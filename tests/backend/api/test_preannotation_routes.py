@@ -17,6 +17,8 @@ from backend.models.capture import Project, Sample, Sequence
 from backend.models.fits import Fit
 from backend.models.jobs import Job
 from backend.services import preannotation
+from backend.services.detection_points import fitted_detections
+from backend.services.fit_agreement import fit_confidences
 from backend.services.jobs import InMemoryJobQueue
 from backend.services.view_geometry import project, view_cameras
 from backend.settings import Settings
@@ -179,6 +181,10 @@ def test_sent_back_detector_fits_reach_annotators_with_d_proposals_and_accepted_
     for view_id, cam in cameras.items():
         expected = project(np.asarray(fit.keypoints_m, float), cam)
         assert np.array(fitted["views"][str(view_id)], float) == pytest.approx(expected, abs=0.01)
+    # F carries the fit's agreement with the detections it was fitted to as its confidence (issue 38).
+    projected = {v: project(np.asarray(fit.keypoints_m, float), cam) for v, cam in cameras.items()}
+    agreement = fit_confidences(projected, fitted_detections(fit.inputs, list(cameras.values())))
+    assert fitted["confidences"] == agreement and any(c is not None for c in agreement), fitted["confidences"]
     assert detector["label"].startswith("detector (confidence")
     assert detector["confidences"] == pytest.approx(np.nan_to_num(np.array(detection["confidence"], float)), abs=1e-4)
     for c, view_id in enumerate(detection["view_ids"]):

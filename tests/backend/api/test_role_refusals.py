@@ -13,6 +13,8 @@ ROUTES = [
     ("POST", "/api/annotate/samples/1/lease/renew", Role.annotator),
     ("POST", "/api/annotate/samples/1/lease/release", Role.annotator),
     ("POST", "/api/annotate/samples/1/submissions", Role.annotator),
+    ("POST", "/api/annotate/samples/1/skip", Role.annotator),
+    ("GET", "/api/annotate/fit-failures", Role.annotator),
     ("GET", "/api/files/views/1/image", Role.annotator),
     ("GET", "/api/files/masks/1", Role.annotator),
     ("POST", "/api/review/next", Role.reviewer),

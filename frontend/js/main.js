@@ -1,6 +1,6 @@
 // The single page: login, then a home per role (annotators annotate, reviewers review, admins see the
 // dashboard), a hash route per page (#/annotate, #/review, #/admin).
-import { Api, ApiError } from "./api.js";
+import { Api, ApiError, TOKEN_KEY } from "./api.js";
 import { h, toast, fill } from "./dom.js";
 
 const RANK = { annotator: 0, reviewer: 1, admin: 2 };
@@ -129,6 +129,21 @@ async function route() {
 // Start loading the page's module while the session is checked (its import is cached by the browser).
 const wanted = location.hash.replace(/^#\/?/, "");
 if (PAGES[wanted] && api.signedIn) PAGES[wanted].load().catch(() => null);
+
+// Tabs share one sign-in (api.js keeps the token in localStorage): a sign-out in another tab signs this one out
+// (its work in progress is kept like after a 401), a sign-in there (also as someone else) opens this tab's page
+// for that user.
+window.addEventListener("storage", (e) => {
+  if (e.key !== TOKEN_KEY && e.key !== null) return;
+  const token = localStorage.getItem(TOKEN_KEY);
+  if (token === api.token) return;
+  const signedOut = !token;
+  if (user) toast(signedOut ? "signed out in another tab" : "signed in again in another tab", "warn", 6000);
+  unmountPage();
+  user = null;
+  api.adopt(token);
+  route();
+});
 
 window.addEventListener("hashchange", route);
 window.addEventListener("unhandledrejection", (e) => toast(`error: ${e.reason && e.reason.message ? e.reason.message : e.reason}`, "error", 8000));

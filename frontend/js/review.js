@@ -24,7 +24,8 @@ const LAYERS = [
 ];
 const HELP = [
   ["A", "accept"],
-  ["R / N", "reject / needs annotation: then 1-5 a common reason (or type one), Enter sends, Esc cancels"],
+  ["R / N", "reject / needs annotation: then 1-5 a common reason (while the note is empty) or type one, " +
+    "Enter sends, Esc cancels"],
   ["O S W K C P", "outline, silhouette, wireframe, keypoints, annotators' clicks, MVNet"],
   ["1 … 8", "enlarge a view"],
   ["Esc", "back to the grid; gives the keys back to the page (from the 3D view too)"],
@@ -33,6 +34,7 @@ const HELP = [
   ["?", "open / close this list"],
 ];
 const IOU_LOW = 0.5;
+const REASON_MAX = 2000; // the server's limit on a decision's reason (schemas.tasks.DecisionCreate)
 const VIEWER_DELAY_MS = 350;
 const SHOW_3D_KEY = "handloop.show3d";
 let softwareGL = null;
@@ -269,6 +271,12 @@ class ReviewPage {
     fill(this.viewer, h("div", { class: "muted viewer-wait" }, "3D view loading…"));
   }
 
+  // Whether a digit key picks a common reason (true) or is typed into the note (false).
+  digitsPick() {
+    const text = this.reason.text.trim();
+    return text === "" || QUICK_REASONS[this.reason.kind].includes(text);
+  }
+
   pickReason(index) {
     this.reason.text = QUICK_REASONS[this.reason.kind][index];
     this.timer.mark("reason");
@@ -302,7 +310,7 @@ class ReviewPage {
   draftBody() {
     if (!this.current) return null;
     return { lease_token: this.current.task.lease_token, decision: this.reason ? this.reason.kind : null,
-      reason: this.reason ? this.reason.text.slice(0, 2000) : "",
+      reason: this.reason ? this.reason.text.slice(0, REASON_MAX) : "",
       time_spent_s: Math.round(this.spentSeconds() * 1000) / 1000 };
   }
 
@@ -356,8 +364,9 @@ class ReviewPage {
         if (!text) return toast("give a reason (type it, or press 1-5 for a common one)", "warn", 2500);
         this.keyAt = performance.now();
         this.decide(this.reason.kind, text);
-      } else if (key >= "1" && key <= "5" && !e.ctrlKey && !e.metaKey && !e.altKey) {
-        // A digit picks a common reason, even while the text box has focus (never typed into it).
+      } else if (key >= "1" && key <= "5" && !e.ctrlKey && !e.metaKey && !e.altKey && this.digitsPick()) {
+        // A digit picks a common reason while the note holds none of the reviewer's own words (empty, or a
+        // common reason picked before); once they have typed, digits are typed like any other character.
         e.preventDefault();
         this.pickReason(Number(key) - 1);
       }
@@ -659,13 +668,23 @@ class ReviewPage {
 
   reasonBox() {
     const kind = this.reason.kind;
-    const input = h("input", { class: "reason-input", type: "text", placeholder: "reason (Enter to send, Esc to cancel)",
-      value: this.reason.text, oninput: (e) => { this.reason.text = e.target.value; this.drafts.changed(); } });
+    const count = h("div", { class: "reason-count muted" });
+    const counted = () => {
+      const n = this.reason.text.length;
+      count.textContent = `${n} / ${REASON_MAX} characters`;
+      count.classList.toggle("bad", n >= REASON_MAX);
+    };
+    const input = h("input", { class: "reason-input", type: "text", maxlength: REASON_MAX,
+      placeholder: "reason (Enter to send, Esc to cancel)", value: this.reason.text,
+      oninput: (e) => { this.reason.text = e.target.value; this.drafts.changed(); counted(); } });
+    counted();
     return h("div", { class: `reason-box ${kind}` },
       h("h3", {}, kind === "reject" ? "Reject: why?" : "Needs annotation: what is wrong?"),
       h("ol", {}, QUICK_REASONS[kind].map((r, i) => h("li", { onclick: () => this.pickReason(i) },
         h("kbd", {}, String(i + 1)), ` ${r}`))),
-      input,
+      h("div", { class: "muted reason-hint" }, "1-5 pick a common reason while the note is empty; " +
+        "once you type, digits are part of the note."),
+      input, count,
       h("div", { class: "button-row" },
         h("button", { class: "primary", onclick: () => {
           if (!this.reason.text.trim()) return toast("give a reason", "warn", 2000);

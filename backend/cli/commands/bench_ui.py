@@ -263,7 +263,7 @@ def _into_review(base: str, tokens: dict[str, str], settings, capture: Path, cou
 
 def _context(browser, token: str):
     context = browser.new_context(viewport={"width": 1600, "height": 900})
-    context.add_init_script(f"sessionStorage.setItem('handloop.token', {token!r});")
+    context.add_init_script(f"localStorage.setItem('handloop.token', {token!r});")
     return context
 
 

@@ -17,14 +17,15 @@ from backend.models.enums import (
     Visibility,
 )
 from backend.models.fits import Fit, Prediction
+from backend.models.guidelines import Guidelines
 from backend.models.jobs import Job
 from backend.models.labels import Click, Mask, Submission
 from backend.models.review import Decision, Round, RoundMember
 from backend.models.users import User
 
 __all__ = [
-    "AuditEvent", "CameraCalibration", "Click", "Decision", "DecisionKind", "Draft", "Fit", "Job", "JobKind",
-    "JobState", "LeaseKind", "Mask", "MaskKind", "Prediction", "Project", "Role", "Round", "RoundMember",
+    "AuditEvent", "CameraCalibration", "Click", "Decision", "DecisionKind", "Draft", "Fit", "Guidelines", "Job",
+    "JobKind", "JobState", "LeaseKind", "Mask", "MaskKind", "Prediction", "Project", "Role", "Round", "RoundMember",
     "RoundState", "Sample", "SampleState", "Sequence", "Split", "Stream", "Subject", "Submission", "User",
     "View", "Visibility",
 ]  # fmt: skip

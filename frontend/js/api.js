@@ -50,7 +50,9 @@ export class Api {
   // keepalive: the request outlives the page (a draft saved while it unloads; bodies up to 64 KiB).
   async fetch(method, path, { body, signal, headers, keepalive } = {}) {
     const init = { method, headers: this.headers(headers), signal, keepalive: Boolean(keepalive) };
-    if (body !== undefined) {
+    if (body instanceof FormData) {
+      init.body = body; // multipart (a file upload): the browser writes its Content-Type with the boundary
+    } else if (body !== undefined) {
       init.body = JSON.stringify(body);
       init.headers["Content-Type"] = "application/json";
     }

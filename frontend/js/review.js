@@ -31,6 +31,7 @@ const HELP = [
   ["Esc", "back to the grid; gives the keys back to the page (from the 3D view too)"],
   ["Z", "crop to the hand / whole images"],
   ["V", "show / hide the 3D view"],
+  ["F", "3D view over the image grid / back beside it (or drag its lower edge to resize it)"],
   ["?", "open / close this list"],
 ];
 const IOU_LOW = 0.5;
@@ -86,6 +87,7 @@ class ReviewPage {
       onkept: (message) => toast(message, "warn", 15000) });
     this.layers = { outline: true, silhouette: false, wireframe: false, keypoints: true, clicks: true, mvnet: false };
     this.show3d = initialShow3d();
+    this.large3d = false; // the 3D view over the image grid (F) rather than in the side panel
     this.cropToHand = true;
     this.focus = null;
     this.reason = null;
@@ -122,6 +124,7 @@ class ReviewPage {
     clearInterval(this.clock);
     clearTimeout(this.emptyTimer);
     clearTimeout(this.viewerTimer);
+    delete document.body.dataset.viewer3d;
     this.drafts.stop();
     if (this.prepared) this.leases.drop(this.prepared.task.sample_id, true);
     this.leases.dropAll(false);
@@ -390,6 +393,7 @@ class ReviewPage {
     } else if (key >= "1" && key <= "8") {
       this.setFocus(Number(key) - 1);
     } else if (key === "Escape") {
+      if (this.large3d) this.toggleLarge3d();
       this.setFocus(null);
     } else if (lower === "z") {
       this.cropToHand = !this.cropToHand;
@@ -398,6 +402,8 @@ class ReviewPage {
       this.renderSide();
     } else if (lower === "v") {
       this.toggle3d();
+    } else if (lower === "f") {
+      this.toggleLarge3d();
     } else if (key === "?") {
       this.helpOpen = !this.helpOpen;
       this.renderSide();
@@ -548,9 +554,31 @@ class ReviewPage {
 
   toggle3d() {
     this.show3d = !this.show3d;
+    if (!this.show3d && this.large3d) {
+      this.large3d = false;
+      this.placeViewer();
+    }
     localStorage.setItem(SHOW_3D_KEY, this.show3d ? "1" : "0");
     this.timer.mark("toggle");
     this.renderSide();
+  }
+
+  // The 3D view over the image grid (the side panel stays) or back in the side panel: only its place on the
+  // screen changes (CSS), the iframe stays where it is in the page, so the scene and its camera are kept (an
+  // iframe moved in the document would reload).
+  toggleLarge3d() {
+    this.large3d = !this.large3d;
+    if (this.large3d && !this.show3d) this.toggle3d();
+    this.timer.mark("toggle");
+    this.placeViewer();
+  }
+
+  placeViewer() {
+    this.viewer.classList.toggle("large", this.large3d);
+    document.body.dataset.viewer3d = this.large3d ? "large" : "side";
+    for (const button of this.viewer.querySelectorAll(".viewer-size")) {
+      button.textContent = this.large3d ? "Back beside the images (F)" : "Over the image grid (F)";
+    }
   }
 
   viewerUrl() {
@@ -580,9 +608,16 @@ class ReviewPage {
       const url = this.viewerUrl();
       this.viewerTimer = setTimeout(() => {
         if (this.viewerSample !== sample) return;
-        const frame = h("iframe", { class: "viewer-frame", title: "3D view of this sample (viser)", src: url });
-        frame.addEventListener("load", () => this.listenInFrame(frame));
-        fill(this.viewer, frame);
+        const frame = h("iframe", { class: "viewer-frame", title: "3D view of this sample (viser)", src: url,
+          allowfullscreen: true });
+        frame.addEventListener("load", () => { this.listenInFrame(frame); quietSoftwareNotice(frame); });
+        fill(this.viewer, h("div", { class: "viewer-bar" },
+          h("button", { class: "small viewer-size", onclick: () => this.toggleLarge3d() }, ""),
+          h("button", { class: "small viewer-fullscreen", onclick: () => frame.requestFullscreen().catch((error) =>
+            toast(`full screen refused: ${error.message}`, "warn")) }, "Full screen"),
+          softwareWebGL() ? h("span", { class: "muted software-note", title: "viser's own notice about it is hidden" },
+            "software WebGL: slow") : null), frame);
+        this.placeViewer();
       }, VIEWER_DELAY_MS);
     }
     return this.viewer;
@@ -659,9 +694,10 @@ class ReviewPage {
         "MVNet layer (P) empty: no MVNet prediction exists for this sample (this fit was made from " +
         (fit.source === "detector" ? "the detector's keypoints)." : "clicks).")),
       h("div", { class: "muted" }, `1-8 enlarge a view, Esc back · Z ${this.cropToHand ? "whole images" : "zoom to the hand"} · V 3D view`),
-      this.render3d(),
+      // The Keys list above the 3D view, which takes the rest of the panel: opened, it is in sight.
       h("details", { class: "help", open: this.helpOpen }, h("summary", {}, "Keys (?)"),
         h("table", {}, HELP.map(([k, d]) => h("tr", {}, h("td", {}, h("kbd", {}, k)), h("td", {}, d))))),
+      this.render3d(),
     );
     this.renderClock();
   }
@@ -739,4 +775,24 @@ function residualBanner(fit) {
   const split = fit.residual_by_origin;
   if (!split || !split.accepted.n) return `${fmt(fit.mean_residual_px, 1, " px")} (vs ${fit.residual_reference ?? "–"})`;
   return `${fmt(split.clicked.mean_px, 1, " px")} vs clicks, ${fmt(split.accepted.mean_px, 1, " px")} vs accepted proposals`;
+}
+
+// viser's client shows its own "Software WebGL rendering detected" notification over most of a small view; the
+// page says it already (next to the view's buttons), so that notification is hidden as soon as it appears. The
+// client is same-origin (served by this backend), so its document can be reached; others are left alone.
+function quietSoftwareNotice(frame) {
+  let doc;
+  try {
+    doc = frame.contentDocument;
+  } catch {
+    return;
+  }
+  if (!doc || !doc.body) return;
+  const hide = () => {
+    for (const el of doc.querySelectorAll("[class*='Notification-root'], [role='alert']")) {
+      if (/software\s+(webgl\s+)?rendering/i.test(el.textContent || "")) el.style.display = "none";
+    }
+  };
+  hide();
+  new MutationObserver(hide).observe(doc.body, { childList: true, subtree: true });
 }

@@ -276,8 +276,8 @@ class ReviewPage {
 
   // Whether a digit key picks a common reason (true) or is typed into the note (false).
   digitsPick() {
-    const text = this.reason.text.trim();
-    return text === "" || QUICK_REASONS[this.reason.kind].includes(text);
+    const text = this.reason.text; // as typed: a space after a picked reason is the start of one's own words
+    return text.trim() === "" || QUICK_REASONS[this.reason.kind].includes(text);
   }
 
   pickReason(index) {
@@ -790,7 +790,10 @@ function quietSoftwareNotice(frame) {
   if (!doc || !doc.body) return;
   const hide = () => {
     for (const el of doc.querySelectorAll("[class*='Notification-root'], [role='alert']")) {
-      if (/software\s+(webgl\s+)?rendering/i.test(el.textContent || "")) el.style.display = "none";
+      if (/software\s+(webgl\s+)?rendering/i.test(el.textContent || "") && el.style.display !== "none") {
+        el.style.display = "none";
+        frame.dataset.softwareNotice = "hidden";
+      }
     }
   };
   hide();

@@ -70,7 +70,8 @@ export class FreihandExport {
     fill(this.list, jobs.length ? h("table", { class: "table" }, h("tbody", {}, jobs.map((j) => h("tr",
       { dataset: { exportJob: String(j.id), state: j.state } }, h("td", {}, `job ${j.id}`), h("td", {}, j.state),
       h("td", { class: "muted" }, j.error || (j.result ? `${j.result.samples.training} training, ` +
-        `${j.result.samples.evaluation} evaluation FreiHAND samples (one per view), ${(j.result.bytes / 1e6).toFixed(1)} MB` : "")),
+        `${j.result.samples.evaluation} evaluation FreiHAND samples (one per view), ` +
+        `${(j.result.bytes / 1e6).toFixed(1)} MB` : "")),
       h("td", {}, j.state === "succeeded" ? this.downloadButton(j.id) : ""))))) : null);
   }
 

@@ -1,6 +1,6 @@
 // The project's labelling guidelines (text and images an admin edits; GET /api/guidelines). On the annotate and
-// review pages a "Guidelines" button in the top bar opens them in a panel at the side (it opens by itself once
-// per new revision, so a change reaches everyone); on the admin page a section edits them (PUT
+// review pages a "Guidelines" button in the top bar opens them in a panel at the side (it opens by itself after
+// each change until the person closes it once, so a change reaches everyone); on the admin page a section edits them (PUT
 // /api/admin/guidelines, images with a caption), each edit sent with the revision it was made on (409 when
 // another admin saved meanwhile). The text is shown as text (paragraphs), never as HTML.
 import { h, toast, fill } from "./dom.js";
@@ -44,9 +44,10 @@ export class GuidelinesPanel {
     this.body = h("div", { class: "guidelines-body" });
     this.aside = h("aside", { class: "guidelines-panel", hidden: true, "aria-label": "labelling guidelines" },
       h("div", { class: "guidelines-head" }, h("h2", {}, "Guidelines"),
-        h("button", { class: "small close", "aria-label": "close the guidelines", onclick: () => this.show(false) }, "Close")),
+        h("button", { class: "small close", "aria-label": "close the guidelines", onclick: () => this.close() }, "Close")),
       this.body);
-    this.button = h("button", { class: "link guidelines-button", onclick: () => this.show(this.aside.hidden) }, "Guidelines");
+    this.button = h("button", { class: "link guidelines-button", onclick: () => (this.aside.hidden ? this.show(true) : this.close()) },
+      "Guidelines");
   }
 
   async load() {
@@ -57,11 +58,17 @@ export class GuidelinesPanel {
       ? h("p", { class: "muted" }, "No guidelines yet: an admin writes them on the admin page.")
       : [paragraphs(g.text), figures(g.images, this.urls)]);
     this.aside.dataset.revision = String(g.revision);
-    const seenKey = SEEN_KEY + this.user.id;
-    if (g.revision > Number(localStorage.getItem(seenKey) || 0)) {
-      this.show(true); // new to this person: shown once, then behind the button
-      localStorage.setItem(seenKey, String(g.revision));
-    }
+    // New to this person: open until they close it once (in any tab of this browser), then behind the button.
+    if (g.revision > Number(localStorage.getItem(this.seenKey()) || 0)) this.show(true);
+  }
+
+  seenKey() {
+    return SEEN_KEY + this.user.id;
+  }
+
+  close() {
+    this.show(false);
+    if (this.revision) localStorage.setItem(this.seenKey(), String(this.revision));
   }
 
   show(open) {
@@ -115,7 +122,8 @@ export class GuidelinesEditor {
         "image added");
     };
     fill(this.section, h("h2", {}, "Guidelines"),
-      h("p", { class: "muted" }, "Shown on the annotate and review pages (opened once for everyone after each change). " +
+      h("p", { class: "muted" }, "Shown on the annotate and review pages (after each change they open by themselves " +
+        "until each person has closed them once). " +
         `Revision ${g.revision}. Blank lines separate paragraphs.`),
       text, h("div", { class: "button-row" }, h("button", { class: "primary save-guidelines", onclick: save }, "Save text")),
       h("div", { class: "guideline-images" }, g.images.map((image, k) => h("div", { class: "guideline-image" },

@@ -167,17 +167,25 @@ const wanted = location.hash.replace(/^#\/?/, "");
 if (PAGES[wanted] && api.signedIn) PAGES[wanted].load().catch(() => null);
 
 // Tabs share one sign-in (api.js keeps the token in localStorage): a sign-out in another tab signs this one out
-// (its work in progress is kept like after a 401), a sign-in there (also as someone else) opens this tab's page
-// for that user.
-window.addEventListener("storage", (e) => {
+// (its work in progress is kept like after a 401); a sign-in there as the same person only hands this tab the
+// new token (its page carries on), as someone else it opens this tab's page for them.
+window.addEventListener("storage", async (e) => {
   if (e.key !== TOKEN_KEY && e.key !== null) return;
   const token = localStorage.getItem(TOKEN_KEY);
   if (token === api.token) return;
-  const signedOut = !token;
-  if (user) toast(signedOut ? "signed out in another tab" : "signed in again in another tab", "warn", 6000);
-  unmountPage();
-  user = null;
   api.adopt(token);
+  let who = null;
+  if (token) {
+    try {
+      who = await api.get("/api/auth/me");
+    } catch {
+      who = null;
+    }
+  }
+  if (user && who && who.id === user.id) return;
+  if (user) toast(who ? `signed in as ${who.email} in another tab` : "signed out in another tab", "warn", 6000);
+  unmountPage();
+  user = who;
   route();
 });
 

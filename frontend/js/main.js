@@ -189,6 +189,15 @@ window.addEventListener("storage", async (e) => {
   route();
 });
 
+// A Keys list (details.help on any page) opened by its key or its summary is scrolled into sight: it sits at
+// the foot of a side panel and used to open below the fold.
+document.addEventListener("toggle", (e) => {
+  const el = e.target;
+  if (el instanceof HTMLDetailsElement && el.open && el.classList.contains("help")) {
+    el.scrollIntoView({ block: "nearest" });
+  }
+}, true);
+
 applyLook();
 window.addEventListener("hashchange", route);
 window.addEventListener("unhandledrejection", (e) => toast(`error: ${e.reason && e.reason.message ? e.reason.message : e.reason}`, "error", 8000));

@@ -85,6 +85,14 @@ def test_tabs_share_a_sign_in_guidelines_show_and_the_look_changes(live_stack, t
     first.mouse.up(button="middle")
     assert first.evaluate("() => window.__handloop.page.hover") is None
 
+    # The Keys list opens in sight (it sits at the foot of the side panel and opened below the fold).
+    first.keyboard.press("?")
+    first.wait_for_function("() => document.querySelector('.side .help').open")
+    first.wait_for_function("() => { const rows = document.querySelectorAll('.side .help tr');"
+                            " const last = rows[rows.length - 1].getBoundingClientRect();"
+                            " return last.bottom <= window.innerHeight && last.height > 0; }", timeout=5_000)
+    first.keyboard.press("?")
+
     # The light theme and the larger targets, kept per browser.
     first.click("#nav .look-theme")
     assert first.get_attribute("html", "data-theme") == "light"

@@ -189,12 +189,14 @@ window.addEventListener("storage", async (e) => {
   route();
 });
 
-// A Keys list (details.help on any page) opened by its key or its summary is scrolled into sight: it sits at
-// the foot of a side panel and used to open below the fold.
+// A Keys list (details.help on any page) opened by its key or its summary is scrolled to the top of its panel:
+// it sits at the foot of a side panel and used to open below the fold (a list taller than the panel then
+// shows from its first row on).
 document.addEventListener("toggle", (e) => {
   const el = e.target;
   if (el instanceof HTMLDetailsElement && el.open && el.classList.contains("help")) {
-    el.scrollIntoView({ block: "nearest" });
+    const box = el.getBoundingClientRect();
+    if (box.bottom > window.innerHeight || box.top < 0) el.scrollIntoView({ block: "start" });
   }
 }, true);
 

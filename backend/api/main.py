@@ -13,6 +13,7 @@ from backend.api.routes import (
     dashboard,
     exports,
     files,
+    guidelines,
     health,
     imports,
     jobs,
@@ -22,6 +23,7 @@ from backend.api.routes import (
     reliability,
     review,
     rounds,
+    team,
     users,
     viewer,
 )
@@ -30,5 +32,6 @@ api_router = APIRouter(prefix="/api")
 # The service's own resources, then the admin's choice of what people annotate (e.g. D_0) or the detector
 # pre-annotates, then the routes the browser UI needs (prefetch, overlays, 3D scenes, activity timing, dashboard).
 for module in (health, auth, users, annotate, review, files, rounds, jobs, exports, imports, annotation_set,
-               preannotation, prefetch, overlays, viewer, activity, dashboard, reliability, calibration):
+               preannotation, prefetch, overlays, viewer, activity, dashboard, reliability, calibration,
+               team, guidelines):
     api_router.include_router(module.router)

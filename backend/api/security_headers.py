@@ -1,6 +1,6 @@
 """Security headers on every response: a Content-Security-Policy per kind of page, nosniff, and no Referer.
 
-The bearer token sits in the UI's sessionStorage, so a script injected into any page served from this origin
+The bearer token sits in the UI's localStorage, so a script injected into any page served from this origin
 could read it: each policy allows scripts from this server only. The three kinds of page:
 
 - the UI (/, also every API response): its own ES modules and CSS; images and masks are blobs drawn on canvases;

@@ -71,7 +71,7 @@ def _load(browser, base: str, token: str) -> dict[str, float]:
     """One first visit of the annotate page in a new browser context: ms to interactive, and the page's own
     split (task data and images; drawing)."""
     context = browser.new_context(viewport={"width": 1600, "height": 900})
-    context.add_init_script(f"sessionStorage.setItem('handloop.token', {token!r});")
+    context.add_init_script(f"localStorage.setItem('handloop.token', {token!r});")
     page = context.new_page()
     page.goto(f"{base}/#/annotate")
     page.wait_for_selector("body[data-ready=annotate]", state="attached", timeout=120_000)

@@ -47,6 +47,7 @@ TASK_ROUND = "handloop.round"
 TASK_ROUND_INFERENCE = "handloop.round_inference"
 TASK_ROUND_FINISH = "handloop.round_finish"
 TASK_PREANNOTATE = "handloop.preannotate"
+TASK_EXPORT = "handloop.export_freihand"
 
 # Where each task runs: training and inference on the gpu queue, fitting and orchestration on cpu.
 ROUTES: dict[str, str] = {
@@ -54,6 +55,7 @@ ROUTES: dict[str, str] = {
     TASK_ROUND: QUEUE_CPU, TASK_ROUND_INFERENCE: QUEUE_CPU, TASK_ROUND_FINISH: QUEUE_CPU,
     TASK_TRAIN_HANDSEGNET: QUEUE_GPU, TASK_TRAIN_MVNET: QUEUE_GPU, TASK_PREDICT: QUEUE_GPU,
     TASK_PREANNOTATE: QUEUE_CPU,  # the detector runs on a CPU (ai-edge-litert), and so do the fits
+    TASK_EXPORT: QUEUE_CPU,
 }
 
 
@@ -69,6 +71,8 @@ def task_for_job(kind: str, payload: dict[str, Any] | None = None) -> str | None
         return TASK_TRAIN_MVNET if (payload or {}).get("net") == "mvnet" else TASK_TRAIN_HANDSEGNET
     if kind == "preannotate":
         return TASK_PREANNOTATE
+    if kind == "export":
+        return TASK_EXPORT
     return None
 
 

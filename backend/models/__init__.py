@@ -19,6 +19,7 @@ from backend.models.enums import (
 )
 from backend.models.fits import Fit, Prediction
 from backend.models.flags import AnnotationFlag
+from backend.models.guidelines import Guidelines
 from backend.models.jobs import Job
 from backend.models.labels import Click, Mask, Submission
 from backend.models.review import Decision, Round, RoundMember
@@ -26,7 +27,7 @@ from backend.models.users import User
 
 __all__ = [
     "AnnotationFlag", "AuditEvent", "CameraCalibration", "Click", "Decision", "DecisionKind", "Draft", "Fit",
-    "FlagKind", "Job", "JobKind", "JobState", "LeaseKind", "Mask", "MaskKind", "Prediction", "Project", "Role",
-    "Round", "RoundMember", "RoundState", "Sample", "SampleState", "Sequence", "Split", "Stream", "Subject",
+    "FlagKind", "Guidelines", "Job", "JobKind", "JobState", "LeaseKind", "Mask", "MaskKind", "Prediction", "Project",
+    "Role", "Round", "RoundMember", "RoundState", "Sample", "SampleState", "Sequence", "Split", "Stream", "Subject",
     "Submission", "User", "View", "Visibility",
 ]  # fmt: skip

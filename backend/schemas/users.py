@@ -48,3 +48,17 @@ class Token(Public):
     access_token: str
     token_type: str = "bearer"
     expires_in: int
+
+
+class AccountLock(Public):
+    """An account refused logins after too many failures (services.login_limits), in the answering process."""
+
+    user_id: int
+    email: str
+    retry_after_s: int = Field(description="Seconds until the account may try again by itself.")
+
+
+class Unlocked(Public):
+    user_id: int
+    email: str
+    was_locked: bool = Field(description="False: the account had no lock to lift (in the answering process).")

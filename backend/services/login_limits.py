@@ -111,6 +111,19 @@ class LoginLimiter:
         with self._lock:
             self._accounts.clear(account)
 
+    def account_lock_s(self, account: str) -> float | None:
+        """Seconds until a locked account may try again (None: not locked), in this server process."""
+        with self._lock:
+            return self._accounts.retry_after_s(account, self.clock())
+
+    def unlock(self, account: str) -> bool:
+        """Forget the account's failures (an admin's unlock); True when it was locked. The addresses' failures
+        stay: an address that guessed stays limited."""
+        with self._lock:
+            was_locked = self._accounts.retry_after_s(account, self.clock()) is not None
+            self._accounts.clear(account)
+        return was_locked
+
     @contextmanager
     def hashing(self) -> Iterator[None]:
         """Hold one of the password-hashing slots; RateLimitedError if none frees up within `hash_wait_s`."""

@@ -403,7 +403,7 @@ class AdminPage {
   }
 }
 
-function progressBar(progress, large = false) {
+export function progressBar(progress, large = false) {
   const pct = Math.round((progress || 0) * 100);
   return h("div", { class: `progress${large ? " large" : ""}`, role: "progressbar", "aria-valuenow": pct,
     "aria-valuemin": 0, "aria-valuemax": 100 }, h("div", { class: "bar", style: { width: `${pct}%` } }),

@@ -625,7 +625,9 @@ class AnnotatePage {
     if (this.timer) this.timer.input();
     const [sx, sy] = this.screenPoint(e);
     const previous = this.hover;
-    this.hover = [sx, sy];
+    // Past the canvas's edge (a drag keeps the pointer captured, so no pointerleave comes): no magnifier there.
+    const r = this.canvas.getBoundingClientRect();
+    this.hover = sx >= 0 && sy >= 0 && sx <= r.width && sy <= r.height ? [sx, sy] : null;
     const d = this.drag;
     if (!d) {
       if (this.mode === "mask") this.requestRender(this.cursorRect(previous), this.cursorRect(this.hover));

@@ -1,7 +1,8 @@
-// The handloop API from the browser: bearer token (kept per tab in sessionStorage), JSON in and out,
-// errors as ApiError with the server's `detail`, authorised blobs for images, server-sent events over
-// fetch (EventSource cannot send the Authorization header).
-const TOKEN_KEY = "handloop.token";
+// The handloop API from the browser: bearer token (kept in localStorage, so every tab of this browser shares
+// one sign-in; main.js follows a sign-in or sign-out made in another tab), JSON in and out, errors as ApiError
+// with the server's `detail`, authorised blobs for images, server-sent events over fetch (EventSource cannot
+// send the Authorization header).
+export const TOKEN_KEY = "handloop.token";
 
 export class ApiError extends Error {
   constructor(status, detail) {
@@ -14,7 +15,7 @@ export class ApiError extends Error {
 export class Api {
   constructor(base = "") {
     this.base = base;
-    this.token = sessionStorage.getItem(TOKEN_KEY);
+    this.token = localStorage.getItem(TOKEN_KEY);
     this.onunauthorized = null;
   }
 
@@ -28,13 +29,18 @@ export class Api {
     if (!response.ok) throw new ApiError(response.status, await detailOf(response));
     const { access_token: token } = await response.json();
     this.token = token;
-    sessionStorage.setItem(TOKEN_KEY, token);
+    localStorage.setItem(TOKEN_KEY, token);
     return token;
   }
 
   logout() {
     this.token = null;
-    sessionStorage.removeItem(TOKEN_KEY);
+    localStorage.removeItem(TOKEN_KEY);
+  }
+
+  // The token another tab stored (a sign-in there) or removed (a sign-out): taken over without writing.
+  adopt(token) {
+    this.token = token;
   }
 
   headers(extra = {}) {
@@ -44,7 +50,9 @@ export class Api {
   // keepalive: the request outlives the page (a draft saved while it unloads; bodies up to 64 KiB).
   async fetch(method, path, { body, signal, headers, keepalive } = {}) {
     const init = { method, headers: this.headers(headers), signal, keepalive: Boolean(keepalive) };
-    if (body !== undefined) {
+    if (body instanceof FormData) {
+      init.body = body; // multipart (a file upload): the browser writes its Content-Type with the boundary
+    } else if (body !== undefined) {
       init.body = JSON.stringify(body);
       init.headers["Content-Type"] = "application/json";
     }

@@ -24,15 +24,18 @@ const LAYERS = [
 ];
 const HELP = [
   ["A", "accept"],
-  ["R / N", "reject / needs annotation: then 1-5 a common reason (or type one), Enter sends, Esc cancels"],
+  ["R / N", "reject / needs annotation: then 1-5 a common reason (while the note is empty) or type one, " +
+    "Enter sends, Esc cancels"],
   ["O S W K C P", "outline, silhouette, wireframe, keypoints, annotators' clicks, MVNet"],
   ["1 … 8", "enlarge a view"],
   ["Esc", "back to the grid; gives the keys back to the page (from the 3D view too)"],
   ["Z", "crop to the hand / whole images"],
   ["V", "show / hide the 3D view"],
+  ["F", "3D view over the image grid / back beside it (or drag its lower edge to resize it)"],
   ["?", "open / close this list"],
 ];
 const IOU_LOW = 0.5;
+const REASON_MAX = 2000; // the server's limit on a decision's reason (schemas.tasks.DecisionCreate)
 const VIEWER_DELAY_MS = 350;
 const SHOW_3D_KEY = "handloop.show3d";
 let softwareGL = null;
@@ -84,6 +87,7 @@ class ReviewPage {
       onkept: (message) => toast(message, "warn", 15000) });
     this.layers = { outline: true, silhouette: false, wireframe: false, keypoints: true, clicks: true, mvnet: false };
     this.show3d = initialShow3d();
+    this.large3d = false; // the 3D view over the image grid (F) rather than in the side panel
     this.cropToHand = true;
     this.focus = null;
     this.reason = null;
@@ -120,6 +124,7 @@ class ReviewPage {
     clearInterval(this.clock);
     clearTimeout(this.emptyTimer);
     clearTimeout(this.viewerTimer);
+    delete document.body.dataset.viewer3d;
     this.drafts.stop();
     if (this.prepared) this.leases.drop(this.prepared.task.sample_id, true);
     this.leases.dropAll(false);
@@ -269,6 +274,12 @@ class ReviewPage {
     fill(this.viewer, h("div", { class: "muted viewer-wait" }, "3D view loading…"));
   }
 
+  // Whether a digit key picks a common reason (true) or is typed into the note (false).
+  digitsPick() {
+    const text = this.reason.text; // as typed: a space after a picked reason is the start of one's own words
+    return text.trim() === "" || QUICK_REASONS[this.reason.kind].includes(text);
+  }
+
   pickReason(index) {
     this.reason.text = QUICK_REASONS[this.reason.kind][index];
     this.timer.mark("reason");
@@ -302,7 +313,7 @@ class ReviewPage {
   draftBody() {
     if (!this.current) return null;
     return { lease_token: this.current.task.lease_token, decision: this.reason ? this.reason.kind : null,
-      reason: this.reason ? this.reason.text.slice(0, 2000) : "",
+      reason: this.reason ? this.reason.text.slice(0, REASON_MAX) : "",
       time_spent_s: Math.round(this.spentSeconds() * 1000) / 1000 };
   }
 
@@ -356,8 +367,9 @@ class ReviewPage {
         if (!text) return toast("give a reason (type it, or press 1-5 for a common one)", "warn", 2500);
         this.keyAt = performance.now();
         this.decide(this.reason.kind, text);
-      } else if (key >= "1" && key <= "5" && !e.ctrlKey && !e.metaKey && !e.altKey) {
-        // A digit picks a common reason, even while the text box has focus (never typed into it).
+      } else if (key >= "1" && key <= "5" && !e.ctrlKey && !e.metaKey && !e.altKey && this.digitsPick()) {
+        // A digit picks a common reason while the note holds none of the reviewer's own words (empty, or a
+        // common reason picked before); once they have typed, digits are typed like any other character.
         e.preventDefault();
         this.pickReason(Number(key) - 1);
       }
@@ -381,6 +393,7 @@ class ReviewPage {
     } else if (key >= "1" && key <= "8") {
       this.setFocus(Number(key) - 1);
     } else if (key === "Escape") {
+      if (this.large3d) this.toggleLarge3d();
       this.setFocus(null);
     } else if (lower === "z") {
       this.cropToHand = !this.cropToHand;
@@ -389,6 +402,8 @@ class ReviewPage {
       this.renderSide();
     } else if (lower === "v") {
       this.toggle3d();
+    } else if (lower === "f") {
+      this.toggleLarge3d();
     } else if (key === "?") {
       this.helpOpen = !this.helpOpen;
       this.renderSide();
@@ -539,9 +554,31 @@ class ReviewPage {
 
   toggle3d() {
     this.show3d = !this.show3d;
+    if (!this.show3d && this.large3d) {
+      this.large3d = false;
+      this.placeViewer();
+    }
     localStorage.setItem(SHOW_3D_KEY, this.show3d ? "1" : "0");
     this.timer.mark("toggle");
     this.renderSide();
+  }
+
+  // The 3D view over the image grid (the side panel stays) or back in the side panel: only its place on the
+  // screen changes (CSS), the iframe stays where it is in the page, so the scene and its camera are kept (an
+  // iframe moved in the document would reload).
+  toggleLarge3d() {
+    this.large3d = !this.large3d;
+    if (this.large3d && !this.show3d) this.toggle3d();
+    this.timer.mark("toggle");
+    this.placeViewer();
+  }
+
+  placeViewer() {
+    this.viewer.classList.toggle("large", this.large3d);
+    document.body.dataset.viewer3d = this.large3d ? "large" : "side";
+    for (const button of this.viewer.querySelectorAll(".viewer-size")) {
+      button.textContent = this.large3d ? "Back beside the images (F)" : "Over the image grid (F)";
+    }
   }
 
   viewerUrl() {
@@ -571,9 +608,16 @@ class ReviewPage {
       const url = this.viewerUrl();
       this.viewerTimer = setTimeout(() => {
         if (this.viewerSample !== sample) return;
-        const frame = h("iframe", { class: "viewer-frame", title: "3D view of this sample (viser)", src: url });
-        frame.addEventListener("load", () => this.listenInFrame(frame));
-        fill(this.viewer, frame);
+        const frame = h("iframe", { class: "viewer-frame", title: "3D view of this sample (viser)", src: url,
+          allowfullscreen: true });
+        frame.addEventListener("load", () => { this.listenInFrame(frame); quietSoftwareNotice(frame); });
+        fill(this.viewer, h("div", { class: "viewer-bar" },
+          h("button", { class: "small viewer-size", onclick: () => this.toggleLarge3d() }, ""),
+          h("button", { class: "small viewer-fullscreen", onclick: () => frame.requestFullscreen().catch((error) =>
+            toast(`full screen refused: ${error.message}`, "warn")) }, "Full screen"),
+          softwareWebGL() ? h("span", { class: "muted software-note", title: "viser's own notice about it is hidden" },
+            "software WebGL: slow") : null), frame);
+        this.placeViewer();
       }, VIEWER_DELAY_MS);
     }
     return this.viewer;
@@ -650,22 +694,33 @@ class ReviewPage {
         "MVNet layer (P) empty: no MVNet prediction exists for this sample (this fit was made from " +
         (fit.source === "detector" ? "the detector's keypoints)." : "clicks).")),
       h("div", { class: "muted" }, `1-8 enlarge a view, Esc back · Z ${this.cropToHand ? "whole images" : "zoom to the hand"} · V 3D view`),
-      this.render3d(),
+      // The Keys list above the 3D view, which takes the rest of the panel: opened, it is in sight.
       h("details", { class: "help", open: this.helpOpen }, h("summary", {}, "Keys (?)"),
         h("table", {}, HELP.map(([k, d]) => h("tr", {}, h("td", {}, h("kbd", {}, k)), h("td", {}, d))))),
+      this.render3d(),
     );
     this.renderClock();
   }
 
   reasonBox() {
     const kind = this.reason.kind;
-    const input = h("input", { class: "reason-input", type: "text", placeholder: "reason (Enter to send, Esc to cancel)",
-      value: this.reason.text, oninput: (e) => { this.reason.text = e.target.value; this.drafts.changed(); } });
+    const count = h("div", { class: "reason-count muted" });
+    const counted = () => {
+      const n = this.reason.text.length;
+      count.textContent = `${n} / ${REASON_MAX} characters`;
+      count.classList.toggle("bad", n >= REASON_MAX);
+    };
+    const input = h("input", { class: "reason-input", type: "text", maxlength: REASON_MAX,
+      placeholder: "reason (Enter to send, Esc to cancel)", value: this.reason.text,
+      oninput: (e) => { this.reason.text = e.target.value; this.drafts.changed(); counted(); } });
+    counted();
     return h("div", { class: `reason-box ${kind}` },
       h("h3", {}, kind === "reject" ? "Reject: why?" : "Needs annotation: what is wrong?"),
       h("ol", {}, QUICK_REASONS[kind].map((r, i) => h("li", { onclick: () => this.pickReason(i) },
         h("kbd", {}, String(i + 1)), ` ${r}`))),
-      input,
+      h("div", { class: "muted reason-hint" }, "1-5 pick a common reason while the note is empty; " +
+        "once you type, digits are part of the note."),
+      input, count,
       h("div", { class: "button-row" },
         h("button", { class: "primary", onclick: () => {
           if (!this.reason.text.trim()) return toast("give a reason", "warn", 2000);
@@ -720,4 +775,27 @@ function residualBanner(fit) {
   const split = fit.residual_by_origin;
   if (!split || !split.accepted.n) return `${fmt(fit.mean_residual_px, 1, " px")} (vs ${fit.residual_reference ?? "–"})`;
   return `${fmt(split.clicked.mean_px, 1, " px")} vs clicks, ${fmt(split.accepted.mean_px, 1, " px")} vs accepted proposals`;
+}
+
+// viser's client shows its own "Software WebGL rendering detected" notification over most of a small view; the
+// page says it already (next to the view's buttons), so that notification is hidden as soon as it appears. The
+// client is same-origin (served by this backend), so its document can be reached; others are left alone.
+function quietSoftwareNotice(frame) {
+  let doc;
+  try {
+    doc = frame.contentDocument;
+  } catch {
+    return;
+  }
+  if (!doc || !doc.body) return;
+  const hide = () => {
+    for (const el of doc.querySelectorAll("[class*='Notification-root'], [role='alert']")) {
+      if (/software\s+(webgl\s+)?rendering/i.test(el.textContent || "") && el.style.display !== "none") {
+        el.style.display = "none";
+        frame.dataset.softwareNotice = "hidden";
+      }
+    }
+  };
+  hide();
+  new MutationObserver(hide).observe(doc.body, { childList: true, subtree: true });
 }

@@ -87,7 +87,7 @@ def test_keys_work_after_a_click_in_the_3d_view_and_esc_returns_the_focus(live_s
     page.keyboard.press("z")  # and the page has the keys again
     assert page.evaluate("() => window.__handloop.page.cropToHand") is False
     listed = page.eval_on_selector_all(".help td kbd", "els => els.map((e) => e.textContent)")
-    assert listed == ["A", "R / N", "O S W K C P", "1 … 8", "Esc", "Z", "V", "?"], listed
+    assert listed == ["A", "R / N", "O S W K C P", "1 … 8", "Esc", "Z", "V", "F", "?"], listed
     layers = "() => ({...window.__handloop.page.layers})"
     for key, name in zip("oswkcp", ("outline", "silhouette", "wireframe", "keypoints", "clicks", "mvnet"), strict=True):
         before = page.evaluate(layers)[name]

@@ -20,6 +20,7 @@ from typing import Any
 from celery import chain, chord
 
 from backend.broker.celery_queue import (
+    TASK_EXPORT,
     TASK_FIT,
     TASK_FIT_BATCH,
     TASK_HEURISTIC,
@@ -95,6 +96,14 @@ def preannotate(job_id: int) -> dict[str, Any]:
     from workers.tasks.preannotate import run_preannotation_job  # deferred: see the docstring
 
     return run_preannotation_job(get_context(), int(job_id))
+
+
+@celery_app.task(name=TASK_EXPORT)
+def export_freihand(job_id: int) -> dict[str, Any]:
+    """The accepted dataset in FreiHAND's layout, zipped into storage (services.export_jobs)."""
+    from workers.tasks.export import run_freihand_export_job  # deferred: see the docstring
+
+    return run_freihand_export_job(get_context(), int(job_id))
 
 
 @celery_app.task(name=TASK_HEURISTIC)

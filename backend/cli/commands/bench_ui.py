@@ -301,7 +301,7 @@ def _count_activity(response) -> None:
 
 def _context(browser, token: str):
     context = browser.new_context(viewport={"width": 1600, "height": 900})
-    context.add_init_script(f"sessionStorage.setItem('handloop.token', {token!r});")
+    context.add_init_script(f"localStorage.setItem('handloop.token', {token!r});")
     context.on("response", _count_activity)
     return context
 

@@ -36,7 +36,7 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         from backend.services.storage import LocalDiskStorage
         from backend.settings import get_settings
         from workers.export.freihand import ExportError, ExportOptions, hand_model_notice, write_freihand
-        from workers.handmodel.loading import load_hand_model
+        from workers.export.hand_models import export_hand_models
 
         def fail(message: str) -> None:
             typer.echo(f"error: {message}", err=True)
@@ -59,14 +59,11 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
             fail(exc.message)
         finally:
             engine.dispose()
-        arrays = load_hand_model(settings.mano_path)
         # Left hands' fits pose the left model (a MANO folder then needs MANO_LEFT.pkl too).
-        left = None
-        if any(r.side == "left" for r in records):
-            try:
-                left = load_hand_model(settings.mano_path, "left")
-            except (OSError, ValueError) as exc:
-                fail(f"the export holds left hands but the left hand model cannot be loaded: {exc}")
+        try:
+            arrays, left = export_hand_models(settings.mano_path, records)
+        except ExportError as exc:
+            fail(str(exc))
         typer.echo(hand_model_notice(arrays), err=True)
         storage = LocalDiskStorage(settings.storage_dir)
         try:

@@ -58,6 +58,17 @@ ROUTES = [
     ("GET", "/api/review/samples/1/draft", Role.reviewer),
     ("PUT", "/api/review/samples/1/draft", Role.reviewer),
     ("DELETE", "/api/review/samples/1/draft", Role.reviewer),
+    # Issue 38: unlock, per-person statistics, the FreiHAND export job, the guidelines.
+    ("GET", "/api/admin/users/locks", Role.admin),
+    ("POST", "/api/admin/users/1/unlock", Role.admin),
+    ("GET", "/api/admin/team/statistics", Role.admin),
+    ("POST", "/api/admin/exports/freihand", Role.admin),
+    ("GET", "/api/admin/exports/freihand/1/archive", Role.admin),
+    ("GET", "/api/guidelines", Role.annotator),
+    ("GET", "/api/guidelines/images/1", Role.annotator),
+    ("PUT", "/api/admin/guidelines", Role.admin),
+    ("POST", "/api/admin/guidelines/images", Role.admin),
+    ("DELETE", "/api/admin/guidelines/images/1", Role.admin),
 ]
 # The 3D scene takes a scene ticket instead of a bearer token (tests/backend/api/ui/test_viewer_scene.py).
 OPEN = {("GET", "/api/health"), ("POST", "/api/auth/token"), ("GET", "/api/viewer/samples/{x}/scene")}
@@ -69,7 +80,7 @@ def test_the_table_covers_every_route(sqlite_env):
     listed = {(m, p.replace("/1", "/{x}")) for m, p, _ in ROUTES} | OPEN
     normalised = {(m, p.replace("{sample_id}", "{x}").replace("{view_id}", "{x}").replace("{mask_id}", "{x}")
                    .replace("{user_id}", "{x}").replace("{round_id}", "{x}").replace("{job_id}", "{x}")
-                   .replace("{project_id}", "{x}"))
+                   .replace("{project_id}", "{x}").replace("{image_id}", "{x}"))
                   for m, p in declared}
     assert normalised == listed
 

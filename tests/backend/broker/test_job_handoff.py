@@ -205,7 +205,9 @@ def test_each_job_kind_maps_to_its_task():
     assert task_for_job("fit") == "handloop.fit" and task_for_job("round") == "handloop.round"
     assert task_for_job("train", {"net": "mvnet"}) == "handloop.train_mvnet"
     assert task_for_job("train", {"net": "handsegnet"}) == "handloop.train_handsegnet"
-    assert task_for_job("predict") == "handloop.predict_batch" and task_for_job("export") is None
+    assert task_for_job("predict") == "handloop.predict_batch"
+    assert task_for_job("export") == "handloop.export_freihand"  # the admin page's FreiHAND export (issue 38)
+    assert task_for_job("import_capture") is None  # imports run in the request
 
 
 def test_visibility_timeout_must_exceed_the_longest_task(tmp_path):

@@ -144,11 +144,17 @@ def test_a_lapsed_lease_is_retaken_with_its_token_while_the_sample_is_free(env, 
 def test_retake_is_refused_when_someone_else_holds_the_sample_or_it_left_the_queue(env, h):
     ids = h.seed(env, frames=2, cameras=1)
     task = h.next_task(env)
+    assert env.client.put(_url(task), json=_draft(task), headers=env.headers(Role.annotator)).status_code == 200
     _lapse(env, task["sample_id"])
     assert h.next_task(env, Role.admin)["sample_id"] == task["sample_id"]
     url = f"/api/annotate/samples/{task['sample_id']}/lease/retake"
     refused = env.client.post(url, json={"lease_token": task["lease_token"]}, headers=env.headers(Role.annotator))
     assert refused.status_code == 409 and "given to someone else" in refused.json()["detail"]
+    # Issue 38 item 12: someone who never held the lease is not told about "your lease".
+    for body in ({}, {"lease_token": "never-mine-0123456789"}):
+        stranger = env.client.post(url, json=body, headers=env.headers(Role.reviewer))
+        assert stranger.status_code == 409, stranger.text
+        assert "your lease" not in stranger.json()["detail"] and "someone else" in stranger.json()["detail"]
     h.set_state(env, [ids[1]], "fitting")
     gone = env.client.post(f"/api/annotate/samples/{ids[1]}/lease/retake", json={}, headers=env.headers(Role.annotator))
     assert gone.status_code == 409 and "'fitting'" in gone.json()["detail"]

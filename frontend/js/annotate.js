@@ -545,6 +545,13 @@ class AnnotatePage {
     this.leases.drop(this.task.sample_id, false);
     this.hideBanner();
     this.task = null;
+    // The prefetched sample's lease lapsed with this one's (the laptop slept): it may have gone on to someone
+    // else and to review. Taken again (renewed when still live) before it is shown, else dropped (leaseLost).
+    if (this.prepared) {
+      const token = await this.leases.retake(this.prepared.task.sample_id).catch(() => null);
+      if (token && this.prepared) this.prepared.task.lease_token = token;
+      else this.prepared = this.preparing = null; // gone on: a fresh task from the queue
+    }
     await this.loadNext();
   }
 

@@ -298,3 +298,29 @@ def test_two_tabs_on_one_sample_the_second_save_is_told_and_shown_both(live_stac
     wait_shown(page_a)
     assert page_a.evaluate(CLICKS) == mine and len(mine) == 3
     assert not a.errors and not b.errors, (a.errors, b.errors)
+
+
+def test_take_the_next_task_never_serves_a_stale_prefetched_sample(live_stack, tab):
+    # Issue 38 item 4: after a lapsed lease went to someone else, "Take the next task" served the prefetched
+    # sample, whose lease had lapsed too and which had gone on to review meanwhile.
+    stack, t, page, sample = start_saved(live_stack, tab, 2)
+    page.wait_for_function("() => window.__handloop.page.prepared !== null", timeout=30_000)
+    ahead = page.evaluate("() => window.__handloop.page.prepared.task.sample_id")
+    lapse_lease(stack, sample)
+    lapse_lease(stack, ahead)
+    with stack.session_factory().begin() as session:  # the prefetched one went on, as if annotated by another
+        session.execute(text("UPDATE samples SET state = 'in_review', leased_by_id = NULL, lease_token = NULL, "
+                             "lease_expires_at = NULL, lease_kind = NULL WHERE id = :i"), {"i": ahead})
+    admin = tab()
+    user = stack.users["admin"]
+    sign_in(admin, stack.base_url, user.email, user.password, "admin")
+    admin.page.goto(stack.base_url + "/#/annotate")
+    wait_shown(admin.page)
+    assert admin.page.evaluate(SAMPLE) == sample
+    place(page, 0, 3)  # refused; the lease cannot be taken again: the banner
+    page.click(".lease-banner button.next-task")
+    page.wait_for_function(f"() => document.body.dataset.sample !== '{sample}' || "
+                           "document.body.dataset.ready === 'annotate-empty'", timeout=30_000)
+    shown = page.evaluate("() => window.__handloop.page.task && window.__handloop.page.task.sample_id")
+    assert shown not in (sample, ahead), (shown, sample, ahead)
+    assert not t.errors and not admin.errors, (t.errors, admin.errors)

@@ -7,6 +7,7 @@ from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
 from fastapi import FastAPI
+from uvicorn.middleware.proxy_headers import ProxyHeadersMiddleware
 
 from backend.api import docs, errors, frontend, openapi
 from backend.api.hot_path import AnnotatorHotPath
@@ -55,7 +56,9 @@ def create_app(settings: Settings | None = None, *, job_queue: JobQueue | None =
     frontend.mount(app)  # the UI at / and viser's client at /viewer/, after the API routes
     app.add_middleware(AnnotatorHotPath)  # innermost: inside the body limit and the security headers
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes)
-    app.add_middleware(SecurityHeaders)  # outermost: the body limit's 413 gets the headers too
+    app.add_middleware(SecurityHeaders)  # the body limit's 413 gets the headers too
+    if settings.trusted_proxies:  # outermost: every layer sees the client's address (uvicorn's own is off)
+        app.add_middleware(ProxyHeadersMiddleware, trusted_hosts=settings.trusted_proxies)
     return app
 
 

@@ -101,7 +101,7 @@ class RunningStack:
     def start_api(self, timeout_s: float = 90.0) -> None:
         self.api = self._spawn([sys.executable, "-m", "uvicorn", "backend.app:create_app", "--factory", "--host",
                                 self.host, "--port", str(self.port), "--log-level", "warning",
-                                "--timeout-keep-alive", "30"], "api.log")
+                                "--timeout-keep-alive", "30", "--no-proxy-headers"], "api.log")
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             if self.api.poll() is not None:

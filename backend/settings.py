@@ -68,6 +68,15 @@ class Settings(BaseSettings):
         "address's logins are refused with 429.")
     login_failure_window_s: float = Field(default=900.0, gt=0, le=7 * 24 * 3600,
                                           description="How long a failed login counts against its account and address.")
+    import_roots: list[Path] = Field(
+        default_factory=list, max_length=100, description="Folders `POST /api/admin/imports` may import captures "
+        "from (the capture folder must lie inside one, symbolic links resolved). Empty: <data_dir>/captures. As JSON "
+        "in the environment: HANDLOOP_IMPORT_ROOTS='[\"/srv/captures\"]'. The CLI's `handloop import` is not limited.")
+    trusted_proxies: list[str] = Field(
+        default_factory=list, max_length=100, description="Addresses (IPs or CIDR networks) of reverse proxies whose "
+        "X-Forwarded-For / X-Forwarded-Proto name the client; a request from any other peer (localhost included) is "
+        "the connection's own address, whatever its headers say (the per-address login limit counts it). Empty: no "
+        "proxy is trusted. As JSON in the environment: HANDLOOP_TRUSTED_PROXIES='[\"10.0.0.2\"]'.")
     login_max_concurrent_hashes: int = Field(
         default=4, ge=1, le=1024, description="Password checks (Argon2, ~260 ms CPU and 64 MiB each) running at once "
         "per server process; further logins wait.")
@@ -196,6 +205,11 @@ class Settings(BaseSettings):
         if self.secret_key is not None:
             return self.secret_key
         return data_dir_secret(self.data_dir / SECRET_KEY_FILE)
+
+    @property
+    def allowed_import_roots(self) -> list[Path]:
+        """Where the API imports captures from (import_roots, else <data_dir>/captures), symbolic links resolved."""
+        return [Path(p).resolve() for p in (self.import_roots or [self.data_dir / "captures"])]
 
     @property
     def broker_dir(self) -> Path:

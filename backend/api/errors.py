@@ -40,6 +40,15 @@ STATUS: list[tuple[type[DomainError], int]] = [
 ]
 
 
+def _routing_refusal(request: Request, exc: HTTPException) -> str:
+    """Routing's own 404 and 405 in words: what was asked, and what to do instead."""
+    path = request.url.path
+    if exc.status_code == 405:
+        allowed = (exc.headers or {}).get("Allow", "")
+        return f"{request.method} is not allowed on {path}; use {allowed} (the API's operations: /docs)"
+    return f"no such API path {path!r}; the API's operations are listed at /docs"
+
+
 def status_of(exc: DomainError) -> int:
     for cls, status in STATUS:
         if isinstance(exc, cls):
@@ -97,6 +106,10 @@ def install(app: FastAPI) -> None:
     @app.exception_handler(HTTPException)
     async def _http(request: Request, exc: HTTPException) -> JSONResponse:
         problem = _unparseable_body(exc.__cause__) if exc.status_code == 400 else None
+        if (exc.status_code in (404, 405) and exc.detail in ("Not Found", "Method Not Allowed")
+                and request.url.path.startswith("/api")):
+            return JSONResponse({"detail": _routing_refusal(request, exc)}, status_code=exc.status_code,
+                                headers=exc.headers)
         if problem is None:
             return await http_exception_handler(request, exc)
         refused = await _unauthenticated(request)

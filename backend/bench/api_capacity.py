@@ -282,7 +282,7 @@ def run(annotators: int = 50, seconds: float = 30.0, *, rate: float = 200.0, sam
             [sys.executable, "-m", "uvicorn", "backend.app:create_app", "--factory", "--host", "127.0.0.1",
              "--port", str(port), "--workers", str(server_workers), "--loop", "uvloop", "--http", "httptools",
              # idle annotators (the crowd) must keep their connections, as browsers' tabs do
-             "--timeout-keep-alive", "120", "--no-access-log", "--log-level", "warning"],
+             "--timeout-keep-alive", "120", "--no-access-log", "--log-level", "warning", "--no-proxy-headers"],
             env=env, cwd=Path(__file__).resolve().parents[2])
         base = f"http://127.0.0.1:{port}"
         _wait_ready(base, server)

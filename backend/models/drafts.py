@@ -15,9 +15,9 @@ from backend.models.enums import LeaseKind, enum_check
 class Draft(Base):
     """An annotator's clicks and masks (kind 'annotate') or a reviewer's note (kind 'review') on one sample.
 
-    One per sample, queue and user: only its author ever sees it, and only while holding a live lease of
-    that queue on the sample, so work left behind on a lease that went to someone else is never applied
-    to theirs. `lease_token` is the lease it was saved under; `revision` counts saves (1, 2, ...).
+    One per sample, queue and user, read only while holding a live lease of that queue on the sample: its
+    author's, or (work left on a lease that lapsed) the sample's next holder's until they save their own.
+    `lease_token` is the lease it was saved under; `revision` counts saves (1, 2, ...): the draft's version.
     Deleted when the author submits or decides the sample (backend.services.drafts)."""
 
     __tablename__ = "drafts"

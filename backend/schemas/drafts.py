@@ -12,6 +12,12 @@ from backend.schemas.base import Finite, Id, Public, Strict
 from backend.schemas.tasks import ClickIn, ClientId, LeaseToken, MaskIn
 
 MAX_DRAFT_VIEWS = 64
+BASE_REVISION = Field(default=None, ge=0, le=2**31 - 1, description=(
+    "The draft revision this state was made on (0: no draft yet). A save whose base is not the stored revision, "
+    "while the stored one came from another page (`writer`), is refused with 409 and writes nothing: two tabs or "
+    "windows on one sample never overwrite each other silently. Left out: not checked."))
+WRITER = Field(default=None, min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_-]+$", description=(
+    "Which page (a tab's editor) saves: its own later saves never conflict with each other."))
 MAX_DRAFT_CLICKS = 21 * MAX_DRAFT_VIEWS
 
 
@@ -29,6 +35,8 @@ class AnnotateDraftIn(Strict):
     keypoint: int = Field(default=0, ge=0, le=20)
     no_hand_views: list[Id] = Field(default_factory=list, max_length=MAX_DRAFT_VIEWS,
                                     description="Views marked 'no hand here' so far.")
+    base_revision: int | None = BASE_REVISION
+    writer: str | None = WRITER
 
 
 class ReviewDraftIn(Strict):
@@ -38,12 +46,17 @@ class ReviewDraftIn(Strict):
     decision: DecisionKind | None = None
     reason: str = Field(default="", max_length=2000)
     time_spent_s: Finite = Field(default=0.0, ge=0, le=24 * 3600)
+    base_revision: int | None = BASE_REVISION
+    writer: str | None = WRITER
 
 
 class DraftPublic(Public):
     sample_id: int
     kind: str
-    revision: int = Field(description="Saves so far: 1 after the first.")
+    revision: int = Field(description="Saves so far: 1 after the first (the draft's version; see base_revision).")
     lease_token: str = Field(description="The lease it was saved under.")
     updated_at: datetime
-    payload: dict[str, Any] = Field(description="The saved request body, less its lease token.")
+    payload: dict[str, Any] = Field(description="The saved request body, less its lease token and base revision.")
+    left_by: str | None = Field(default=None, description=(
+        "Who left this work on the sample on a lease that lapsed (it travels with the sample to its next holder); "
+        "null: the draft is the caller's own."))

@@ -104,12 +104,16 @@ class ReviewOverlayPublic(Public):
 
 
 class ActionIn(Strict):
+    # Every kind the annotate and review pages mark (frontend/js/*.js `timer.mark`): a log the page sends is
+    # never refused for a kind the page itself uses ("reason": a common review reason picked with 1-5).
     kind: Literal["click", "accept", "drag", "occlude", "not_annotated", "brush", "erase", "undo", "redo", "view",
-                  "zoom", "toggle", "decide"]
+                  "zoom", "toggle", "reason", "decide"]
     at_ms: Finite = Field(ge=0, le=DAY_MS, description="Since the task was shown.")
     duration_ms: Finite = Field(ge=0, le=DAY_MS, description="Since the previous action (idle time capped).")
     view_id: Id | None = None
     keypoint: int | None = Field(default=None, ge=0, le=20)
+    reprojected: int | None = Field(default=None, ge=0, le=21 * 64, description=(
+        "Accepted proposals in other views that this placed point moved with it (triangulated again)."))
 
 
 class ActivityCreate(Strict):

@@ -24,6 +24,35 @@ from backend.services.storage import Storage
 logger = logging.getLogger(__name__)
 
 
+def check_import_path(path: Path, roots: list[Path]) -> Path:
+    """The capture folder an API import names, resolved, when it lies inside one of `roots` (resolved folders);
+    InvalidInputError naming the roots otherwise. A relative path is refused rather than read against the
+    server's working folder."""
+    where = ", ".join(str(r) for r in roots)
+    if not path.is_absolute():
+        raise InvalidInputError(f"path {str(path)!r} is relative; give the capture folder's absolute path, inside "
+                                f"one of the import roots: {where}")
+    resolved = path.resolve()
+    if not any(resolved.is_relative_to(root) for root in roots):
+        raise InvalidInputError(f"{path} is outside the import roots ({where}); put the capture under one of them, "
+                                "or have the server's admin add its folder to HANDLOOP_IMPORT_ROOTS")
+    return resolved
+
+
+def check_contained(capture: Any) -> None:
+    """Every file of the capture lies inside its folder: a sequence folder or a file linked to elsewhere on the
+    server (a symbolic link) is refused, so an import reads only what was put under an import root."""
+    root = Path(capture.root).resolve()
+    for sequence in capture.sequences:
+        for frame in sequence.frames:
+            paths = [*frame.image_paths.values(), *frame.mask_paths.values(), *frame.gt_mask_paths.values(),
+                     frame.ground_truth_path]
+            for path in paths:
+                if path is not None and not Path(path).resolve().is_relative_to(root):
+                    raise InvalidInputError(f"capture rejected, nothing was imported: {path} leads outside the "
+                                            f"capture folder {root} (a symbolic link); copy the files into it")
+
+
 def import_capture(session: Session, storage: Storage, path: Path, *, project_name: str | None = None,
                    queue_for_annotation: bool = True, actor_id: int | None = None,
                    progress: Callable[[int, int], None] | None = None) -> ImportPublic:
@@ -37,6 +66,7 @@ def import_capture(session: Session, storage: Storage, path: Path, *, project_na
         capture = read_capture(path)
     except CaptureError as exc:
         raise InvalidInputError(f"capture rejected: {exc}") from exc
+    check_contained(capture)
     name = project_name or capture.name
     if session.execute(select(Project.id).where(Project.name == name)).first() is not None:
         raise ConflictError(f"a project named {name!r} already exists; pass another project name")

@@ -214,7 +214,7 @@ def retake(session: Session, user: Actor, sample_id: int, kind: LeaseKind, token
     live = sample.lease_expires_at is not None and sample.lease_expires_at > now
     mine = sample.leased_by_id == user.id and sample.lease_kind == kind
     if live and not mine:
-        raise ConflictError(f"sample {sample_id} was given to someone else while your lease had lapsed")
+        raise ConflictError(_taken_by_another(session, user, sample_id, kind, token))
     if not mine or sample.lease_token is None:  # someone's lapsed lease, or a released one: a new lease
         sample.lease_token = secrets.token_urlsafe(16)
     sample.leased_by_id = user.id
@@ -224,6 +224,18 @@ def retake(session: Session, user: Actor, sample_id: int, kind: LeaseKind, token
         audit.record(session, user.id, "lease.retake", "sample", sample_id, kind=kind.value,
                      same_token=sample.lease_token == token)
     return _lease_of(sample)
+
+
+def _taken_by_another(session: Session, user: Actor, sample_id: int, kind: LeaseKind, token: str | None) -> str:
+    """Why a retake is refused while another person holds the sample: "your lease had lapsed" only when the caller
+    did hold one (a draft of theirs saved under the token they name), else plainly that someone else holds it."""
+
+    held = token is not None and session.execute(select(Draft.id).where(
+        Draft.sample_id == sample_id, Draft.kind == kind.value, Draft.user_id == user.id,
+        Draft.lease_token == token)).first() is not None
+    if held:
+        return f"sample {sample_id} was given to someone else while your lease had lapsed"
+    return f"sample {sample_id} is leased by someone else now; take the next task instead"
 
 
 def release(session: Session, user: Actor, sample_id: int, kind: LeaseKind, token: str | None) -> None:

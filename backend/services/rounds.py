@@ -70,8 +70,24 @@ def accepted_labels(session: Session) -> int:
                            .where(RoundMember.fit_id.is_not(None))).scalar_one()
 
 
+ROUND_WORK = (JobKind.round, JobKind.preannotate)  # what a round (round 0: the detector's) runs
+
+
 def launch_refusal(session: Session, min_training_samples: int) -> str | None:
-    """Why a round cannot be launched now, in plain words; None when it can."""
+    """Why a round cannot be launched now, in plain words; None when it can. One round at a time: while a round's
+    job (or round 0's pre-annotation) is queued or running, launching would complete the open round before its
+    models exist and train the next on labels still being made."""
+    busy = session.execute(select(Job.id, Job.kind, Job.state, Job.round_id).where(
+        Job.kind.in_(ROUND_WORK), Job.state.in_([JobState.queued, JobState.running]))
+        .order_by(Job.id).limit(1)).first()
+    if busy is not None:
+        job_id, kind, state, round_id = busy
+        kind, state = getattr(kind, "value", kind), getattr(state, "value", state)
+        index = session.execute(select(Round.index).where(Round.id == round_id)).scalar_one_or_none() \
+            if round_id is not None else None
+        what = f"round {index}'s job {job_id}" if index is not None else f"{kind} job {job_id}"
+        return (f"one round at a time: {what} is {state} still. Wait until it is done (its progress is shown "
+                "here), or cancel it.")
     n = accepted_labels(session)
     if n >= min_training_samples:
         return None
@@ -81,13 +97,13 @@ def launch_refusal(session: Session, min_training_samples: int) -> str | None:
 
 def launch(session: Session, queue: jobs.JobQueue, actor_id: int, mvnet_version: str | None,
            handsegnet_version: str | None, note: str, min_training_samples: int = 1) -> tuple[Round, Job]:
-    """Complete the open round and launch the next; ConflictError (nothing written) while fewer than
-    `min_training_samples` labels are accepted, since its training would fail."""
+    """Complete the open round and launch the next; ConflictError (nothing written) while a round's job is still
+    queued or running, or fewer than `min_training_samples` labels are accepted (its training would fail)."""
     queue.ensure_available()  # an outage first (503): it is no reason to go and accept more labels
+    current = open_round(session, actor_id)  # locked first: a second launch at once waits, then is refused
     refusal = launch_refusal(session, min_training_samples)
     if refusal is not None:
         raise ConflictError(f"cannot launch a round yet: {refusal}")
-    current = open_round(session, actor_id)
     before = round_failure.snapshot(current)  # restored if the round's job fails (services.round_failure)
     current.state = RoundState.completed
     current.finished_at = utcnow()
@@ -136,6 +152,8 @@ def statistics(session: Session) -> Statistics:
         per_round.setdefault(round_id, {})[stream] = int(n)
     stats, size = [], 0
     for round_ in list_rounds(session):
+        if round_.state == RoundState.cancelled:  # undone by its admin: its samples went back to the round before
+            continue
         counts = StreamCounts(**per_round.get(round_.id, {}))
         added = counts.heuristic + counts.manual + counts.annotated
         size += added

@@ -103,7 +103,9 @@ def run_simulation(capture_dir: Path, work_dir: Path, config: BootstrapConfig, *
     stack = None
     try:
         if server.url is None:
-            settings = _stack_settings(work_dir / "server", stack_overrides(config, server))
+            # The stack imports the capture through its API: its folder is the stack's import root.
+            settings = _stack_settings(work_dir / "server", {"import_roots": [Path(capture_dir).resolve()],
+                                                             **stack_overrides(config, server)})
             password = secrets.token_urlsafe(16)
             _prepare_database(settings, password)
             _share_hand_model_cache(settings.data_dir)

@@ -32,6 +32,7 @@ class AdminPage {
     this.user = user;
     this.root = root;
     this.watching = new Map(); // job id -> AbortController of its event stream
+    this.bars = new Map(); // job id -> its progress bar
     this.sections = {
       overview: h("section", { class: "card", id: "overview" }),
       rounds: h("section", { class: "card", id: "rounds" }),
@@ -46,11 +47,8 @@ class AdminPage {
   }
 
   async start() {
-    await this.refresh();
+    await this.refresh(); // and follows the round job running now
     this.timer = setInterval(() => this.refresh().catch(() => null), REFRESH_MS);
-    const running = (this.jobs || []).find((j) => (j.kind === "round" || j.kind === "preannotate")
-      && (j.state === "queued" || j.state === "running"));
-    if (running) this.watch(running.id);
     this.renderUsers();
     this.renderData();
     this.renderReliability().catch((error) => fill(this.sections.reliability, h("h2", {}, "Reliability"),
@@ -76,6 +74,18 @@ class AdminPage {
     this.renderRounds();
     this.renderCharts();
     this.renderJobs();
+    this.showActiveJob();
+  }
+
+  // The progress panel follows the round's job that is running now (one round at a time), never one that
+  // ended (a cancelled job's 0 %) while another runs.
+  showActiveJob() {
+    const active = (this.jobs || []).find((j) => (j.kind === "round" || j.kind === "preannotate")
+      && (j.state === "queued" || j.state === "running"));
+    if (!active) return;
+    const bar = this.bars.get(active.id);
+    if (!bar) this.watch(active.id);
+    else if (this.progress.firstChild !== bar) fill(this.progress, bar);
   }
 
   renderOverview() {
@@ -291,6 +301,7 @@ class AdminPage {
     const controller = new AbortController();
     this.watching.set(jobId, controller);
     const bar = h("div", { class: "live", dataset: { job: String(jobId) } });
+    this.bars.set(jobId, bar);
     fill(this.progress, bar);
     const draw = (job) => fill(bar, 
       h("div", { class: "live-head" }, `${job.kind || "round"} job ${job.id}: ${job.state}`, h("span", { class: "muted" },

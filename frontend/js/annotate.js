@@ -68,7 +68,7 @@ class AnnotatePage {
     this.drafts = new DraftSaver(api, "annotate", { userId: user.id, snapshot: () => this.draftBody(),
       onstatus: (state, detail) => this.draftStatus(state, detail),
       onlease: () => this.task && this.leases.retake(this.task.sample_id).catch(() => null),
-      onkept: (message) => toast(message, "warn", 15000) });
+      onkept: (message) => toast(message, "warn", 15000), onconflict: (theirs) => this.draftConflict(theirs) });
     this.history = new History();
     this.history.onchange = () => this.renderSide();
     this.vp = new Viewport();
@@ -166,6 +166,13 @@ class AnnotatePage {
       prepared = await this.preparing.catch(() => null);
       this.prepared = null;
     }
+    // A prefetched sample whose lease lapsed (the laptop slept) may have gone on to someone else and on to review:
+    // taken again first, or dropped for a fresh task.
+    if (prepared && !(this.leases.expiresAt(prepared.task.sample_id) > Date.now())) {
+      const token = await this.leases.retake(prepared.task.sample_id).catch(() => null);
+      if (token) prepared.task.lease_token = token;
+      else prepared = null;
+    }
     if (!prepared) {
       const task = await this.api.post("/api/annotate/next");
       if (!task) return this.showEmpty();
@@ -242,6 +249,7 @@ class AnnotatePage {
     this.justPlaced = null; // a view of the previous sample
     delete document.body.dataset.draftState;
     delete document.body.dataset.draftSaved;
+    delete document.body.dataset.draftLeftBy;
     this.drafts.track(task.sample_id, prepared.draft ? prepared.draft.revision : 0);
     if (prepared.draft) this.applyDraft(prepared.draft);
     this.updateProposals();
@@ -506,21 +514,56 @@ class AnnotatePage {
     this.noHand = new Set((p.no_hand_views || []).filter((id) => this.annotation.clicks.has(id)));
     this.viewIndex = Math.min(p.view_index, this.views.length - 1);
     if (this.annotation.keypoints.includes(p.keypoint)) this.keypoint = p.keypoint;
+    const saved = new Date(draft.updated_at).toLocaleTimeString();
+    window.__handloop.marks.draftRestored = performance.now();
+    if (outside) toast(`${outside} point(s) of your draft lay outside the image: dropped, place them again`, "warn", 8000);
+    if (draft.left_by) { // work left on a lapsed lease travels with the sample; this submission and time are ours
+      document.body.dataset.draftLeftBy = draft.left_by;
+      toast(`sample ${this.task.sample_id}: carrying on from the work ${draft.left_by} left on it (saved ${saved})`,
+        "info", 5000);
+      return;
+    }
     this.submissionId = p.submission_id;
     this.timer.carriedMs = p.time_spent_s * 1000;
-    if (outside) toast(`${outside} point(s) of your draft lay outside the image: dropped, place them again`, "warn", 8000);
-    window.__handloop.marks.draftRestored = performance.now();
-    toast(`restored your work on sample ${this.task.sample_id} (saved ${new Date(draft.updated_at).toLocaleTimeString()})`,
-      "info", 2500);
+    toast(`restored your work on sample ${this.task.sample_id} (saved ${saved})`, "info", 2500);
   }
 
   draftStatus(state, detail) {
+    if (this.lostLease) state = "lost"; // the panel says what the banner says
     document.body.dataset.draftState = state;
     if (state === "saved") document.body.dataset.draftSaved = String(detail.revision);
     if (state === "error" && detail && detail.status && detail.status < 500 && detail.status !== 403 &&
         detail.status !== 409) toast(`work in progress not saved: ${detail.message}`, "warn", 5000);
     const el = this.side.querySelector(".draft-state");
     if (el) el.textContent = draftLabel(state);
+  }
+
+  // Another tab or window saved this sample's draft meanwhile (a version per draft: the server refused this
+  // page's save, writing nothing): both are shown, the person keeps one; nothing is overwritten unseen.
+  draftConflict(theirs) {
+    if (!this.task || theirs.sample_id !== this.task.sample_id) return;
+    const placed = (clicks) => clicks.filter((c) => c.visibility !== "not_annotated").length;
+    const mine = this.draftBody();
+    const at = new Date(theirs.updated_at).toLocaleTimeString();
+    fill(this.banner, h("strong", {}, `Sample ${theirs.sample_id} was also changed in another tab or window. `),
+      h("span", { class: "conflict-both" }, `There (saved ${at}): ${placed(theirs.payload.clicks)} points placed, ` +
+        `${theirs.payload.masks.length} masks; here: ${placed(mine.clicks)} points placed, ${mine.masks.length} ` +
+        "masks. Keep one: "),
+      h("button", { class: "primary keep-mine", onclick: () => {
+        this.hideBanner();
+        this.drafts.keepMine(theirs);
+      } }, "Keep this tab's work"),
+      h("button", { class: "take-theirs", onclick: () => {
+        this.hideBanner();
+        this.applyDraft(theirs);
+        this.drafts.takeTheirs(theirs);
+        this.history.clear();
+        this.updateProposals();
+        this.renderNow(true);
+        this.renderSide();
+      } }, "Take the other"));
+    this.banner.hidden = false;
+    document.body.dataset.draftConflict = String(theirs.revision);
   }
 
   leaseRetaken(sampleId, token) {
@@ -539,16 +582,21 @@ class AnnotatePage {
     }
     if (!this.task || this.task.sample_id !== sampleId) return;
     this.lostLease = true;
+    // What was saved goes with the sample to its new holder (backend/services/drafts.py); later changes could not be.
+    const saved = document.body.dataset.draftSaved ? "Your work up to the last save goes with the sample to whoever " +
+      "holds it now; changes since then could not be saved." : "None of your work on it was saved.";
     fill(this.banner, h("strong", {}, `Sample ${sampleId} is no longer yours. `),
-      h("span", {}, `${error.message}. Your work on it cannot be submitted; it stays saved as your draft.`),
+      h("span", {}, `${error.message}. ${saved}`),
       h("button", { class: "primary next-task", onclick: () => this.giveUp() }, "Take the next task"));
     this.banner.hidden = false;
     document.body.dataset.lease = "lost";
+    this.draftStatus("lost");
     this.renderSide();
   }
 
   hideBanner() {
     this.lostLease = false;
+    delete document.body.dataset.draftConflict;
     this.banner.hidden = true;
     fill(this.banner, );
     delete document.body.dataset.lease;
@@ -560,6 +608,13 @@ class AnnotatePage {
     this.leases.drop(this.task.sample_id, false);
     this.hideBanner();
     this.task = null;
+    // The prefetched sample's lease lapsed with this one's (the laptop slept): it may have gone on to someone
+    // else and to review. Taken again (renewed when still live) before it is shown, else dropped (leaseLost).
+    if (this.prepared) {
+      const token = await this.leases.retake(this.prepared.task.sample_id).catch(() => null);
+      if (token && this.prepared) this.prepared.task.lease_token = token;
+      else this.prepared = this.preparing = null; // gone on: a fresh task from the queue
+    }
     await this.loadNext();
   }
 
@@ -1461,7 +1516,9 @@ function labelFor(keypoint) {
 
 function draftLabel(state) {
   return { unsaved: "draft: unsaved changes", saving: "draft: saving…", saved: "draft: saved",
-    error: "draft: not saved yet (retrying)" }[state] || "draft: nothing to save";
+    error: "draft: not saved yet (retrying)", conflict: "draft: changed in another tab too (keep one above)",
+    lost: "draft: saved up to the last save; later changes cannot be saved (sample no longer yours)",
+  }[state] || "draft: nothing to save";
 }
 
 function confident(p) {

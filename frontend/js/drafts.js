@@ -55,9 +55,11 @@ export class DraftSaver {
   // them); snapshot(): the request body for the current state, or null if nothing to save;
   // onstatus(state, detail): "unsaved" | "saving" | "saved" | "error"; onlease(error): a save was refused
   // for the lease (403 / 409), the page re-takes it or tells the user; onkept(message): work kept in this
-  // tab could not be restored (the sample moved on), the page says so.
+  // tab could not be restored (the sample moved on), the page says so; onconflict(theirs): another tab or
+  // window saved this sample's draft after the revision this page's work was made on (the server refused ours,
+  // writing nothing): the page shows both, then calls keepMine() or takeTheirs(theirs).
   constructor(api, queue, { userId, snapshot, onstatus = () => {}, onlease = () => {}, onkept = () => {},
-    delayMs = 700 }) {
+    onconflict = null, delayMs = 700 }) {
     this.api = api;
     this.queue = queue;
     this.userId = userId;
@@ -65,6 +67,8 @@ export class DraftSaver {
     this.onstatus = onstatus;
     this.onlease = onlease;
     this.onkept = onkept;
+    this.onconflict = onconflict;
+    this.writer = `w${Math.random().toString(36).slice(2, 12)}${Date.now().toString(36)}`; // this page's saves
     this.delayMs = delayMs;
     this.sampleId = null;
     this.dirty = false;
@@ -171,10 +175,12 @@ export class DraftSaver {
     if (this.saving && !keepalive) return this.saving; // its finally saves what changed meanwhile
     // The page is going (keepalive): a save in flight is cancelled with it, so the state is sent again.
     if ((!this.dirty && !(keepalive && this.saving)) || this.sampleId === null || this.blocked) return this.saving;
-    const body = this.snapshot();
-    if (!body) return null;
+    const snapshot = this.snapshot();
+    if (!snapshot) return null;
     const sampleId = this.sampleId;
     const base = this.revision, madeAt = Date.now();
+    // The version check (backend/services/drafts.py): only with a page that can show both sides.
+    const body = this.onconflict ? { ...snapshot, base_revision: base, writer: this.writer } : snapshot;
     this.dirty = false;
     this.onstatus("saving");
     const request = this.api.fetch("PUT", this.url(sampleId), { body, keepalive })
@@ -187,18 +193,25 @@ export class DraftSaver {
         }
         return draft;
       })
-      .catch((error) => {
+      .catch(async (error) => {
         // Signed out (expired or revoked token): kept here, restored after signing in again.
-        if (error.status === 401) keep(this.queue, this.userId, sampleId, base, body, madeAt);
+        if (error.status === 401) keep(this.queue, this.userId, sampleId, base, snapshot, madeAt);
+        const theirs = error.status === 409 ? await this.newerElsewhere(sampleId, base) : null;
         if (this.sampleId === sampleId) {
           this.dirty = true; // still to save
-          this.onstatus("error", error);
-          if (error.status === 403 || error.status === 409) {
+          if (theirs) {
+            this.blocked = true; // until the person kept one of the two
+            this.onstatus("conflict", theirs);
+            this.onconflict(theirs);
+          } else if (error.status === 403 || error.status === 409) {
+            this.onstatus("error", error);
             this.blocked = true; // until the page has the lease again (resume)
             this.onlease(error);
           } else if (!error.status || error.status >= 500) {
+            this.onstatus("error", error);
             this.timer = setTimeout(() => this.flush(), Math.max(2000, this.delayMs * 3)); // unreachable: retry
           } else {
+            this.onstatus("error", error);
             this.blocked = true; // refused as it is (422, 413): the status names why; the next change retries
             this.retryOnChange = true;
           }
@@ -213,6 +226,32 @@ export class DraftSaver {
     inFlight.add(request);
     this.saving = request;
     return request;
+  }
+
+  // After a 409: the draft another tab or window saved on top of `base`, or null (the 409 was the lease's).
+  async newerElsewhere(sampleId, base) {
+    try {
+      const draft = await this.api.get(this.url(sampleId));
+      return draft && draft.revision !== base && draft.payload.writer !== this.writer ? draft : null;
+    } catch {
+      return null;
+    }
+  }
+
+  // The person keeps this page's work over the other save they were shown: saved on top of it.
+  keepMine(theirs) {
+    this.revision = theirs.revision;
+    this.blocked = false;
+    this.dirty = true;
+    return this.flush();
+  }
+
+  // The person takes the other save (the page shows it): this page goes on from its revision.
+  takeTheirs(theirs) {
+    this.revision = theirs.revision;
+    this.blocked = false;
+    this.dirty = false;
+    this.onstatus("saved", theirs);
   }
 
   // Save until nothing is pending (or a save is refused); for signing out, before the lease is released.

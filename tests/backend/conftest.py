@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import tempfile
 import uuid
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -133,6 +134,8 @@ class Env:
 
 
 def make_settings(url: str, data_dir: Path, **overrides: object) -> Settings:
+    # The tests' captures are written under pytest's temporary folders: the API imports from there.
+    overrides.setdefault("import_roots", [Path(tempfile.gettempdir())])
     return Settings(database_url=url, data_dir=data_dir, secret_key=SECRET, environment="test", **overrides)
 
 

@@ -140,3 +140,34 @@ def test_a_failed_round_shows_why_and_the_round_before_it_open_again(live_stack,
     assert page.inner_text("button.launch-round").startswith("Complete D₀")  # D_0 is the open round again
     t.shot("admin-round-failed")
     assert not t.errors, t.errors
+
+
+def test_one_round_at_a_time_and_a_cancelled_round_leaves_no_row(live_stack, tab):
+    # Issue 38 item 5: "Complete D1 and launch the next round" stayed enabled while D1's job trained (clicking it
+    # completed D1 with no models and queued round 2); a cancelled round left a "D2 cancelled" row and column.
+    from backend.services import rounds
+
+    stack = live_stack(worker=False)
+    with stack.session_factory()() as session, session.begin():
+        _, job = rounds.launch(session, InMemoryJobQueue(), None, None, None, "", min_training_samples=0)
+    t = tab()
+    user = stack.users["admin"]
+    sign_in(t, stack.base_url, user.email, user.password, "admin")
+    page = t.page
+    page.wait_for_selector(f'.round-progress .live[data-job="{job.id}"]')  # the panel follows the running job
+    assert page.inner_text("button.launch-round").startswith("Complete D₁")
+    assert page.is_disabled("button.launch-round")
+    assert "one round at a time" in page.inner_text(".launch-why")
+    with stack.client("admin") as http:
+        refused = http.post("/api/admin/rounds", json={"note": "while D1 trains"})
+        assert refused.status_code == 409 and "one round at a time" in refused.json()["detail"]
+    page.on("dialog", lambda dialog: dialog.accept())
+    page.click('.rounds-table tr[data-round="1"] button.danger')
+    page.wait_for_function("() => document.querySelectorAll('.rounds-table tbody tr').length === 1")
+    states = page.eval_on_selector_all(".rounds-table tbody tr", "rows => rows.map((r) => [r.dataset.round, "
+                                       "r.querySelector('.round-state').firstChild.textContent])")
+    assert states == [["0", "running"]], states
+    assert "D₁" not in page.inner_text("#charts")  # no column for the cancelled round
+    assert page.inner_text("button.launch-round").startswith("Complete D₀")
+    assert "one round at a time" not in page.inner_text("#rounds")  # only the labels still missing, if any
+    assert not t.errors, t.errors

@@ -187,7 +187,9 @@ def test_a_lapsed_lease_on_a_free_sample_is_retaken_and_the_work_submits(live_st
     assert not t.errors, t.errors
 
 
-def test_a_lease_taken_by_someone_else_shows_a_banner_and_their_page_stays_clean(live_stack, tab):
+def test_a_lease_taken_by_someone_else_shows_a_banner_and_the_work_travels(live_stack, tab):
+    # Issue 38 item 4 (this test said the opposite before: "the new holder never sees the old work", and the new
+    # annotator redid 35 points): the saved work goes with the sample; the banner and the panel say the same.
     stack = live_stack(worker=False)
     t = tab()
     sign_in_annotator(t, stack)
@@ -195,6 +197,7 @@ def test_a_lease_taken_by_someone_else_shows_a_banner_and_their_page_stays_clean
     place(page, 0, 2)
     wait_saved(page, 1)
     sample = page.evaluate(SAMPLE)
+    left = page.evaluate(CLICKS)
     lapse_lease(stack, sample)
     admin = tab()  # someone else (an admin may annotate) gets the lapsed sample
     user = stack.users["admin"]
@@ -202,10 +205,14 @@ def test_a_lease_taken_by_someone_else_shows_a_banner_and_their_page_stays_clean
     admin.page.goto(stack.base_url + "/#/annotate")
     wait_shown(admin.page)
     assert admin.page.evaluate(SAMPLE) == sample
-    assert admin.page.evaluate(CLICKS) == []  # the other annotator's draft is never applied to this work
+    assert admin.page.evaluate(CLICKS) == left and len(left) == 2  # carried on, not redone
+    assert admin.page.get_attribute("body", "data-draft-left-by")
     place(page, 0, 3)  # the save is refused; the lease cannot be taken again
     page.wait_for_selector(".lease-banner:not([hidden]) button.next-task", timeout=30_000)
-    assert "someone else" in page.inner_text(".lease-banner")
+    banner = page.inner_text(".lease-banner")
+    assert "someone else" in banner and "goes with the sample" in banner and "stays saved as your draft" not in banner
+    panel = page.inner_text(".draft-state")
+    assert "no longer yours" in panel and "retrying" not in panel
     t.shot("drafts-lease-lost-banner")
     page.click(".lease-banner button.next-task")
     page.wait_for_function(f"() => document.body.dataset.sample !== '{sample}' || "
@@ -268,3 +275,52 @@ def test_clicks_made_as_the_token_is_revoked_come_back_after_signing_in_again(li
     wait_shown(page)
     assert page.evaluate(CLICKS) == before
     assert not t.errors, t.errors
+
+
+def test_two_tabs_on_one_sample_the_second_save_is_told_and_shown_both(live_stack, tab):
+    # Issue 38 item 3: the same annotator in two tabs on one sample; before, the last save won silently and a
+    # point placed in one tab vanished after a reload. Now the tab saving on an older revision is told, shown both.
+    stack, a, page_a, sample = start_saved(live_stack, tab, 2)
+    b = tab()
+    sign_in_annotator(b, stack)
+    assert b.page.evaluate(SAMPLE) == sample  # the drafted sample, restored at revision 1
+    place(b.page, 1, 1)
+    wait_saved(b.page, 2)
+    place(page_a, 0, 3)  # made on revision 1: refused, nothing overwritten
+    page_a.wait_for_selector(".lease-banner:not([hidden]) button.keep-mine", timeout=30_000)
+    shown = page_a.inner_text(".lease-banner")
+    assert "another tab or window" in shown and "There" in shown and "here: 3 points placed" in shown
+    assert page_a.get_attribute("body", "data-draft-state") == "conflict"
+    page_a.click(".lease-banner button.keep-mine")
+    wait_saved(page_a, 3)
+    mine = page_a.evaluate(CLICKS)
+    page_a.reload()
+    wait_shown(page_a)
+    assert page_a.evaluate(CLICKS) == mine and len(mine) == 3
+    assert not a.errors and not b.errors, (a.errors, b.errors)
+
+
+def test_take_the_next_task_never_serves_a_stale_prefetched_sample(live_stack, tab):
+    # Issue 38 item 4: after a lapsed lease went to someone else, "Take the next task" served the prefetched
+    # sample, whose lease had lapsed too and which had gone on to review meanwhile.
+    stack, t, page, sample = start_saved(live_stack, tab, 2)
+    page.wait_for_function("() => window.__handloop.page.prepared !== null", timeout=30_000)
+    ahead = page.evaluate("() => window.__handloop.page.prepared.task.sample_id")
+    lapse_lease(stack, sample)
+    lapse_lease(stack, ahead)
+    with stack.session_factory().begin() as session:  # the prefetched one went on, as if annotated by another
+        session.execute(text("UPDATE samples SET state = 'in_review', leased_by_id = NULL, lease_token = NULL, "
+                             "lease_expires_at = NULL, lease_kind = NULL WHERE id = :i"), {"i": ahead})
+    admin = tab()
+    user = stack.users["admin"]
+    sign_in(admin, stack.base_url, user.email, user.password, "admin")
+    admin.page.goto(stack.base_url + "/#/annotate")
+    wait_shown(admin.page)
+    assert admin.page.evaluate(SAMPLE) == sample
+    place(page, 0, 3)  # refused; the lease cannot be taken again: the banner
+    page.click(".lease-banner button.next-task")
+    page.wait_for_function(f"() => document.body.dataset.sample !== '{sample}' || "
+                           "document.body.dataset.ready === 'annotate-empty'", timeout=30_000)
+    shown = page.evaluate("() => window.__handloop.page.task && window.__handloop.page.task.sample_id")
+    assert shown not in (sample, ahead), (shown, sample, ahead)
+    assert not t.errors and not admin.errors, (t.errors, admin.errors)

@@ -49,8 +49,8 @@ def lease_routes(kind: LeaseKind, user_dep: Any, draft_body: type[Strict], draft
                 responses={204: {"description": "No draft of yours for this sample."}},
                 description=f"Your {draft_contents} in progress on a sample whose lease you hold.")
     def get_draft(sample_id: Id, session: SessionDep, user: user_dep) -> Response:
-        draft = drafts.get(session, user, sample_id, kind)
-        return Response(status_code=204) if draft is None else json_response(DraftPublic(**drafts.public(draft)))
+        draft = drafts.read(session, user, sample_id, kind)
+        return Response(status_code=204) if draft is None else json_response(DraftPublic(**draft))
 
     @router.put("/samples/{sample_id}/draft", response_model=DraftPublic,
                 description=f"Save your {draft_contents} in progress (replacing the previous save); deleted when "

@@ -36,7 +36,9 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         settings = get_settings()
         if migrate:
             _migrate(settings)
-        uvicorn.run("backend.app:create_app", factory=True, host=host, port=port, workers=workers,
+        # proxy_headers=False: uvicorn would take X-Forwarded-For from any localhost peer; the app trusts only
+        # HANDLOOP_TRUSTED_PROXIES (backend.app).
+        uvicorn.run("backend.app:create_app", factory=True, host=host, port=port, workers=workers, proxy_headers=False,
                     log_level="info")
 
     @app.command("import")

@@ -254,3 +254,29 @@ def test_the_round_progress_follows_its_phases_and_training_by_elapsed_budget(en
     finally:
         ctx.session_factory.kw["bind"].dispose()
     assert round_job()["message"] == ""  # finished: no stale phase message
+
+
+def test_one_round_at_a_time_and_a_cancelled_round_leaves_no_column(env, h):
+    """Issue 38 item 5: launching while the open round's job still trains completed that round with no models
+    and queued another; now 409 naming the running job, nothing written, and the dashboard's launch says why
+    (the page disables the button). A cancelled round leaves no row or column in the statistics."""
+    ids = h.seed(env, frames=2, cameras=1, state="fitting")
+    for sample_id in ids:
+        h.record_fit(env, sample_id, prediction={"confidences": [0.95] * 21})
+    launched = env.client.post("/api/admin/rounds", headers=env.headers(ADMIN), json={"note": "first"})
+    assert launched.status_code == 201, launched.text
+    job_id = launched.json()["job_id"]
+    before = env.client.get("/api/admin/rounds", headers=env.headers(ADMIN)).json()
+    again = env.client.post("/api/admin/rounds", headers=env.headers(ADMIN), json={"note": "second"})
+    assert again.status_code == 409, again.text
+    assert "one round at a time" in again.json()["detail"] and f"job {job_id} is queued" in again.json()["detail"]
+    assert env.client.get("/api/admin/rounds", headers=env.headers(ADMIN)).json() == before  # nothing written
+    launch = env.client.get("/api/admin/dashboard", headers=env.headers(ADMIN)).json()["launch"]
+    assert launch["refusal"] and "one round at a time" in launch["refusal"]
+    cancelled = env.client.post(f"/api/admin/rounds/{launched.json()['round']['id']}/cancel",
+                                headers=env.headers(ADMIN))
+    assert cancelled.status_code == 200, cancelled.text
+    stats = env.client.get("/api/admin/rounds/statistics", headers=env.headers(ADMIN)).json()
+    assert [(r["index"], r["state"]) for r in stats["rounds"]] == [(0, "running")]  # no "D1 cancelled" column
+    assert env.client.get("/api/admin/dashboard", headers=env.headers(ADMIN)).json()["launch"]["refusal"] is None
+    assert env.client.post("/api/admin/rounds", headers=env.headers(ADMIN), json={}).status_code == 201

@@ -69,14 +69,26 @@ def test_submit_deletes_the_draft(env, h):
     assert h.count(env, "drafts") == 0
 
 
-def test_a_draft_is_never_shown_to_the_next_holder(env, h):
+def test_work_left_on_a_lapsed_lease_travels_to_the_next_holder(env, h):
+    """Issue 38 item 4 (this test said the opposite before: the next holder started at 0 and redid the points):
+    the work left on a lapsed lease goes with the sample to whoever takes it next, naming who left it."""
     h.seed(env, frames=1, cameras=2)
     task = h.next_task(env)
     env.client.put(_url(task), json=_draft(task), headers=env.headers(Role.annotator))
     _lapse(env, task["sample_id"])
     other = h.next_task(env, Role.admin)  # the lapsed sample goes to someone else
     assert other["sample_id"] == task["sample_id"]
-    assert env.client.get(_url(other), headers=env.headers(Role.admin)).status_code == 204
+    got = env.client.get(_url(other), headers=env.headers(Role.admin))
+    assert got.status_code == 200, got.text
+    assert got.json()["left_by"]  # who left it (their name, else their email)
+    assert [(c["keypoint"], c["x"], c["visibility"]) for c in got.json()["payload"]["clicks"]] == [
+        (0, 10.0, "visible"), (4, 20.0, "occluded")]
+    # The new holder's own saves are theirs (no conflict with the work they were handed), and read back as such.
+    mine = env.client.put(_url(other), json=_draft(other, base_revision=got.json()["revision"], writer="adminTab",
+                                                     keypoint=12), headers=env.headers(Role.admin))
+    assert mine.status_code == 200, mine.text
+    again = env.client.get(_url(other), headers=env.headers(Role.admin)).json()
+    assert again["left_by"] is None and again["payload"]["keypoint"] == 12
     # ... and its author, no longer holding the lease, cannot read or overwrite it.
     refused = env.client.get(_url(task), headers=env.headers(Role.annotator))
     assert refused.status_code == 403 and "no annotate lease" in refused.json()["detail"]
@@ -144,11 +156,17 @@ def test_a_lapsed_lease_is_retaken_with_its_token_while_the_sample_is_free(env, 
 def test_retake_is_refused_when_someone_else_holds_the_sample_or_it_left_the_queue(env, h):
     ids = h.seed(env, frames=2, cameras=1)
     task = h.next_task(env)
+    assert env.client.put(_url(task), json=_draft(task), headers=env.headers(Role.annotator)).status_code == 200
     _lapse(env, task["sample_id"])
     assert h.next_task(env, Role.admin)["sample_id"] == task["sample_id"]
     url = f"/api/annotate/samples/{task['sample_id']}/lease/retake"
     refused = env.client.post(url, json={"lease_token": task["lease_token"]}, headers=env.headers(Role.annotator))
     assert refused.status_code == 409 and "given to someone else" in refused.json()["detail"]
+    # Issue 38 item 12: someone who never held the lease is not told about "your lease".
+    for body in ({}, {"lease_token": "never-mine-0123456789"}):
+        stranger = env.client.post(url, json=body, headers=env.headers(Role.reviewer))
+        assert stranger.status_code == 409, stranger.text
+        assert "your lease" not in stranger.json()["detail"] and "someone else" in stranger.json()["detail"]
     h.set_state(env, [ids[1]], "fitting")
     gone = env.client.post(f"/api/annotate/samples/{ids[1]}/lease/retake", json={}, headers=env.headers(Role.annotator))
     assert gone.status_code == 409 and "'fitting'" in gone.json()["detail"]
@@ -185,3 +203,36 @@ def test_after_a_lapse_next_gives_back_the_sample_with_your_draft_first(env, h):
     again = h.next_task(env)  # both lapsed and free: the one with the work comes back, not the queue's first
     assert again["sample_id"] == ahead["sample_id"] == ids[1]
     assert env.client.get(_url(again), headers=headers).json()["revision"] == 1
+
+
+def test_two_pages_saving_one_draft_the_second_is_told(env, h):
+    """Issue 38 item 3: two tabs on one sample; the save made on an older revision by the other tab is refused
+    (409, nothing written), so the point placed in one tab never vanishes silently; the page reads the other."""
+    h.seed(env, frames=1, cameras=2)
+    task = h.next_task(env)
+    headers = env.headers(Role.annotator)
+    view = task["views"][0]
+    first = env.client.put(_url(task), json=_draft(task, base_revision=0, writer="tabA"), headers=headers)
+    assert first.status_code == 200 and first.json()["revision"] == 1
+    assert "base_revision" not in first.json()["payload"] and first.json()["payload"]["writer"] == "tabA"
+    # Tab B opened the sample at revision 1; both go on working.
+    b = env.client.put(_url(task), json=_draft(task, base_revision=1, writer="tabB", keypoint=12), headers=headers)
+    assert b.status_code == 200 and b.json()["revision"] == 2
+    a_point = {"view_id": view["id"], "keypoint": 8, "x": 30.0, "y": 31.0, "visibility": "visible"}
+    a = env.client.put(_url(task), json=_draft(task, base_revision=1, writer="tabA",
+                                               clicks=_draft(task)["clicks"] + [a_point]), headers=headers)
+    assert a.status_code == 409, a.text
+    assert "another tab or window (revision 2)" in a.json()["detail"] and "nothing was written" in a.json()["detail"]
+    stored = env.client.get(_url(task), headers=headers).json()
+    assert stored["revision"] == 2 and stored["payload"]["writer"] == "tabB"
+    # Tab A chose its own work, seen both: saved on the revision it was shown.
+    kept = env.client.put(_url(task), json=_draft(task, base_revision=2, writer="tabA",
+                                                  clicks=_draft(task)["clicks"] + [a_point]), headers=headers)
+    assert kept.status_code == 200 and kept.json()["revision"] == 3 and len(kept.json()["payload"]["clicks"]) == 3
+    # A page's own earlier save answering late (a resend as it goes) is no conflict.
+    again = env.client.put(_url(task), json=_draft(task, base_revision=2, writer="tabA"), headers=headers)
+    assert again.status_code == 200 and again.json()["revision"] == 4
+    # Without a base revision (older pages), the last save wins as before.
+    assert env.client.put(_url(task), json=_draft(task), headers=headers).status_code == 200
+    bad = env.client.put(_url(task), json=_draft(task, base_revision=-1), headers=headers)
+    assert bad.status_code == 422 and "base_revision" in bad.json()["detail"]

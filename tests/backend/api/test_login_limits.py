@@ -104,3 +104,45 @@ def test_limits_come_from_the_settings(env_with, sqlite_url, tmp_path):
     assert _login(env, "ann@example.org", "wrong password").status_code == 401
     assert _login(env, "ann@example.org", PASSWORD).status_code == 429
     assert env.client.get("/api/auth/me", headers=env.headers(Role.annotator)).status_code == 200  # tokens still work
+
+
+def _limited_app(env_with, sqlite_url, tmp_path, **overrides):
+    env = env_with(sqlite_url, tmp_path, **overrides)
+    policy = LoginPolicy(max_failures_per_account=3, max_failures_per_address=6, window_s=WINDOW_S,
+                         max_concurrent_hashes=2, hash_wait_s=0.0)
+    env.client.app.state.login_limiter = LoginLimiter(policy, clock=FakeClock())
+    return env.client.app
+
+
+def _guess_from(app, peer: str, forwarded_for: str, i: int) -> int:
+    from fastapi.testclient import TestClient
+
+    with TestClient(app, client=(peer, 40000)) as client:
+        return client.post("/api/auth/token", data={"username": f"nobody{i}@example.org", "password": "guess"},
+                           headers={"X-Forwarded-For": forwarded_for}).status_code
+
+
+def test_forwarded_for_counts_only_from_a_configured_proxy(env_with, sqlite_url, tmp_path):
+    """Issue 38 item 12: a spoofed X-Forwarded-For from a peer that is not a configured proxy (localhost included)
+    does not give each made-up address fresh tries; from a configured proxy it names the client."""
+    app = _limited_app(env_with, sqlite_url, tmp_path / "a")
+    codes = [_guess_from(app, "127.0.0.1", f"203.0.113.{i}", i) for i in range(7)]
+    assert codes == [401] * 6 + [429]
+    proxied = _limited_app(env_with, sqlite_url, tmp_path / "b", trusted_proxies=["127.0.0.1"])
+    assert [_guess_from(proxied, "127.0.0.1", f"203.0.113.{i}", i) for i in range(7)] == [401] * 7
+    assert [_guess_from(proxied, "10.1.1.1", f"203.0.113.{i}", i) for i in range(7)] == [401] * 6 + [429]
+
+
+def test_serve_leaves_uvicorns_forwarded_headers_off(monkeypatch):
+    """uvicorn's default takes X-Forwarded-For from any localhost peer; `handloop serve` turns that off (the app
+    reads it only from HANDLOOP_TRUSTED_PROXIES)."""
+    import uvicorn
+    from typer.testing import CliRunner
+
+    from backend.cli.main import app as cli
+
+    seen: dict = {}
+    monkeypatch.setattr(uvicorn, "run", lambda *args, **kwargs: seen.update(kwargs))
+    result = CliRunner().invoke(cli, ["serve", "--no-migrate"])
+    assert result.exit_code == 0, result.output
+    assert seen["proxy_headers"] is False

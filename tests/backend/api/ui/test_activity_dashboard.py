@@ -87,3 +87,42 @@ def test_review_log_and_dashboard_figures(env, h):
     assert data["queues"] == {"annotate": 0, "review": 1, "annotate_leased": 0, "review_leased": 0}
     assert data["fits"] == 3
     assert data["fits_by_hand_model"] == {"built-in stand-in hand, not MANO": 3}  # conftest fits say "builtin"
+
+
+def test_logs_as_the_pages_send_them_are_accepted_and_counted(env, h):
+    """Issue 38 item 6: the review page marks a picked reason ("reason") and the annotate page a drag that moved
+    accepted proposals with it ("reprojected"); both logs were refused (422) and the dashboard undercounted."""
+    ids = h.seed(env, frames=3, cameras=2, state="fitting")
+    for sid in ids:
+        h.record_fit(env, sid, prediction={"confidences": [0.5] * 21}, offset_m=0.004)  # not auto-accepted
+    h.set_state(env, ids, "in_review")
+    for n, decision in enumerate(("accept", "reject", "annotate")):
+        task = h.next_task(env, Role.reviewer, "review")
+        body = {"decision": decision, "reason": "" if decision == "accept" else "wrong finger order"}
+        made = env.client.post(f"/api/review/samples/{task['sample_id']}/decision", json=body,
+                               headers=env.headers(Role.reviewer))
+        assert made.status_code in (200, 201), (n, made.text)
+        actions = [{"kind": "reason", "at_ms": 1000.0, "duration_ms": 1000.0}] if decision != "accept" else []
+        actions.append({"kind": "decide", "at_ms": 2000.0, "duration_ms": 1000.0})
+        log = {"context": "review", "sample_id": task["sample_id"], "decision_id": made.json()["id"],
+               "time_spent_s": 2.0, "actions": actions}
+        response = env.client.post("/api/activity", json=log, headers=env.headers(Role.reviewer))
+        assert response.status_code == 201, (n, response.text)
+    human = env.client.get("/api/admin/dashboard", headers=env.headers(Role.admin)).json()["human_time"]
+    assert human["verifications"] == 3
+
+
+def test_drag_that_moved_accepted_proposals_is_accepted(env, h):
+    task, submission_id = _submitted(env, h)
+    view_id = task["views"][0]["id"]
+    log = {"context": "annotate", "sample_id": task["sample_id"], "submission_id": submission_id,
+           "time_spent_s": 3.0, "actions": [{"kind": "drag", "at_ms": 3000.0, "duration_ms": 3000.0,
+                                             "view_id": view_id, "keypoint": 4, "reprojected": 1}]}
+    response = env.client.post("/api/activity", json=log, headers=env.headers(Role.annotator))
+    assert response.status_code == 201, response.text
+    assert response.json()["summary"]["keypoints_set"] == 1
+    stored = h.count(env, "audit_events WHERE action = 'ui.activity'")
+    assert stored == 1
+    bad = {**log, "submission_id": uuid.uuid4().hex, "actions": [{**log["actions"][0], "reprojected": -1}]}
+    response = env.client.post("/api/activity", json=bad, headers=env.headers(Role.annotator))
+    assert response.status_code == 422 and "reprojected" in response.json()["detail"]

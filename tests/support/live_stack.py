@@ -23,6 +23,7 @@ Redis absent: the test is skipped, or fails when CI is set.
 from __future__ import annotations
 
 import os
+import tempfile
 import time
 import uuid
 from collections.abc import Callable, Iterator
@@ -58,6 +59,8 @@ TEST_SETTINGS: dict[str, Any] = {
     "environment": "test", "secret_key": SECRET, "nets_config": "tiny", "round_handsegnet_budget_s": 4.0,
     "round_mvnet_budget_s": 6.0, "fit_global_iterations": 15, "fit_full_iterations": 25, "outbox_poll_s": 0.5,
     "predict_batch_size": 4, "fit_batch_size": 4, "round_min_training_samples": 1,
+    # The tests' captures live under the temporary folder: the admin page imports them from there.
+    "import_roots": [tempfile.gettempdir()],
 }
 
 

@@ -1,26 +1,12 @@
-"""Shared fixtures: whether the model files are installed, and a small rendered capture with ground truth."""
+"""Shared fixtures: a small rendered capture with ground truth (`require_detector` is tests/conftest.py's)."""
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import pytest
 
 RENDER_SEED = 31
-
-
-@pytest.fixture
-def require_detector() -> None:
-    """Skip where the model files are absent, except in CI, where their absence is a failure of the set-up."""
-    from workers.detector import detector_status
-
-    status = detector_status()
-    if status is None:
-        return
-    if os.environ.get("CI"):
-        pytest.fail(f"CI must install the detector's model files: {status}")
-    pytest.skip(f"detector not installed: {status}")
 
 
 @pytest.fixture(scope="session")

@@ -108,6 +108,9 @@ class Settings(BaseSettings):
         "verified 1,000 in its first): the queue is filled to it with the candidates ranked by confidence, the "
         "percentile and the time gap only ordering them (docs/evaluation.md, 'The review queue'). Samples already "
         "in review count against it. 0: the fixed policy (percentile cut and time gap as filters).")
+    review_percentile_cut: bool = Field(
+        default=False, description="With a capacity: the queue is filled only from the confidence percentile up "
+        "(the rest waits for the next round's networks); false: the percentile only orders the candidates.")
 
     # --- workers: Celery broker, job hand-off and robustness (docs/deployment.md) -----------------
     broker_url: str | None = Field(

@@ -105,13 +105,15 @@ class ReviewPolicy:
 
     `capacity`: samples the reviewers can verify in a round (samples already in review count against it).
     None: the fixed policy (the percentile is a cut, the time gap a filter). A number: the queue is filled to
-    it, the percentile and the time gap only ordering the candidates (`select_for_review`)."""
+    it, the percentile and the time gap only ordering the candidates (`select_for_review`), unless
+    `percentile_cut`: then the queue is filled from the percentile up only, the time gap still an order."""
 
     min_confidence_percentile: float = 50.0
     min_time_gap_s: float = 1.0
     min_pose_distance: float = 0.5
     max_batch: int = 1000
     capacity: int | None = 1000
+    percentile_cut: bool = False  # with a capacity: candidates under the percentile wait for the next round
 
     def __post_init__(self) -> None:
         if self.capacity is not None and self.capacity < 0:
@@ -122,7 +124,8 @@ class ReviewPolicy:
         return cls(min_confidence_percentile=settings.review_min_confidence_percentile,
                    min_time_gap_s=settings.review_min_time_gap_s,
                    min_pose_distance=settings.review_min_pose_distance, max_batch=settings.review_max_batch,
-                   capacity=settings.review_capacity_per_round or None)
+                   capacity=settings.review_capacity_per_round or None,
+                   percentile_cut=settings.review_percentile_cut)
 
 
 @dataclass(frozen=True)
@@ -167,7 +170,8 @@ def select_for_review(candidates: Sequence[Candidate], policy: ReviewPolicy,
 
     Capacity policy: at most `capacity` minus the frames already queued (and `max_batch`). Ranked as above but
     nothing is cut: first the candidates from the percentile up, spaced in time; then the rest, spaced in time
-    against everything picked; then whatever is left, best first, however close in time. The spacing and the
+    against everything picked; then whatever is left, best first, however close in time. With `percentile_cut`
+    only the candidates from the percentile up: spaced first, then however close in time. The spacing and the
     percentile spend the reviewers' capacity on the most confident, most varied frames first; they no longer
     leave capacity unused while fits wait.
     """
@@ -181,7 +185,8 @@ def select_for_review(candidates: Sequence[Candidate], policy: ReviewPolicy,
     else:
         queued = sum(len(v) for v in picked_times.values())
         limit = max(0, min(policy.max_batch, policy.capacity - queued))
-        passes = [(upper, True), (rest, True), (upper + rest, False)]
+        passes = ([(upper, True), (upper, False)] if policy.percentile_cut
+                  else [(upper, True), (rest, True), (upper + rest, False)])
     picked: list[int] = []
     taken: set[int] = set()
     for ranked, spaced in passes:

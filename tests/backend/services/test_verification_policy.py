@@ -160,8 +160,17 @@ def test_capacity_is_bounded_by_max_batch_and_ranks_unscored_last():
     assert select_for_review(cands, ReviewPolicy(capacity=10, max_batch=2)) == [2, 3]
 
 
+def test_capacity_with_the_percentile_as_a_cut_fills_from_the_upper_half_only():
+    times, confs = [0.0, 0.2, 0.4, 0.6, 0.8, 1.5], [0.6, 0.5, 0.4, 0.3, 0.2, 0.1]
+    cands = [_c(i, t, conf) for i, (t, conf) in enumerate(zip(times, confs, strict=True), start=1)]
+    # The upper half (1, 2, 3): 1 spaced first, then 2 and 3 though close in time; 4-6 wait for the next round.
+    assert select_for_review(cands, ReviewPolicy(capacity=10, percentile_cut=True)) == [1, 2, 3]
+    assert select_for_review(cands, ReviewPolicy(capacity=2, percentile_cut=True)) == [1, 2]
+
+
 def test_capacity_comes_from_settings_and_zero_means_the_fixed_policy():
     assert ReviewPolicy.from_settings(Settings(review_capacity_per_round=0)).capacity is None
     assert ReviewPolicy.from_settings(Settings(review_capacity_per_round=40)).capacity == 40
+    assert ReviewPolicy.from_settings(Settings(review_percentile_cut=True)).percentile_cut is True
     with pytest.raises(ValueError, match="capacity"):
         ReviewPolicy(capacity=-1)

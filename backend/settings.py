@@ -109,8 +109,9 @@ class Settings(BaseSettings):
         "percentile and the time gap only ordering them (docs/evaluation.md, 'The review queue'). Samples already "
         "in review count against it. 0: the fixed policy (percentile cut and time gap as filters).")
     review_percentile_cut: bool = Field(
-        default=False, description="With a capacity: the queue is filled only from the confidence percentile up "
-        "(the rest waits for the next round's networks); false: the percentile only orders the candidates.")
+        default=True, description="With a capacity, rounds 1 on: the queue is filled only from the confidence "
+        "percentile up (the rest waits for the next round's networks: a fit sent back costs an annotation); false: "
+        "the percentile only orders the candidates. Round 0's detector fits are all offered either way.")
 
     # --- workers: Celery broker, job hand-off and robustness (docs/deployment.md) -----------------
     broker_url: str | None = Field(

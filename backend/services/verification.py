@@ -113,7 +113,7 @@ class ReviewPolicy:
     min_pose_distance: float = 0.5
     max_batch: int = 1000
     capacity: int | None = 1000
-    percentile_cut: bool = False  # with a capacity: candidates under the percentile wait for the next round
+    percentile_cut: bool = True  # with a capacity: candidates under the percentile wait for the next round
 
     def __post_init__(self) -> None:
         if self.capacity is not None and self.capacity < 0:

@@ -22,6 +22,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Sequence
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -166,10 +167,12 @@ def _to_annotators(session: Session, sample_ids: Sequence[int], from_state: Samp
 
 def route_fitted(ctx: WorkerContext, job_id: int, sample_ids: Sequence[int], rest: str) -> dict[str, int]:
     """The job's samples 'fitted' from their detector fit: all ranked by the detector's confidence and offered
-    to the reviewers up to their capacity a round (`select_for_review`; with `review_capacity_per_round` 0 the
-    paper's fixed cut: from the median up, temporally spread); never flat hands. The rest go to the annotators
-    when `rest` is "annotate", else stay fitted for round 1."""
-    policy = ReviewPolicy.from_settings(ctx.settings)
+    to the reviewers up to their capacity a round (`select_for_review`, the percentile never a cut here; with
+    `review_capacity_per_round` 0 the paper's fixed cut: from the median up, temporally spread); never flat
+    hands. The rest go to the annotators when `rest` is "annotate", else stay fitted for round 1."""
+    # Every detector fit is offered (ranked) up to the capacity: the percentile never cuts in round 0, whose D_0
+    # round 1 trains on; the fixed policy (capacity 0) stays as set.
+    policy = replace(ReviewPolicy.from_settings(ctx.settings), percentile_cut=False)
     with ctx.session_factory.begin() as session:
         rows: list[Sample] = []
         for part in _chunks(sample_ids):

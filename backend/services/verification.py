@@ -156,11 +156,13 @@ def _ranked(candidates: Sequence[Candidate], threshold: float) -> tuple[list[Can
 
 
 def select_for_review(candidates: Sequence[Candidate], policy: ReviewPolicy,
-                      already_queued: Mapping[int, Sequence[float]] | None = None) -> list[int]:
+                      already_queued: Mapping[int, Sequence[float]] | None = None,
+                      queued_confidences: Sequence[float | None] = ()) -> list[int]:
     """Sample ids to put in front of reviewers, in the order picked.
 
     Candidates are the fitted samples the heuristic did not accept; flat hands (pose distance below the
-    minimum) are never picked. `already_queued`: sequence id -> times (s) of its frames already in review.
+    minimum) are never picked. `already_queued`: sequence id -> times (s) of its frames already in review;
+    `queued_confidences`: their confidences (None where a fit has none).
 
     Fixed policy (`capacity` None, the paper's "Manual Verification"): those with a confidence are kept from the
     given percentile upwards (computed over these candidates) and sorted by confidence, highest first;
@@ -168,7 +170,8 @@ def select_for_review(candidates: Sequence[Candidate], policy: ReviewPolicy,
     skipping any closer than `min_time_gap_s` to a frame already picked or queued in the same sequence; at most
     `max_batch`.
 
-    Capacity policy: at most `capacity` minus the frames already queued (and `max_batch`). Ranked as above but
+    Capacity policy: at most `capacity` minus the frames already queued (and `max_batch`); the percentile over
+    the candidates and the frames already queued (a second build in a round does not lower it). Ranked as above but
     nothing is cut: first the candidates from the percentile up, spaced in time; then the rest, spaced in time
     against everything picked; then whatever is left, best first, however close in time. With `percentile_cut`
     only the candidates from the percentile up: spaced first, then however close in time. The spacing and the
@@ -176,6 +179,8 @@ def select_for_review(candidates: Sequence[Candidate], policy: ReviewPolicy,
     leave capacity unused while fits wait.
     """
     scores = [c.confidence for c in candidates if _scored(c)]  # the percentile over all candidates, flat ones too
+    if policy.capacity is not None:
+        scores += [q for q in queued_confidences if q is not None and math.isfinite(q)]
     threshold = float(np.percentile(scores, policy.min_confidence_percentile)) if scores else 0.0
     eligible = [c for c in candidates if c.pose_distance >= policy.min_pose_distance]
     upper, rest = _ranked(eligible, threshold)

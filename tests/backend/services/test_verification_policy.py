@@ -169,6 +169,17 @@ def test_capacity_with_the_percentile_as_a_cut_fills_from_the_upper_half_only():
     assert select_for_review(cands, ReviewPolicy(capacity=2, percentile_cut=True)) == [1, 2]
 
 
+def test_a_second_build_in_a_round_keeps_the_percentile_of_the_first():
+    # The first build queued the upper half of eight (0.9-0.6); building again over the four left must not take the
+    # upper half of those: the percentile is over the queued frames too.
+    left = [_c(i, 10.0 * i, conf) for i, conf in enumerate([0.5, 0.4, 0.3, 0.2], start=5)]
+    queued = {1: [0.0, 10.0, 20.0, 30.0]}
+    policy = ReviewPolicy(capacity=100)
+    assert select_for_review(left, policy, queued) == [5, 6]  # without their confidences: the floor drops
+    assert select_for_review(left, policy, queued, queued_confidences=[0.9, 0.8, 0.7, 0.6]) == []
+    assert select_for_review(left, ReviewPolicy(capacity=100, **FILL), queued, [0.9, 0.8, 0.7, 0.6]) == [5, 6, 7, 8]
+
+
 def test_capacity_comes_from_settings_and_zero_means_the_fixed_policy():
     assert ReviewPolicy.from_settings(Settings(review_capacity_per_round=0)).capacity is None
     assert ReviewPolicy.from_settings(Settings(review_capacity_per_round=40)).capacity == 40

@@ -112,6 +112,16 @@ class Settings(BaseSettings):
         default=0.5, ge=0, le=100, description="Minimal Euclidean norm of the articulation from the flat hand."
     )
     review_max_batch: int = Field(default=1000, ge=1, le=1_000_000, description="Most samples queued per build.")
+    review_capacity_per_round: int = Field(
+        default=1000, ge=0, le=1_000_000, description="Samples the reviewers can verify in a round (the paper "
+        "verified 1,000 in its first): the queue is filled to it with the candidates ranked by confidence, the time "
+        "gap only ordering them, the percentile a floor or an order (review_percentile_cut; docs/evaluation.md, "
+        "'The review queue'). Samples already in review count against it. 0: the fixed policy (percentile cut and "
+        "time gap as filters).")
+    review_percentile_cut: bool = Field(
+        default=True, description="With a capacity, rounds 1 on: the queue is filled only from the confidence "
+        "percentile up (the rest waits for the next round's networks: a fit sent back costs an annotation); false: "
+        "the percentile only orders the candidates. Round 0's detector fits are all offered either way.")
 
     # --- workers: Celery broker, job hand-off and robustness (docs/deployment.md) -----------------
     broker_url: str | None = Field(

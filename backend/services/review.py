@@ -24,11 +24,13 @@ def build_queue(session: Session, policy: ReviewPolicy, actor_id: int | None) ->
     ).scalars().all()
     candidates = [Candidate(s.id, s.sequence_id, s.time_s, s.confidence, s.pose_distance or 0.0) for s in rows]
     queued: dict[int, list[float]] = {}
-    for sequence_id, time_s in session.execute(
-        select(Sample.sequence_id, Sample.time_s).where(Sample.state == SampleState.in_review)
+    queued_confidences: list[float | None] = []
+    for sequence_id, time_s, confidence in session.execute(
+        select(Sample.sequence_id, Sample.time_s, Sample.confidence).where(Sample.state == SampleState.in_review)
     ):
         queued.setdefault(sequence_id, []).append(time_s)
-    picked = select_for_review(candidates, policy, queued)
+        queued_confidences.append(confidence)
+    picked = select_for_review(candidates, policy, queued, queued_confidences)
     by_id = {s.id: s for s in rows}
     for sample_id in picked:
         transition(session, by_id[sample_id], SampleState.in_review, actor_id, reason="review policy")

@@ -101,18 +101,31 @@ def heuristic_verdict(confidences: Sequence[float], view_ious: Iterable[float], 
 @dataclass(frozen=True)
 class ReviewPolicy:
     """Manual-verification selection. `min_time_gap_s` between frames picked from one sequence;
-    `min_pose_distance` is the Euclidean norm of the articulation parameters (the flat hand is 0)."""
+    `min_pose_distance` is the Euclidean norm of the articulation parameters (the flat hand is 0).
+
+    `capacity`: samples the reviewers can verify in a round (samples already in review count against it).
+    None: the fixed policy (the percentile is a cut, the time gap a filter). A number: the queue is filled to
+    it, the percentile and the time gap only ordering the candidates (`select_for_review`), unless
+    `percentile_cut`: then the queue is filled from the percentile up only, the time gap still an order."""
 
     min_confidence_percentile: float = 50.0
     min_time_gap_s: float = 1.0
     min_pose_distance: float = 0.5
     max_batch: int = 1000
+    capacity: int | None = 1000
+    percentile_cut: bool = True  # with a capacity: candidates under the percentile wait for the next round
+
+    def __post_init__(self) -> None:
+        if self.capacity is not None and self.capacity < 0:
+            raise ValueError(f"capacity must be at least 0 samples (or None), not {self.capacity}")
 
     @classmethod
     def from_settings(cls, settings: Settings) -> ReviewPolicy:
         return cls(min_confidence_percentile=settings.review_min_confidence_percentile,
                    min_time_gap_s=settings.review_min_time_gap_s,
-                   min_pose_distance=settings.review_min_pose_distance, max_batch=settings.review_max_batch)
+                   min_pose_distance=settings.review_min_pose_distance, max_batch=settings.review_max_batch,
+                   capacity=settings.review_capacity_per_round or None,
+                   percentile_cut=settings.review_percentile_cut)
 
 
 @dataclass(frozen=True)
@@ -124,31 +137,73 @@ class Candidate:
     pose_distance: float
 
 
-def select_for_review(candidates: Sequence[Candidate], policy: ReviewPolicy,
-                      already_queued: Mapping[int, Sequence[float]] | None = None) -> list[int]:
-    """Sample ids to put in front of reviewers, in review order.
+def _scored(c: Candidate) -> bool:
+    return c.confidence is not None and math.isfinite(c.confidence)
 
-    Candidates are the fitted samples the heuristic did not accept. Those with a confidence are kept
-    from the given percentile upwards (computed over these candidates) and sorted by confidence,
-    highest first; candidates without one (fits from clicks, round 0) are all kept, after them. Flat
-    hands (pose distance below the minimum) are dropped; then frames are picked greedily, skipping any
-    closer than `min_time_gap_s` to a frame already picked or queued in the same sequence.
+
+def _ranked(candidates: Sequence[Candidate], threshold: float) -> tuple[list[Candidate], list[Candidate]]:
+    """(confidence from `threshold` up, the rest), each sorted by confidence, highest first; candidates without
+    a confidence (fits from clicks, round 0) after the scored ones of the rest."""
+    scored = [c for c in candidates if _scored(c)]
+
+    def by_confidence(c: Candidate) -> tuple[float, int]:
+        return -(c.confidence or 0.0), c.sample_id
+
+    upper = sorted((c for c in scored if c.confidence >= threshold), key=by_confidence)
+    lower = sorted((c for c in scored if c.confidence < threshold), key=by_confidence)
+    unscored = sorted((c for c in candidates if not _scored(c)), key=lambda c: c.sample_id)
+    return upper, lower + unscored
+
+
+def select_for_review(candidates: Sequence[Candidate], policy: ReviewPolicy,
+                      already_queued: Mapping[int, Sequence[float]] | None = None,
+                      queued_confidences: Sequence[float | None] = ()) -> list[int]:
+    """Sample ids to put in front of reviewers, in the order picked.
+
+    Candidates are the fitted samples the heuristic did not accept; flat hands (pose distance below the
+    minimum) are never picked. `already_queued`: sequence id -> times (s) of its frames already in review;
+    `queued_confidences`: their confidences (None where a fit has none).
+
+    Fixed policy (`capacity` None, the paper's "Manual Verification"): those with a confidence are kept from the
+    given percentile upwards (computed over these candidates) and sorted by confidence, highest first;
+    candidates without one (fits from clicks, round 0) are all kept, after them. Frames are picked greedily,
+    skipping any closer than `min_time_gap_s` to a frame already picked or queued in the same sequence; at most
+    `max_batch`.
+
+    Capacity policy: at most `capacity` minus the frames already queued (and `max_batch`); the percentile over
+    the candidates and the frames already queued (a second build in a round does not lower it). Ranked as above but
+    nothing is cut: first the candidates from the percentile up, spaced in time; then the rest, spaced in time
+    against everything picked; then whatever is left, best first, however close in time. With `percentile_cut`
+    only the candidates from the percentile up: spaced first, then however close in time. The spacing and the
+    percentile spend the reviewers' capacity on the most confident, most varied frames first; they no longer
+    leave capacity unused while fits wait.
     """
-    scored = [c for c in candidates if c.confidence is not None and math.isfinite(c.confidence)]
-    threshold = (float(np.percentile([c.confidence for c in scored], policy.min_confidence_percentile))
-                 if scored else 0.0)
-    kept = sorted((c for c in scored if c.confidence >= threshold), key=lambda c: (-c.confidence, c.sample_id))
-    kept += sorted((c for c in candidates if c.confidence is None), key=lambda c: c.sample_id)
+    scores = [c.confidence for c in candidates if _scored(c)]  # the percentile over all candidates, flat ones too
+    if policy.capacity is not None:
+        scores += [q for q in queued_confidences if q is not None and math.isfinite(q)]
+    threshold = float(np.percentile(scores, policy.min_confidence_percentile)) if scores else 0.0
+    eligible = [c for c in candidates if c.pose_distance >= policy.min_pose_distance]
+    upper, rest = _ranked(eligible, threshold)
     picked_times: dict[int, list[float]] = {k: list(v) for k, v in (already_queued or {}).items()}
+    if policy.capacity is None:
+        limit, passes = policy.max_batch, [(upper + [c for c in rest if c.confidence is None], True)]
+    else:
+        queued = sum(len(v) for v in picked_times.values())
+        limit = max(0, min(policy.max_batch, policy.capacity - queued))
+        passes = ([(upper, True), (upper, False)] if policy.percentile_cut
+                  else [(upper, True), (rest, True), (upper + rest, False)])
     picked: list[int] = []
-    for c in kept:
-        if len(picked) >= policy.max_batch:
-            break
-        if c.pose_distance < policy.min_pose_distance:
-            continue
-        times = picked_times.setdefault(c.sequence_id, [])
-        if any(abs(c.time_s - t) < policy.min_time_gap_s for t in times):
-            continue
-        times.append(c.time_s)
-        picked.append(c.sample_id)
+    taken: set[int] = set()
+    for ranked, spaced in passes:
+        for c in ranked:
+            if len(picked) >= limit:
+                return picked
+            if c.sample_id in taken:
+                continue
+            times = picked_times.setdefault(c.sequence_id, [])
+            if spaced and any(abs(c.time_s - t) < policy.min_time_gap_s for t in times):
+                continue
+            times.append(c.time_s)
+            picked.append(c.sample_id)
+            taken.add(c.sample_id)
     return picked

@@ -4,11 +4,12 @@ For each of the job's samples still 'unlabeled': the pretrained detector's per-v
 the views (`workers.detector.detect_frame`) -> a fit job of source "detector", whose input is the inlier views'
 detections as 2D keypoints weighted by their confidence, plus the masks the annotation fits use -> the fit
 (workers.tasks.fits, the round-0 weights) -> the reviewers' queue by the paper's policy
-(services.verification.select_for_review), the detector's frame confidence standing in for MVNet's. The
-samples the policy does not pick, those where no hand was found and those whose fit failed go to the
-annotators (payload "rest": "annotate"; failed fits always do, as for every fit) or stay 'unlabeled' /
-'fitted' ("keep"); annotators then see the fit's and the detector's keypoints as proposals ("F", "D") and, per
-view, the chroma-key mask cut at the fit's wrist (workers.tasks.detector_masks) instead of hand and forearm.
+(services.verification.select_for_review: every fit, ranked, up to the reviewers' capacity), the detector's
+frame confidence standing in for MVNet's. The samples the policy does not pick, those where no hand was
+found and those whose fit failed go to the annotators (payload "rest": "annotate"; failed fits always do, as
+for every fit) or stay 'unlabeled' / 'fitted' ("keep"); annotators then see the fit's and the detector's
+keypoints as proposals ("F", "D") and, per view, the chroma-key mask cut at the fit's wrist
+(workers.tasks.detector_masks) instead of hand and forearm.
 
 The detector core is reached only through `detect` here and `services.preannotation.detector_problem`
 (tests swap in fakes). A job is
@@ -22,6 +23,7 @@ import logging
 import time
 from collections import defaultdict
 from collections.abc import Sequence
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -166,10 +168,13 @@ def _to_annotators(session: Session, sample_ids: Sequence[int], from_state: Samp
 
 
 def route_fitted(ctx: WorkerContext, job_id: int, sample_ids: Sequence[int], rest: str) -> dict[str, int]:
-    """The job's samples 'fitted' from their detector fit: the reviewers' queue takes what the paper's policy
-    picks (confidence from the median up, temporally spread, not flat); the rest go to the annotators when
-    `rest` is "annotate"."""
-    policy = ReviewPolicy.from_settings(ctx.settings)
+    """The job's samples 'fitted' from their detector fit: all ranked by the detector's confidence and offered
+    to the reviewers up to their capacity a round (`select_for_review`, the percentile never a cut here; with
+    `review_capacity_per_round` 0 the paper's fixed cut: from the median up, temporally spread); never flat
+    hands. The rest go to the annotators when `rest` is "annotate", else stay fitted for round 1."""
+    # Every detector fit is offered (ranked) up to the capacity: the percentile never cuts in round 0, whose D_0
+    # round 1 trains on; the fixed policy (capacity 0) stays as set.
+    policy = replace(ReviewPolicy.from_settings(ctx.settings), percentile_cut=False)
     with ctx.session_factory.begin() as session:
         rows: list[Sample] = []
         for part in _chunks(sample_ids):

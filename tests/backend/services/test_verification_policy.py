@@ -12,6 +12,7 @@ from backend.services.verification import (
     heuristic_verdict,
     select_for_review,
 )
+from backend.settings import Settings
 
 T = HeuristicThresholds()
 EPS = 1e-4
@@ -91,24 +92,98 @@ def _c(i, t, conf, pose=1.0, seq=1):
     return Candidate(sample_id=i, sequence_id=seq, time_s=t, confidence=conf, pose_distance=pose)
 
 
+FIXED = {"capacity": None}  # the fixed policy: the percentile a cut, the time gap a filter
+FILL = {"percentile_cut": False}  # with a capacity, the percentile only orders
+
+
 def test_policy_keeps_the_upper_half_sorted_by_confidence():
     cands = [_c(i, 10.0 * i, conf) for i, conf in enumerate([0.1, 0.2, 0.3, 0.4, 0.5, 0.6], start=1)]
-    assert select_for_review(cands, ReviewPolicy()) == [6, 5, 4]
+    assert select_for_review(cands, ReviewPolicy(**FIXED)) == [6, 5, 4]
 
 
 def test_policy_temporal_gap_within_a_sequence_only():
     cands = [_c(1, 0.0, 0.9), _c(2, 0.5, 0.8), _c(3, 1.0, 0.7), _c(4, 0.5, 0.85, seq=2)]
-    policy = ReviewPolicy(min_confidence_percentile=0, min_time_gap_s=1.0)
+    policy = ReviewPolicy(min_confidence_percentile=0, min_time_gap_s=1.0, **FIXED)
     assert select_for_review(cands, policy) == [1, 4, 3]
 
 
 def test_policy_drops_flat_hands_and_respects_queued_frames():
     cands = [_c(1, 0.0, 0.9, pose=0.1), _c(2, 5.0, 0.8), _c(3, 9.0, 0.7)]
-    policy = ReviewPolicy(min_confidence_percentile=0, min_time_gap_s=2.0, min_pose_distance=0.5)
+    policy = ReviewPolicy(min_confidence_percentile=0, min_time_gap_s=2.0, min_pose_distance=0.5, **FIXED)
     assert select_for_review(cands, policy, already_queued={1: [8.5]}) == [2]
 
 
 def test_policy_keeps_unscored_candidates_after_scored_and_caps_batch():
     cands = [_c(1, 0.0, None), _c(2, 10.0, 0.9), _c(3, 20.0, None)]
-    assert select_for_review(cands, ReviewPolicy()) == [2, 1, 3]
-    assert select_for_review(cands, ReviewPolicy(max_batch=2)) == [2, 1]
+    assert select_for_review(cands, ReviewPolicy(**FIXED)) == [2, 1, 3]
+    assert select_for_review(cands, ReviewPolicy(max_batch=2, **FIXED)) == [2, 1]
+
+
+# --- the capacity policy: the queue filled to the reviewers' capacity ------------------------------------------
+
+
+def test_capacity_fills_past_the_median_and_the_time_gap():
+    # Six frames close in time in one sequence: the fixed policy keeps the upper half 1 s apart (one frame); with
+    # capacity for all, every frame is offered: the spaced upper half (1), the spaced rest (6), then the rest.
+    times, confs = [0.0, 0.2, 0.4, 0.6, 0.8, 1.5], [0.6, 0.5, 0.4, 0.3, 0.2, 0.1]
+    cands = [_c(i, t, conf) for i, (t, conf) in enumerate(zip(times, confs, strict=True), start=1)]
+    assert select_for_review(cands, ReviewPolicy(**FIXED)) == [1]
+    assert select_for_review(cands, ReviewPolicy(capacity=10, **FILL)) == [1, 6, 2, 3, 4, 5]
+
+
+def test_capacity_spends_itself_on_the_most_confident_spread_frames():
+    # Capacity 3 of 4: the upper half spaced (1; 2 is 0.5 s from it), then the rest spaced (3, 4): 2, more
+    # confident than 3 and 4 but 0.5 s from 1, is left for the next round.
+    cands = [_c(1, 0.0, 0.9), _c(2, 0.5, 0.8), _c(3, 5.0, 0.7), _c(4, 7.0, 0.1)]
+    assert select_for_review(cands, ReviewPolicy(capacity=3, **FILL)) == [1, 3, 4]
+    assert select_for_review(cands, ReviewPolicy(capacity=2, **FILL)) == [1, 3]
+
+
+def test_capacity_spreads_over_sequences_before_filling_one():
+    # Two sequences; the most confident four frames are all in sequence 1, 0.1 s apart.
+    cands = [_c(i, 0.1 * i, 0.9 - 0.01 * i) for i in range(1, 5)] + [_c(10, 0.0, 0.5, seq=2)]
+    picked = select_for_review(cands, ReviewPolicy(min_confidence_percentile=0, capacity=2, **FILL))
+    assert picked == [1, 10]
+
+
+def test_capacity_counts_frames_already_in_review_and_never_picks_flat_hands():
+    cands = [_c(1, 0.0, 0.9, pose=0.1), _c(2, 5.0, 0.8), _c(3, 9.0, 0.7), _c(4, 20.0, 0.6)]
+    policy = ReviewPolicy(min_confidence_percentile=0, min_time_gap_s=2.0, capacity=3, **FILL)
+    # One frame already queued (sequence 1 at 8.5 s): two more fit; 3 is 0.5 s from it, so 4 comes first.
+    assert select_for_review(cands, policy, already_queued={1: [8.5]}) == [2, 4]
+    assert select_for_review(cands, policy, already_queued={1: [8.5, 30.0, 40.0]}) == []
+    assert 1 not in select_for_review(cands, ReviewPolicy(capacity=100, **FILL))
+
+
+def test_capacity_is_bounded_by_max_batch_and_ranks_unscored_last():
+    cands = [_c(1, 0.0, None), _c(2, 10.0, 0.9), _c(3, 20.0, 0.2), _c(4, 30.0, None)]
+    assert select_for_review(cands, ReviewPolicy(capacity=10, **FILL)) == [2, 3, 1, 4]
+    assert select_for_review(cands, ReviewPolicy(capacity=10, max_batch=2, **FILL)) == [2, 3]
+
+
+def test_capacity_with_the_percentile_as_a_cut_fills_from_the_upper_half_only():
+    times, confs = [0.0, 0.2, 0.4, 0.6, 0.8, 1.5], [0.6, 0.5, 0.4, 0.3, 0.2, 0.1]
+    cands = [_c(i, t, conf) for i, (t, conf) in enumerate(zip(times, confs, strict=True), start=1)]
+    # The upper half (1, 2, 3): 1 spaced first, then 2 and 3 though close in time; 4-6 wait for the next round.
+    assert select_for_review(cands, ReviewPolicy(capacity=10, percentile_cut=True)) == [1, 2, 3]
+    assert select_for_review(cands, ReviewPolicy(capacity=2, percentile_cut=True)) == [1, 2]
+
+
+def test_a_second_build_in_a_round_keeps_the_percentile_of_the_first():
+    # The first build queued the upper half of eight (0.9-0.6); building again over the four left must not take the
+    # upper half of those: the percentile is over the queued frames too.
+    left = [_c(i, 10.0 * i, conf) for i, conf in enumerate([0.5, 0.4, 0.3, 0.2], start=5)]
+    queued = {1: [0.0, 10.0, 20.0, 30.0]}
+    policy = ReviewPolicy(capacity=100)
+    assert select_for_review(left, policy, queued) == [5, 6]  # without their confidences: the floor drops
+    assert select_for_review(left, policy, queued, queued_confidences=[0.9, 0.8, 0.7, 0.6]) == []
+    assert select_for_review(left, ReviewPolicy(capacity=100, **FILL), queued, [0.9, 0.8, 0.7, 0.6]) == [5, 6, 7, 8]
+
+
+def test_capacity_comes_from_settings_and_zero_means_the_fixed_policy():
+    assert ReviewPolicy.from_settings(Settings(review_capacity_per_round=0)).capacity is None
+    assert ReviewPolicy.from_settings(Settings(review_capacity_per_round=40)).capacity == 40
+    assert ReviewPolicy.from_settings(Settings()).percentile_cut is True
+    assert ReviewPolicy.from_settings(Settings(review_percentile_cut=False)).percentile_cut is False
+    with pytest.raises(ValueError, match="capacity"):
+        ReviewPolicy(capacity=-1)

@@ -244,8 +244,9 @@ def _detector_sim(env, capture_dir, monkeypatch, *, rounds: int = 1, accept_prop
 
 def test_with_the_detector_d0_comes_from_verified_detector_fits(env_with, sqlite_url, capture_dir, tmp_path,
                                                                   monkeypatch):
+    # The reviewers' capacity, 2 of the 4 fits: the two most confident are reviewed.
     env = env_with(sqlite_url, tmp_path / "data", review_min_time_gap_s=0.0, review_min_pose_distance=0.0,
-                   fit_global_iterations=15, fit_full_iterations=25)
+                   review_capacity_per_round=2, fit_global_iterations=15, fit_full_iterations=25)
     sim, admin = _detector_sim(env, capture_dir, monkeypatch)
     summary = sim.run(capture_dir, initial_every=3)
     assert summary["failure"] is None and summary["bookkeeping_ok"] and summary["detector"] is True
@@ -272,7 +273,7 @@ def test_with_the_default_round_0_plan_d0_is_the_verified_detector_fits_alone(en
     """round0_rest "keep": the samples the policy does not pick stay fitted for round 1; D_0 is what the reviewers
     accepted, so it is all verified, and nobody clicked."""
     env = env_with(sqlite_url, tmp_path / "data", review_min_time_gap_s=0.0, review_min_pose_distance=0.0,
-                   fit_global_iterations=15, fit_full_iterations=25)
+                   review_capacity_per_round=2, fit_global_iterations=15, fit_full_iterations=25)
     sim, admin = _detector_sim(env, capture_dir, monkeypatch, rounds=0, round0_rest="keep")
     summary = sim.run(capture_dir, initial_every=3)
     assert summary["failure"] is None and summary["bookkeeping_ok"]
@@ -309,7 +310,7 @@ def test_annotators_who_accept_the_detectors_proposals_click_less(env_with, sqli
         database = tmp_path / f"sim-{tolerance}.sqlite3"
         shutil.copyfile(sqlite_template, database)
         env = env_with(f"sqlite:///{database}", tmp_path / f"data-{tolerance}", review_min_time_gap_s=0.0,
-                       review_min_pose_distance=0.0,
+                       review_min_pose_distance=0.0, review_capacity_per_round=2,  # 2 of the 4 reviewed first
                        fit_global_iterations=15, fit_full_iterations=25)
         sim, _ = _detector_sim(env, capture_dir, monkeypatch, rounds=0, accept_proposals_px=tolerance)
         summary = sim.run(capture_dir, initial_every=3)

@@ -41,9 +41,10 @@ def database_url(request):
 def world(tmp_path, capture_cache, monkeypatch, request):
     capture = tiny_capture(capture_cache, frames=4)
     url = request.getfixturevalue("database_url") if "database_url" in request.fixturenames else None
-    # No time gap between picked frames: the policy's median cut alone decides who is reviewed.
+    # No time gap between picked frames, and reviewers' capacity for 2 of the 4: the confidence ranking alone
+    # decides who is reviewed.
     settings = Settings(data_dir=tmp_path / "data", database_url=url, review_min_time_gap_s=0.0,
-                        review_min_pose_distance=0.0, **TEST_SETTINGS)
+                        review_min_pose_distance=0.0, review_capacity_per_round=2, **TEST_SETTINGS)
     project_id = prepare_database(settings, capture, queue_for_annotation=False)
     queue = InMemoryJobQueue()
     ctx = build_context(settings, job_queue=queue)
@@ -106,7 +107,7 @@ def test_preannotation_fits_every_sample_and_routes_them_by_the_review_policy(da
         states = {s.frame_index: s.state for s in samples}
         confidences = [s.confidence for s in samples]
     assert confidences == sorted(confidences, reverse=True) and len(set(confidences)) == 4, confidences
-    # The paper's policy keeps candidates from the median confidence up; the rest go to the annotators.
+    # The reviewers' capacity (2) takes the most confident; the rest go to the annotators.
     assert states == {0: SampleState.in_review, 1: SampleState.in_review, 2: SampleState.needs_annotation,
                       3: SampleState.needs_annotation}
     assert result["to_review"] == 2 and result["fitted_to_annotators"] == 2
@@ -198,6 +199,31 @@ def test_by_default_unpicked_samples_stay_fitted_for_the_next_round(world):
     assert result["to_review"] == 2 and result["fitted_to_annotators"] == 0, result
     assert result["unlabeled_to_annotators"] == 0, result
     assert states == {SampleState.in_review: 2, SampleState.fitted: 1, SampleState.unlabeled: 1}, states
+
+
+DEFAULT_CAPACITY = Settings.model_fields["review_capacity_per_round"].default
+
+
+def test_every_detector_fit_is_offered_to_reviewers_within_their_capacity(world):
+    """Round 0 with the default capacity: all the detector's fits reach the reviewers, most confident first in
+    their queue; the sample without a hand stays unlabeled for round 1."""
+    ctx, queue, project_id, fake = world
+    ctx.settings = ctx.settings.model_copy(update={"review_capacity_per_round": DEFAULT_CAPACITY})
+    fake.outliers_by_frame = {0: 0, 1: 1, 2: 2, 3: 3}  # three different confidences: the median cut would take 2
+    fake.no_hand_frames = {3}
+    result = preannotate.run_preannotation_job(ctx, _launch(ctx, queue, project_id))
+    _, _, states = _counts(ctx)
+    assert result["to_review"] == 3 and result["fitted_to_annotators"] == 0, result
+    assert states == {SampleState.in_review: 3, SampleState.unlabeled: 1}, states
+
+
+def test_the_fixed_policy_stays_available(world):
+    """review_capacity_per_round 0: the paper's median cut, as before the capacity."""
+    ctx, queue, project_id, fake = world
+    ctx.settings = ctx.settings.model_copy(update={"review_capacity_per_round": 0})
+    fake.outliers_by_frame = {0: 0, 1: 1, 2: 2, 3: 3}  # four different confidences
+    result = preannotate.run_preannotation_job(ctx, _launch(ctx, queue, project_id, rest="annotate"))
+    assert result["to_review"] == 2 and result["fitted_to_annotators"] == 2, result
 
 
 def test_a_redelivered_job_records_nothing_twice(database_url, world):

@@ -201,14 +201,11 @@ def test_by_default_unpicked_samples_stay_fitted_for_the_next_round(world):
     assert states == {SampleState.in_review: 2, SampleState.fitted: 1, SampleState.unlabeled: 1}, states
 
 
-DEFAULT_CAPACITY = Settings.model_fields["review_capacity_per_round"].default
-
-
 def test_every_detector_fit_is_offered_to_reviewers_within_their_capacity(world):
-    """Round 0 with the default capacity: all the detector's fits reach the reviewers, most confident first in
-    their queue; the sample without a hand stays unlabeled for round 1."""
+    """Round 0 with a capacity (the paper's 1,000 of round 1): all the detector's fits reach the reviewers, most
+    confident first in their queue; the sample without a hand stays unlabeled for round 1."""
     ctx, queue, project_id, fake = world
-    ctx.settings = ctx.settings.model_copy(update={"review_capacity_per_round": DEFAULT_CAPACITY})
+    ctx.settings = ctx.settings.model_copy(update={"review_capacity_per_round": 1000})
     fake.outliers_by_frame = {0: 0, 1: 1, 2: 2, 3: 3}  # three different confidences: the median cut would take 2
     fake.no_hand_frames = {3}
     result = preannotate.run_preannotation_job(ctx, _launch(ctx, queue, project_id))

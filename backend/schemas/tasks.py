@@ -96,8 +96,10 @@ class MaskIn(Strict):
 
 
 class SubmissionCreate(Strict):
+    # The validator's rule in the published schema too: a corrected mask, or a click that is not 'not_annotated'.
     model_config = ConfigDict(json_schema_extra={"anyOf": [
-        {"required": ["clicks"], "properties": {"clicks": {"minItems": 1}}},
+        {"required": ["clicks"], "properties": {"clicks": {"minItems": 1, "contains": {
+            "not": {"required": ["visibility"], "properties": {"visibility": {"const": "not_annotated"}}}}}}},
         {"required": ["masks"], "properties": {"masks": {"minItems": 1}}}]})
 
     submission_id: ClientId = Field(description="Client-chosen unique id: resubmitting it is a no-op.")

@@ -8,7 +8,6 @@ import io
 import secrets
 from typing import Any
 
-from PIL import Image, UnidentifiedImageError
 from sqlalchemy.orm import Session
 
 from backend.db.base import utcnow
@@ -71,6 +70,8 @@ def add_image(session: Session, storage: Storage, actor_id: int | None, data: by
     """Store an image (PNG, JPEG, WebP or GIF, at most 5 MiB) after the others; 422 for anything else."""
     if len(data) > MAX_IMAGE_BYTES:
         raise InvalidInputError(f"the image has {len(data)} bytes; at most {MAX_IMAGE_BYTES} (5 MiB)")
+    from PIL import Image, UnidentifiedImageError  # deferred: Pillow only for an upload, not at the API's start-up
+
     try:
         with Image.open(io.BytesIO(data)) as image:
             kind = image.format

@@ -26,8 +26,10 @@ from backend.services import scene_tickets
 
 EXAMPLES = int(os.environ.get("HANDLOOP_FUZZ_EXAMPLES", "12"))
 # Valid bodies the server must still refuse with 422 for what no schema can say: an import names a folder on
-# the server, and whether it holds a capture is known only there (the other checks still run).
-STATE_DEPENDENT = {"POST /api/admin/imports": "positive_data_acceptance"}
+# the server, and whether it holds a capture is known only there; a guidelines image is bytes, and whether they are
+# a PNG, JPEG, WebP or GIF is known only by decoding them (the other checks still run).
+STATE_DEPENDENT = {"POST /api/admin/imports": "positive_data_acceptance",
+                   "POST /api/admin/guidelines/images": "positive_data_acceptance"}
 ROLES = [None, Role.annotator, Role.reviewer, Role.admin]
 
 

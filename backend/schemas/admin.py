@@ -74,7 +74,7 @@ class Statistics(Public):
     samples_by_state: dict[str, int]
     rounds: list[RoundStats]
     submissions: int
-    clicks: int
+    clicks: int = Field(description="Points placed by hand (not the not-annotated rows, nor accepted proposals).")
 
 
 class ImportRequest(Strict):

@@ -35,7 +35,9 @@ def calibration_check(session: Session, project_id: int, max_submissions: int = 
         select(Click.submission_id, View.camera_id, Click.keypoint, Click.x_px, Click.y_px)
         .join(View, View.id == Click.view_id)
         .where(Click.submission_id.in_(latest.scalar_subquery()), Click.visibility == Visibility.visible.value,
-               Click.x_px.is_not(None), Click.y_px.is_not(None))).all()
+               Click.x_px.is_not(None), Click.y_px.is_not(None),
+               # accepted proposals are the proposals' own geometry, not a person's view of the hand
+               Click.from_proposal.is_(False))).all()
     frames: dict[int, np.ndarray] = {}
     for submission_id, camera_id, keypoint, x, y in clicks:
         kp = frames.setdefault(submission_id, np.full((len(cameras), 21, 2), np.nan))

@@ -163,5 +163,8 @@ def statistics(session: Session) -> Statistics:
         samples_by_state={k: int(v) for k, v in by_state.items()},
         rounds=stats,
         submissions=session.execute(select(func.count()).select_from(Submission)).scalar_one(),
-        clicks=session.execute(select(func.count()).select_from(Click)).scalar_one(),
+        # Points placed by hand: not the not-annotated rows every submission has (48 a sample), nor accepted
+        # proposals (issue 38: '336 clicks' was submissions x 48).
+        clicks=session.execute(select(func.count()).select_from(Click).where(
+            Click.x_px.is_not(None), Click.from_proposal.is_(False))).scalar_one(),
     )

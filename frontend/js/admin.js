@@ -97,7 +97,7 @@ class AdminPage {
       h("div", { class: "state-cards" }, STATES.map((state) => h("div", { class: `state-card state-${state}`,
         dataset: { state } }, h("div", { class: "n" }, String(counts[state] || 0)), h("div", { class: "label" },
         state.replace("_", " "))))),
-      h("div", { class: "muted" }, `${total} samples · ${s.submissions} submissions · ${s.clicks} clicks · ` +
+      h("div", { class: "muted" }, `${total} samples · ${s.submissions} submissions · ${s.clicks} points placed by hand · ` +
         `${d.fits} fits · queues: ${d.queues.annotate} to annotate (+${d.queues.annotate_leased ?? 0} being annotated), ` +
         `${d.queues.review} to review (+${d.queues.review_leased ?? 0} being reviewed)`),
       d.flags ? h("div", { class: "muted annotation-flags" }, `annotators said: no hand in ${d.flags.no_hand_view} ` +

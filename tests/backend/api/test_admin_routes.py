@@ -280,3 +280,20 @@ def test_one_round_at_a_time_and_a_cancelled_round_leaves_no_column(env, h):
     assert [(r["index"], r["state"]) for r in stats["rounds"]] == [(0, "running")]  # no "D1 cancelled" column
     assert env.client.get("/api/admin/dashboard", headers=env.headers(ADMIN)).json()["launch"]["refusal"] is None
     assert env.client.post("/api/admin/rounds", headers=env.headers(ADMIN), json={}).status_code == 201
+
+
+def test_the_statistics_count_points_placed_by_hand(env, h):
+    """'clicks' counts the points a person placed: not the not-annotated rows a submission carries for every other
+    keypoint, nor proposals accepted as they were (issue 38: the page said '336 clicks' for submissions x 48)."""
+    h.seed(env, frames=2, cameras=2)
+    task = h.next_task(env)
+    view, other = task["views"][0]["id"], task["views"][1]["id"]
+    clicks = [{"view_id": view, "keypoint": 0, "x": 10.0, "y": 20.0, "visibility": "visible"},
+              {"view_id": view, "keypoint": 4, "x": 30.0, "y": 20.0, "visibility": "occluded"},
+              {"view_id": other, "keypoint": 0, "x": 11.0, "y": 21.0, "visibility": "visible", "from_proposal": True},
+              {"view_id": other, "keypoint": 4, "x": None, "y": None, "visibility": "not_annotated"}]
+    response = env.client.post(f"/api/annotate/samples/{task['sample_id']}/submissions",
+                               json=h.body(task, clicks=clicks), headers=env.headers(Role.annotator))
+    assert response.status_code in (200, 201), response.text
+    stats = env.client.get("/api/admin/rounds/statistics", headers=env.headers(ADMIN)).json()
+    assert (stats["submissions"], stats["clicks"]) == (1, 2), stats

@@ -25,7 +25,7 @@ def _import(env, tmp_path: Path) -> tuple[int, object]:
     return response.json()["project_id"], read_capture(capture)
 
 
-def _annotate_from_ground_truth(env, capture) -> None:
+def _annotate_from_ground_truth(env, capture, from_proposal: bool = False) -> None:
     frames = capture.sequences[0].frames
     for _ in frames:
         task = env.client.post("/api/annotate/next", headers=env.headers(Role.annotator)).json()
@@ -37,7 +37,7 @@ def _annotate_from_ground_truth(env, capture) -> None:
                 if gt.visibility[c, k]:
                     x, y = gt.keypoints_2d[c, k]
                     clicks.append({"view_id": view["id"], "keypoint": k, "x": float(x), "y": float(y),
-                                   "visibility": "visible"})
+                                   "visibility": "visible", "from_proposal": from_proposal})
                 else:
                     clicks.append({"view_id": view["id"], "keypoint": k, "visibility": "not_annotated"})
         body = {"submission_id": uuid.uuid4().hex, "lease_token": task["lease_token"], "time_spent_s": 10.0,
@@ -71,3 +71,13 @@ def test_check_from_clicks_flags_the_turned_camera(env, tmp_path: Path) -> None:
     assert report["flagged"] == ["cam4"], report
     assert env.client.get("/api/admin/projects/999/calibration-check",
                           headers=env.headers(Role.admin)).status_code == 404
+
+
+def test_accepted_proposals_are_not_judged_as_clicks(env, tmp_path: Path) -> None:
+    """Points accepted from proposals are the proposals' own geometry (a fit's projection agrees with every camera
+    by construction): the check judges only points a person placed (issue 38: 0.00 px on views nobody clicked)."""
+    project_id, capture = _import(env, tmp_path)
+    _annotate_from_ground_truth(env, capture, from_proposal=True)
+    report = env.client.get(f"/api/admin/projects/{project_id}/calibration-check", headers=env.headers(Role.admin))
+    assert report.status_code == 200, report.text
+    assert report.json()["frames"] == 0 and "no visible clicks yet" in report.json()["notes"][0]

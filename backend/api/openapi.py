@@ -29,6 +29,7 @@ ERROR_REF = {"$ref": "#/components/schemas/ErrorBody"}
 RETRY_AFTER = {"Retry-After": {"description": "Seconds to wait before trying again.", "required": True,
                                "schema": {"type": "string", "pattern": "^[0-9]+$"}}}
 DESCRIPTIONS = {
+    400: "The body cannot be parsed (a malformed multipart upload); nothing was written.",
     401: "Not authenticated: no, invalid, expired or revoked credentials.",
     403: "Not allowed: the role is too low, or the lease is someone else's.",
     404: "Something the request names does not exist.",

@@ -205,7 +205,9 @@ class ReviewPage {
     this.hideLeaseBanner();
     delete document.body.dataset.draftState;
     delete document.body.dataset.draftSaved;
-    const draft = prepared.draft;
+    // A decision is the reviewer's own: a note someone left on a lapsed lease (`left_by`) is not shown to the next
+    // reviewer, who judges the fit unanchored (docs/ui.md); on the annotate page such work does travel.
+    const draft = prepared.draft && !prepared.draft.left_by ? prepared.draft : null;
     this.drafts.track(prepared.task.sample_id, draft ? draft.revision : 0);
     if (draft && draft.payload.decision && draft.payload.decision !== "accept") {
       this.reason = { kind: draft.payload.decision, text: draft.payload.reason };

@@ -35,7 +35,7 @@ def save_guidelines(body: GuidelinesText, session: SessionDep, admin: AdminUser)
 
 
 @router.post("/admin/guidelines/images", response_model=GuidelinesPublic, status_code=201,
-             responses={400: {"description": "A malformed multipart body."}, 409: {}, 422: {}})
+             responses={400: {}, 409: {}, 422: {}})
 async def add_guideline_image(session: SessionDep, storage: StorageDep, admin: AdminUser, revision: Revision,
                               file: Annotated[UploadFile, File(description="PNG, JPEG, WebP or GIF, <= 5 MiB.")],
                               caption: Annotated[str, Form(max_length=500)] = "") -> dict[str, Any]:

@@ -46,7 +46,7 @@ def make_world(tmp_path, capture_cache, monkeypatch):
     def make(**overrides):
         capture = tiny_capture(capture_cache, frames=4)
         settings = Settings(data_dir=tmp_path / "data", review_min_time_gap_s=0.0, review_min_pose_distance=0.0,
-                            import_roots=[capture.parent], **{**TEST_SETTINGS, **overrides})
+                            **{**TEST_SETTINGS, "import_roots": [capture.parent], **overrides})
         prepare_database(settings, capture, queue_for_annotation=False)
         manager = app_for(settings)
         _, client, queue = manager.__enter__()

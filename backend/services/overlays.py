@@ -30,8 +30,10 @@ from backend.services.fit_agreement import fit_confidences
 from backend.services.samples import get_sample
 from backend.services.users import Actor
 from backend.services.view_geometry import ViewCamera, pixels_or_none, project, view_cameras
-from backend.viewer.hand_mesh import fit_side, hand_model_label, is_stand_in, load_arrays, posed_mesh
+from backend.viewer.hand_mesh import fit_side, hand_model_label, is_stand_in, load_arrays
 from workers.handmodel.keypoints import SKELETON_EDGES, SPARSE_KEYPOINTS
+from workers.handmodel.params import HandParams
+from workers.handmodel.posed import posed_mesh
 
 logger = logging.getLogger(__name__)
 
@@ -164,7 +166,7 @@ def mesh_hidden(arrays: Any, params: Any, keypoints_m: Any, cameras: list[ViewCa
     from workers.rendering.occlusion import hidden_by_mesh
     from workers.synth.visibility import skin_depth_tolerance_m
 
-    mesh = posed_mesh(arrays, np.asarray(params, dtype=np.float64))
+    mesh = posed_mesh(arrays, HandParams.from_theta(params))
     keypoints = np.asarray(keypoints_m, dtype=np.float64).reshape(21, 3)
     hidden = hidden_by_mesh(keypoints, mesh.vertices, mesh.faces, cameras,
                             skin_depth_tolerance_m(keypoints, mesh.vertices))
@@ -241,7 +243,7 @@ def _mesh_payload(fit: Fit, mano_path: Path | None) -> tuple[dict[str, Any] | No
     arrays = load_arrays(fit.model_file, mano_path, fit_side(fit.diagnostics))
     if arrays is None:
         return None, f"no mesh: the fit used {fit.model_file} and this server has no HANDLOOP_MANO_PATH", None
-    mesh = posed_mesh(arrays, np.asarray(fit.params))
+    mesh = posed_mesh(arrays, HandParams.from_theta(fit.params))
     # The mesh is rebuilt from the parameters; its keypoints should land on the stored ones.
     offset_mm = float(np.max(np.linalg.norm(mesh.keypoints - np.asarray(fit.keypoints_m), axis=1)) * 1000)
     if offset_mm > 1.0:

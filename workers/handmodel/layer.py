@@ -10,7 +10,8 @@ from torch import nn
 
 from workers.handmodel.arrays import HandModelArrays
 from workers.handmodel.keypoints import FREIHAND_FROM_MANO, NUM_BETAS, NUM_POSE
-from workers.handmodel.lbs import lbs, vertices_to_joints
+from workers.handmodel.lbs import keypoints_from_vertices, lbs
+from workers.handmodel.params import HandParams
 
 
 @dataclass
@@ -113,11 +114,18 @@ class HandLayer(nn.Module):
         posedirs = self.posedirs if self.has_pose_correctives else None
         vertices, joints = lbs(betas, full_pose, self.v_template, self.shapedirs, posedirs,
                                self.J_regressor, self.parents, self.weights)
-        regressed = vertices_to_joints(self.J_regressor, vertices)  # (B, 16, 3)
-        tips = vertices[:, self.tip_ids]  # (B, 5, 3)
-        keypoints = torch.cat([regressed, tips], dim=1)[:, self.keypoint_order]  # (B, 21, 3)
+        keypoints = keypoints_from_vertices(vertices, self.J_regressor, self.tip_ids, self.keypoint_order)
         offset = transl[:, None, :]
         return HandOutput(vertices + offset, joints + offset, keypoints + offset, full_pose)
+
+    def pose_params(self, params: HandParams) -> HandOutput:
+        """Pose and shape from `HandParams` with a batch axis (fields (B, 10), (B, 45), (B, 3), (B, 3); build
+        them with `HandParams.from_theta(theta (B, 61))`). Needs use_pca=False (theta holds axis-angle)."""
+        if self.use_pca:
+            raise ValueError("pose_params takes axis-angle articulation: build the layer with use_pca=False")
+        if params.betas.ndim != 2:
+            raise ValueError(f"pose_params needs a batch axis: betas (B, 10), got {params.betas.shape}")
+        return self(params.betas, params.pose, params.global_orient, params.transl)
 
 
 def _check(name: str, value: torch.Tensor | None, shape: tuple[int, int], kw: dict) -> torch.Tensor:

@@ -1,5 +1,10 @@
 """Linear blend skinning as a chain of small pure functions (after smplx's lbs.py, written anew).
 
+One forward pass with two faces: every function takes numpy arrays or torch tensors (all of one kind) and
+returns the same kind (`workers.geometry.arrays`). The torch face is `HandLayer` (workers/handmodel/layer.py,
+differentiable, batched buffers); the numpy face is `posed_mesh` (workers/handmodel/posed.py, torch-free for
+the API process). torch is never imported by this module.
+
 Shapes: B batch, V vertices, J joints (16), S shape coefficients (10), P pose-corrective inputs
 (9 (J - 1) = 135). Units: metres, radians. Frames: the model's rest frame (MANO semantics: each joint's
 axis-angle rotation is expressed in the rest-pose frame, relative to its parent).
@@ -9,58 +14,36 @@ from __future__ import annotations
 
 import functools
 
-import torch
+from workers.geometry.arrays import Array, constant_like, copy, eye_like, namespace
+from workers.geometry.rotation import axis_angle_to_matrix, skew
+
+__all__ = ["axis_angle_to_matrix", "blend_shapes", "keypoints_from_vertices", "lbs", "pose_features",
+           "pose_offsets", "rigid_transforms", "skew", "skin_vertices", "vertices_to_joints"]
 
 
-def blend_shapes(betas: torch.Tensor, shapedirs: torch.Tensor) -> torch.Tensor:
+def blend_shapes(betas: Array, shapedirs: Array) -> Array:
     """Shape offsets: betas (B, S), shapedirs (V, 3, S) -> (B, V, 3) metres."""
     V, _, S = shapedirs.shape
     return (betas @ shapedirs.reshape(V * 3, S).T).reshape(-1, V, 3)  # one matmul, no tiny batches
 
 
-def vertices_to_joints(J_regressor: torch.Tensor, vertices: torch.Tensor) -> torch.Tensor:
+def vertices_to_joints(J_regressor: Array, vertices: Array) -> Array:
     """Regress joints: J_regressor (J, V), vertices (B, V, 3) -> (B, J, 3)."""
     return J_regressor @ vertices
 
 
-def skew(v: torch.Tensor) -> torch.Tensor:
-    """Cross-product matrices: v (..., 3) -> (..., 3, 3) with skew(v) @ w = v x w."""
-    zero = torch.zeros_like(v[..., 0])
-    x, y, z = v.unbind(-1)
-    return torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], dim=-1).reshape(*v.shape[:-1], 3, 3)
-
-
-def axis_angle_to_matrix(rot_vecs: torch.Tensor) -> torch.Tensor:
-    """Rodrigues' formula: axis-angle (..., 3) radians -> rotation matrices (..., 3, 3).
-
-    R = I + a(t) K + b(t) K^2 with K = skew(r), a = sin t / t, b = (1 - cos t) / t^2, t = |r|; both
-    coefficients switch to their Taylor series near t = 0 so values and gradients stay finite there.
-    """
-    angle2 = (rot_vecs * rot_vecs).sum(-1, keepdim=True)[..., None]  # (..., 1, 1)
-    small = angle2 < 1e-6
-    safe2 = torch.where(small, torch.ones_like(angle2), angle2)
-    safe = safe2.sqrt()
-    a = torch.where(small, 1 - angle2 / 6 + angle2 * angle2 / 120, torch.sin(safe) / safe)
-    b = torch.where(small, 0.5 - angle2 / 24 + angle2 * angle2 / 720, (1 - torch.cos(safe)) / safe2)
-    K = skew(rot_vecs)
-    eye = torch.eye(3, dtype=rot_vecs.dtype, device=rot_vecs.device).expand_as(K)
-    return eye + a * K + b * (K @ K)
-
-
-def pose_features(rot_mats: torch.Tensor) -> torch.Tensor:
+def pose_features(rot_mats: Array) -> Array:
     """MANO's pose-corrective input: rot_mats (B, J, 3, 3) -> (B, 9 (J - 1)), (R_j - I) of joints 1..J-1."""
-    eye = torch.eye(3, dtype=rot_mats.dtype, device=rot_mats.device)
-    return (rot_mats[:, 1:] - eye).flatten(1)
+    return (rot_mats[:, 1:] - eye_like(3, rot_mats)).reshape(rot_mats.shape[0], -1)
 
 
-def pose_offsets(features: torch.Tensor, posedirs: torch.Tensor) -> torch.Tensor:
+def pose_offsets(features: Array, posedirs: Array) -> Array:
     """Pose-corrective offsets: features (B, P), posedirs (V, 3, P) -> (B, V, 3) metres."""
     V, _, P = posedirs.shape
     return (features @ posedirs.reshape(V * 3, P).T).reshape(-1, V, 3)
 
 
-def rigid_transforms(rot_mats: torch.Tensor, joints: torch.Tensor,
-                     parents: tuple[int, ...]) -> tuple[torch.Tensor, torch.Tensor]:
+def rigid_transforms(rot_mats: Array, joints: Array, parents: tuple[int, ...]) -> tuple[Array, Array]:
     """Compose joint rotations along the kinematic tree.
 
     Args:
@@ -71,26 +54,23 @@ def rigid_transforms(rot_mats: torch.Tensor, joints: torch.Tensor,
         posed_joints: (B, J, 3) joint locations after posing.
         skinning: (B, J, 4, 4) transforms taking rest-pose points to posed points for each joint.
     """
+    xp = namespace(joints)
     B, J = joints.shape[:2]
-    rel_joints = joints.clone()
+    rel_joints = copy(joints)
     rel_joints[:, 1:] = joints[:, 1:] - joints[:, list(parents[1:])]
-    local = torch.cat([torch.cat([rot_mats, rel_joints[..., None]], dim=-1),
-                       _homogeneous_row(joints).expand(B, J, 1, 4)], dim=-2)  # (B, J, 4, 4)
+    bottom = xp.broadcast_to(constant_like([0.0, 0.0, 0.0, 1.0], joints).reshape(1, 1, 1, 4), (B, J, 1, 4))
+    local = xp.concat([xp.concat([rot_mats, rel_joints[..., None]], axis=-1), bottom], axis=-2)  # (B, J, 4, 4)
     # One batched product per tree level (3 for a hand) instead of one per joint: a fit spends its
     # time in per-operation overhead, forward and backward.
-    world = local.clone()
+    world = copy(local)
     for level in _tree_levels(tuple(parents))[1:]:
         world[:, list(level)] = world[:, [parents[j] for j in level]] @ local[:, list(level)]
     posed_joints = world[..., :3, 3]
     # Remove each joint's rest location so the transform applies to rest-pose vertices directly.
-    rest_in_world = torch.einsum("bjik,bjk->bji", world[..., :3, :3], joints)
-    skinning = world.clone()
+    rest_in_world = xp.einsum("bjik,bjk->bji", world[..., :3, :3], joints)
+    skinning = copy(world)
     skinning[..., :3, 3] = posed_joints - rest_in_world
     return posed_joints, skinning
-
-
-def _homogeneous_row(like: torch.Tensor) -> torch.Tensor:
-    return torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=like.dtype, device=like.device).reshape(1, 1, 1, 4)
 
 
 @functools.lru_cache(maxsize=16)
@@ -102,7 +82,7 @@ def _tree_levels(parents: tuple[int, ...]) -> tuple[tuple[int, ...], ...]:
     return tuple(tuple(j for j in range(len(parents)) if depth[j] == d) for d in range(max(depth) + 1))
 
 
-def skin_vertices(vertices: torch.Tensor, weights: torch.Tensor, transforms: torch.Tensor) -> torch.Tensor:
+def skin_vertices(vertices: Array, weights: Array, transforms: Array) -> Array:
     """Blend per-joint transforms: vertices (B, V, 3), weights (V, J), transforms (B, J, 4, 4) -> (B, V, 3).
 
     Written as one matmul plus elementwise products: a batched 3x3 product per vertex (einsum/bmm)
@@ -113,9 +93,8 @@ def skin_vertices(vertices: torch.Tensor, weights: torch.Tensor, transforms: tor
     return (blended[..., :3] * vertices[:, :, None, :]).sum(-1) + blended[..., 3]
 
 
-def lbs(betas: torch.Tensor, full_pose: torch.Tensor, v_template: torch.Tensor, shapedirs: torch.Tensor,
-        posedirs: torch.Tensor | None, J_regressor: torch.Tensor, parents: tuple[int, ...],
-        weights: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def lbs(betas: Array, full_pose: Array, v_template: Array, shapedirs: Array, posedirs: Array | None,
+        J_regressor: Array, parents: tuple[int, ...], weights: Array) -> tuple[Array, Array]:
     """Shape, pose-correct and skin the template.
 
     Args:
@@ -134,3 +113,19 @@ def lbs(betas: torch.Tensor, full_pose: torch.Tensor, v_template: torch.Tensor, 
     v_posed = v_shaped if posedirs is None else v_shaped + pose_offsets(pose_features(rot_mats), posedirs)
     joints_posed, transforms = rigid_transforms(rot_mats, joints_rest, parents)
     return skin_vertices(v_posed, weights, transforms), joints_posed
+
+
+def keypoints_from_vertices(vertices: Array, J_regressor: Array, tip_ids: Array, keypoint_order: Array) -> Array:
+    """FreiHAND's 21 keypoints of posed meshes: the 16 joints regressed from the vertices plus the 5 fingertip
+    vertices, in FreiHAND order.
+
+    Args:
+        vertices: (B, V, 3) posed vertices, metres.
+        J_regressor: (16, V).  tip_ids: (5,) int vertex ids (thumb .. pinky).
+        keypoint_order: (21,) int, FREIHAND_FROM_MANO (index into the 16 joints followed by the 5 tips).
+    Returns:
+        (B, 21, 3) keypoints, same frame and units as `vertices`.
+    """
+    xp = namespace(vertices)
+    regressed = vertices_to_joints(J_regressor, vertices)  # (B, 16, 3)
+    return xp.concat([regressed, vertices[:, tip_ids]], axis=1)[:, keypoint_order]

@@ -24,10 +24,9 @@ from backend.services.samples import views_of
 from backend.services.state_machine import transition
 from backend.services.storage import Storage
 from backend.services.verification import HeuristicThresholds, heuristic_verdict
+from workers.handmodel.params import NUM_PARAMS, HandParams
 
 NUM_KEYPOINTS = 21
-NUM_PARAMS = 61
-ARTICULATION = slice(10, 55)  # theta layout: shape 10, articulation 45, global rotation 3, translation 3
 
 
 def _finite_array(value: Any, shape: tuple[int, ...], name: str) -> np.ndarray:
@@ -114,9 +113,10 @@ def record_fit(session: Session, sample_id: int, *, params: Sequence[float], key
     prediction = session.get(Prediction, prediction_id) if prediction_id is not None else None
     if prediction_id is not None and (prediction is None or prediction.sample_id != sample_id):
         raise InvalidInputError(f"prediction {prediction_id} does not belong to sample {sample_id}")
+    articulation = HandParams.from_theta(theta).pose
     fit = Fit(sample_id=sample_id, job_id=job_id, prediction_id=prediction_id, params=theta.tolist(),
               keypoints_m=kp.tolist(), view_ious={str(k): v for k, v in ious.items()}, diagnostics=diagnostics,
-              inputs=inputs, model_file=model_file, pose_distance=float(np.linalg.norm(theta[ARTICULATION])),
+              inputs=inputs, model_file=model_file, pose_distance=float(np.linalg.norm(articulation)),
               round_id=rounds.open_round_id(session))
     session.add(fit)
     session.flush()

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from workers.capture import Capture, FrameRef, GroundTruth, load_ground_truth
+from workers.handmodel.params import NUM_PARAMS, HandParams
 
 # Sequence kinds the report splits by (the capture's `green_screen` flag): the paper's green-screen training
 # sequences, and the evaluation sequences on cluttered backgrounds.
@@ -111,10 +112,9 @@ class GroundTruthIndex:
         """theta (B, 61) -> keypoints (B, 21, 3), vertices (B, V, 3), metres, world frame."""
         import torch  # deferred: as in _hand_layer
 
-        theta = torch.as_tensor(np.asarray(params, np.float64).reshape(-1, 61))
+        hand = HandParams.from_theta(np.asarray(params, np.float64).reshape(-1, NUM_PARAMS))
         with torch.no_grad():
-            out = self._hand_layer()(betas=theta[:, :10], pose=theta[:, 10:55], global_orient=theta[:, 55:58],
-                                     transl=theta[:, 58:61])
+            out = self._hand_layer().pose_params(hand)
         return out.keypoints.numpy(), out.vertices.numpy()
 
     def fit_errors(self, sample_ids: Sequence[int], params: Sequence[Sequence[float]]) -> list[FitError]:

@@ -42,17 +42,18 @@ from typing import Any
 
 import cv2
 import numpy as np
-import torch
 from scipy.spatial.transform import Rotation
 
 from workers.evaluation.freihand_files import EvaluationInputError, _point_array, load_json
 from workers.export.meshes import MESH_FORMATS, write_mesh
 from workers.export.records import SampleRecord, ViewRecord
 from workers.geometry.camera import Camera
+from workers.geometry.rotation import axis_angle_to_matrix
 from workers.handmodel.arrays import HandModelArrays
-from workers.handmodel.layer import HandLayer
 from workers.handmodel.loading import STAND_IN_NOTICE
-from workers.nets.data import random_background
+from workers.handmodel.params import HandParams
+from workers.handmodel.posed import posed_mesh
+from workers.nets.data import composite
 from workers.rendering.rasterizer import model_mask
 
 log = logging.getLogger(__name__)
@@ -125,34 +126,6 @@ def hand_model_notice(arrays: HandModelArrays) -> str:
     return f"Labels made with {arrays.name}, not MANO. {STAND_IN_NOTICE}"
 
 
-class _Poser:
-    """The hand model posed from theta (world frame), float64."""
-
-    def __init__(self, arrays: HandModelArrays) -> None:
-        self.arrays = arrays
-        self.layer = HandLayer(arrays, flat_hand_mean=True, dtype=torch.float64)
-        self.layer_mean = HandLayer(arrays, flat_hand_mean=False, dtype=torch.float64)
-
-    def world(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """theta (61,) -> keypoints (21, 3), vertices (V, 3), metres, world frame."""
-        t = torch.as_tensor(np.asarray(theta, np.float64)[None])
-        with torch.no_grad():
-            out = self.layer(betas=t[:, :10], pose=t[:, 10:55], global_orient=t[:, 55:58], transl=t[:, 58:61])
-        return out.keypoints[0].numpy(), out.vertices[0].numpy()
-
-    def from_freihand(self, mano: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """FreiHAND's 61 numbers and the view's K -> keypoints (21, 3), vertices (V, 3) in the camera frame."""
-        mano = np.asarray(mano, np.float64).reshape(-1)
-        pose, shape, uv_root, scale = mano[:48], mano[48:58], mano[58:60], float(mano[60])
-        t = torch.as_tensor
-        with torch.no_grad():
-            out = self.layer_mean(betas=t(shape[None]), pose=t(pose[None, 3:]), global_orient=t(pose[None, :3]))
-        keypoints, vertices = out.keypoints[0].numpy(), out.vertices[0].numpy()
-        root = backproject_root(uv_root, scale, K)
-        shift = root - keypoints[ROOT_KEYPOINT]
-        return keypoints + shift, vertices + shift
-
-
 def focal_and_principal_point(K: np.ndarray) -> tuple[float, np.ndarray]:
     """FreiHAND's `get_focal_pp`: focal = mean of fx and fy, principal point (2,)."""
     return 0.5 * (float(K[0, 0]) + float(K[1, 1])), np.asarray(K[:2, 2], np.float64)
@@ -164,17 +137,16 @@ def backproject_root(uv_root: np.ndarray, scale: float, K: np.ndarray) -> np.nda
     return np.concatenate([np.asarray(uv_root, np.float64) - pp, [focal]]) / scale
 
 
-def freihand_theta(theta: np.ndarray, view: ViewRecord, xyz_cam: np.ndarray, arrays: HandModelArrays) -> np.ndarray:
-    """(61,) FreiHAND parameters of one view from our theta and the view's camera-frame keypoints."""
-    theta = np.asarray(theta, np.float64)
-    global_cam = Rotation.from_matrix(view.R @ Rotation.from_rotvec(theta[55:58]).as_matrix()).as_rotvec()
-    articulation = theta[10:55] - arrays.hands_mean
+def freihand_theta(params: HandParams, view: ViewRecord, xyz_cam: np.ndarray, arrays: HandModelArrays) -> np.ndarray:
+    """(61,) FreiHAND parameters of one view from our parameters and the view's camera-frame keypoints."""
+    global_cam = Rotation.from_matrix(view.R @ axis_angle_to_matrix(params.global_orient)).as_rotvec()
+    articulation = params.pose - arrays.hands_mean
     root = xyz_cam[ROOT_KEYPOINT]
     if root[2] <= 0:
         raise ExportError(f"camera {view.name}: the hand's root keypoint is behind the camera")
     uv = (view.K @ root)[:2] / root[2]
     focal, _ = focal_and_principal_point(view.K)
-    return np.concatenate([global_cam, articulation, theta[:10], uv, [focal / root[2]]])
+    return np.concatenate([global_cam, articulation, params.betas, uv, [focal / root[2]]])
 
 
 # --- images ------------------------------------------------------------------------------------------------
@@ -200,9 +172,7 @@ def cut_and_paste(image_rgb: np.ndarray, foreground: np.ndarray, rng: np.random.
     """The supplementary's Cut&Paste: the image blended onto a random background of the networks' pool
     (workers/nets/data.py) with the foreground mask as alpha, softened by one pixel; the foreground keeps
     its colours (the training augmentation of workers/nets may recolour it; a dataset must not)."""
-    alpha = cv2.GaussianBlur(np.asarray(foreground, np.float32), (3, 3), 0)[..., None]
-    background = random_background(image_rgb.shape[0], image_rgb.shape[1], rng).astype(np.float32)
-    return np.clip(image_rgb.astype(np.float32) * alpha + background * (1 - alpha), 0, 255).astype(np.uint8)
+    return composite(image_rgb, foreground, rng)
 
 
 def _pinhole(view: ViewRecord) -> Camera:
@@ -262,8 +232,6 @@ def write_freihand(samples: Sequence[SampleRecord], out_dir: Path, read_bytes: C
                               f"{record.model_file!r}, but the hand model loaded for the export is {arrays.name!r}; "
                               "set HANDLOOP_MANO_PATH to the model the fits used")
     tmp = _prepare_out_dir(out_dir, options.force)
-    posers = {side: _Poser(model) for side, model in models.items()
-              if any(r.side == side for r in samples)}
     rng = np.random.default_rng(options.seed)
     quality = [cv2.IMWRITE_JPEG_QUALITY, options.jpeg_quality]
     labels: dict[str, dict[str, list]] = {s: {"K": [], "mano": [], "xyz": [], "scale": [], "verts": []}
@@ -279,7 +247,8 @@ def write_freihand(samples: Sequence[SampleRecord], out_dir: Path, read_bytes: C
         for record in samples:
             set_name = SPLITS[record.split]
             side_model = models[record.side]
-            keypoints_model, vertices = posers[record.side].world(record.params)
+            mesh = posed_mesh(side_model, record.hand_params)
+            keypoints_model, vertices = mesh.keypoints, mesh.vertices
             gap = float(np.linalg.norm(keypoints_model - record.keypoints_m, axis=1).max())
             if gap > KEYPOINT_TOLERANCE_M:
                 raise ExportError(f"fit {record.fit_id} of sample {record.sample_id}: its keypoints differ by "
@@ -298,7 +267,7 @@ def write_freihand(samples: Sequence[SampleRecord], out_dir: Path, read_bytes: C
                 verts = vertices @ view.R.T + view.t
                 label = labels[set_name]
                 label["K"].append(view.K.tolist())
-                label["mano"].append([freihand_theta(record.params, view, xyz, side_model).tolist()])
+                label["mano"].append([freihand_theta(record.hand_params, view, xyz, side_model).tolist()])
                 label["xyz"].append(xyz.tolist())
                 label["scale"].append(float(np.linalg.norm(xyz[REFERENCE_BONE[0]] - xyz[REFERENCE_BONE[1]])))
                 label["verts"].append(verts.tolist())
@@ -341,7 +310,7 @@ def write_freihand(samples: Sequence[SampleRecord], out_dir: Path, read_bytes: C
             "format": "freihand", "generator": "handloop", "version": 1,
             "created_at": datetime.now(UTC).isoformat(timespec="seconds"),
             "hand_model": {"name": arrays.name, "is_mano": arrays.is_mano, "num_vertices": arrays.num_vertices,
-                           "notice": notice, "sides": sorted(posers)},
+                           "notice": notice, "sides": sorted({r.side for r in samples})},
             "units": "metres; keypoints and vertices in each view's camera frame; meshes/ in the world frame",
             "image_versions": ["original"] + [f"cut_and_paste_{v}" for v in range(1, options.composites + 1)],
             "sets": {s: {"count": len(index[s]), "images": images[s], "samples": index[s]} for s in index},
@@ -421,4 +390,9 @@ def read_freihand_set(folder: Path, set_name: str) -> FreiHANDSet:
 def mesh_from_freihand(arrays: HandModelArrays, mano: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Pose the hand model from one FreiHAND parameter vector (61,) and K: (keypoints (21, 3), vertices
     (V, 3)), metres, camera frame; what FreiHAND's `pose_hand` computes with MANO."""
-    return _Poser(arrays).from_freihand(mano, K)
+    mano = np.asarray(mano, np.float64).reshape(-1)
+    pose, shape, uv_root, scale = mano[:48], mano[48:58], mano[58:60], float(mano[60])  # FreiHAND's layout
+    params = HandParams(betas=shape, pose=pose[3:], global_orient=pose[:3], transl=np.zeros(3))
+    mesh = posed_mesh(arrays, params, mean_pose=True)  # FreiHAND's articulation is relative to hands_mean
+    shift = backproject_root(uv_root, scale, K) - mesh.keypoints[ROOT_KEYPOINT]
+    return mesh.keypoints + shift, mesh.vertices + shift

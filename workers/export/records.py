@@ -8,8 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from workers.geometry.camera import Camera
-
-NUM_PARAMS = 61  # theta: shape 10, articulation 45 (flat-hand axis-angle), global rotation 3, translation 3
+from workers.handmodel.params import NUM_PARAMS, HandParams
 
 
 @dataclass(frozen=True, eq=False)
@@ -38,7 +37,7 @@ class SampleRecord:
         split: "train" or "evaluation" (FreiHAND: green-screen recordings train).
         green_screen: recorded in front of the green screen (its images can be composited).
         round_index, stream: the round D_i it joined and by which stream (heuristic, manual, annotated).
-        params: (61,) theta of the fit (docs/conventions.md).
+        params: (61,) theta of the fit (docs/conventions.md; `hand_params` splits it).
         keypoints_m: (21, 3) the fit's keypoints, metres, world frame, FreiHAND order.
         model_file: the hand model that made the fit (as the fit records it).
         views: the sample's views in camera order.
@@ -73,3 +72,8 @@ class SampleRecord:
                              f"got {np.shape(self.keypoints_m)}")
         if not (np.isfinite(self.params).all() and np.isfinite(self.keypoints_m).all()):
             raise ValueError(f"sample {self.sample_id}: the fit contains non-finite numbers")
+
+    @property
+    def hand_params(self) -> HandParams:
+        """The fit's parameters split (betas, pose, global_orient, transl)."""
+        return HandParams.from_theta(self.params)

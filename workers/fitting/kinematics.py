@@ -18,9 +18,9 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from workers.geometry.rotation import axis_angle_to_matrix
 from workers.handmodel.arrays import HandModelArrays
 from workers.handmodel.keypoints import FREIHAND_FROM_MANO, MANO_PARENTS, NUM_BETAS, NUM_JOINTS
-from workers.handmodel.lbs import axis_angle_to_matrix
 
 # MANO's tree is the wrist plus five chains of three joints, numbered chain by chain: joints
 # 1, 4, 7, 10, 13 are the chains' bases (children of the wrist); joint j + 1 is the child of joint j.

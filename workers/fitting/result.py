@@ -7,6 +7,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from workers.handmodel.params import HandParams
+
 
 @dataclass(frozen=True, eq=False)
 class FitDiagnostics:
@@ -102,6 +104,11 @@ class FitResult:
     extras: dict = field(default_factory=dict)
 
     @property
+    def params(self) -> HandParams:
+        """The fitted parameters as one value (betas, pose, global_orient, transl)."""
+        return HandParams(self.betas, self.pose, self.global_orient, self.transl)
+
+    @property
     def theta(self) -> np.ndarray:
         """(61,) the paper's parameter vector: shape 10, articulation 45, global rotation 3, translation 3."""
-        return np.concatenate([self.betas, self.pose, self.global_orient, self.transl])
+        return self.params.to_theta()

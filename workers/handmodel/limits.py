@@ -33,9 +33,9 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from workers.geometry.rotation import axis_angle_to_matrix
 from workers.handmodel.arrays import HandModelArrays
 from workers.handmodel.keypoints import NUM_JOINTS
-from workers.handmodel.lbs import axis_angle_to_matrix
 
 NUM_ARTICULATED = NUM_JOINTS - 1
 THUMB_PAD_ANGLE_DEG = 60.0

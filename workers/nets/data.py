@@ -251,14 +251,21 @@ def recolor_foreground(image: np.ndarray, rng: np.random.Generator, amount: floa
     return (gray + saturation * (img - gray)) * gain * tint
 
 
+def composite(foreground: np.ndarray, alpha: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """The supplementary's Cut&Paste, once: `foreground` ((H, W, 3) RGB, 0..255, any dtype) over a random
+    background of the pool (`random_background`), with `alpha` ((H, W) float 0..1) softened by one pixel
+    (3 x 3 Gaussian) as the blend weight. Returns (H, W, 3) uint8."""
+    a = cv2.GaussianBlur(np.asarray(alpha, np.float32), (3, 3), 0)[..., None]
+    background = random_background(foreground.shape[0], foreground.shape[1], rng).astype(np.float32)
+    return np.clip(foreground.astype(np.float32) * a + background * (1 - a), 0, 255).astype(np.uint8)
+
+
 def cut_and_paste(image: np.ndarray, alpha: np.ndarray, rng: np.random.Generator,
                   recolor: float = 1.0) -> np.ndarray:
     """Put the foreground of a green-screen image (alpha (H, W) uint8 0..255) on a random background:
     despilled, recoloured (`recolor` = strength, 0 = keep colours), composited with a softened alpha."""
-    a = cv2.GaussianBlur(alpha.astype(np.float32) / 255.0, (3, 3), 0)[..., None]
     foreground = recolor_foreground(despill(image), rng, recolor)
-    background = random_background(image.shape[0], image.shape[1], rng).astype(np.float32)
-    return np.clip(foreground * a + background * (1 - a), 0, 255).astype(np.uint8)
+    return composite(foreground, alpha.astype(np.float32) / 255.0, rng)
 
 
 def color_jitter(image: np.ndarray, amount: float, rng: np.random.Generator) -> np.ndarray:

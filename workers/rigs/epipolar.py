@@ -11,11 +11,11 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 
-import cv2
 import numpy as np
 
 from workers.geometry.camera import Camera
 from workers.geometry.epipolar import fundamental_from_poses, signed_symmetric_distances
+from workers.geometry.rotation import axis_angle_to_matrix
 
 # Robust weights (Cauchy) use this multiple of the residuals' robust spread (1.4826 MAD) as their scale.
 CAUCHY_SCALE = 2.4
@@ -93,15 +93,11 @@ def refit_pair(a: Camera, b: Camera, xa: np.ndarray, xb: np.ndarray) -> np.ndarr
         moved = t + p[3:] @ tangent
         moved = moved / np.linalg.norm(moved)
         tx = np.array([[0, -moved[2], moved[1]], [moved[2], 0, -moved[0]], [-moved[1], moved[0], 0]])
-        return signed_symmetric_distances(Kb_t @ tx @ _rotation(p[:3]) @ R @ Ka, xa, xb)
+        return signed_symmetric_distances(Kb_t @ tx @ axis_angle_to_matrix(p[:3]) @ R @ Ka, xa, xb)
 
     if len(xa) < 8:
         return residuals(np.zeros(5))
     return robust_fit(residuals, 5)[1]
-
-
-def _rotation(rvec: np.ndarray) -> np.ndarray:
-    return cv2.Rodrigues(np.asarray(rvec, np.float64).reshape(3, 1))[0]
 
 
 def corrected(camera: Camera, params: np.ndarray, kind: str) -> Camera:
@@ -109,7 +105,7 @@ def corrected(camera: Camera, params: np.ndarray, kind: str) -> Camera:
     radians), "translation" (3: its centre moved, world units) or "pose" (6: both)."""
     rvec = params[:3] if kind in ("rotation", "pose") else np.zeros(3)
     shift = params[3:] if kind == "pose" else params if kind == "translation" else np.zeros(3)
-    R = _rotation(rvec) @ camera.R
+    R = axis_angle_to_matrix(rvec) @ camera.R
     center = camera.center_world + shift
     return replace(camera, R=R, t=-R @ center)
 
@@ -134,7 +130,7 @@ def fit_correction(camera: Camera, partners: Sequence[Camera], x_self: Sequence[
     def residuals(params: np.ndarray) -> np.ndarray:
         rvec = params[:3] if kind in ("rotation", "pose") else np.zeros(3)
         shift = params[3:] if kind == "pose" else params if kind == "translation" else np.zeros(3)
-        R = _rotation(rvec) @ camera.R
+        R = axis_angle_to_matrix(rvec) @ camera.R
         t = -R @ (center + shift)
         Fs = np.stack([fundamental_from_poses(K_inv, R, t, *other) for other in others])
         return stacked_distances(Fs, which, x_a, x_b)

@@ -30,6 +30,8 @@ from backend.models.review import Round, RoundMember
 from backend.services import jobs
 from backend.services.errors import DomainError
 from backend.settings import Settings
+from workers.handmodel.params import HandParams
+from workers.handmodel.posed import posed_mesh
 from workers.nets.configs import CONFIGS, get_config
 from workers.nets.detections import (
     DetectionCache,
@@ -131,19 +133,11 @@ def model_masks(ctx: WorkerContext, session: Session, tset: TrainingSet) -> list
 
 def render_masks(ctx: WorkerContext, rig: Rig, theta: np.ndarray, side: str = "right") -> dict[str, np.ndarray]:
     """Silhouettes of `side`'s hand model with parameters theta (61,) in every camera of the rig."""
-    # deferred: torch only where a job computes: the round's bookkeeping (round_steps) and fits (via inference)
-    import torch
-
-    from workers.handmodel.layer import HandLayer
-    from workers.rendering import model_mask
+    from workers.rendering import model_mask  # deferred: torch only where a job computes (round_steps, fits)
 
     arrays = ctx.hand_model(side)
-    layer = ctx.cached(("layer", arrays.name, side), lambda: HandLayer(arrays, dtype=torch.float64))
-    t = torch.as_tensor(theta[None], dtype=torch.float64)
-    with torch.no_grad():
-        out = layer(betas=t[:, :10], pose=t[:, 10:55], global_orient=t[:, 55:58], transl=t[:, 58:61])
-    vertices = out.vertices[0].numpy()
-    return {cam.name: model_mask(vertices, arrays.faces, cam) for cam in rig.cameras}
+    mesh = posed_mesh(arrays, HandParams.from_theta(theta))
+    return {cam.name: model_mask(mesh.vertices, arrays.faces, cam) for cam in rig.cameras}
 
 
 def _round_of(session: Session, job: Job) -> tuple[Round, Job]:

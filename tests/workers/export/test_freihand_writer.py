@@ -22,6 +22,8 @@ from workers.export.freihand import (
 )
 from workers.export.records import SampleRecord, ViewRecord
 from workers.handmodel.loading import load_hand_model
+from workers.handmodel.params import HandParams
+from workers.handmodel.posed import posed_mesh
 
 
 @pytest.fixture(scope="module")
@@ -64,11 +66,10 @@ def test_freihand_parameters_pose_the_model_back_for_any_camera():
         t = np.array([0.0, 0.0, 0.6]) + rng.normal(0, 0.02, 3)
         view = ViewRecord("c", 200, 150, np.array([[300.0, 0, 101], [0, 300.0, 74], [0, 0, 1]]), np.zeros(5), R, t,
                           "unused")
-        from workers.export.freihand import _Poser
-
-        keypoints, vertices = _Poser(arrays).world(theta)
+        mesh = posed_mesh(arrays, HandParams.from_theta(theta))
+        keypoints, vertices = mesh.keypoints, mesh.vertices
         xyz = keypoints @ R.T + t
-        mano = freihand_theta(theta, view, xyz, arrays)
+        mano = freihand_theta(HandParams.from_theta(theta), view, xyz, arrays)
         assert mano.shape == (61,)
         np.testing.assert_allclose(mano[3:48] + arrays.hands_mean, theta[10:55])  # articulation vs hands_mean
         np.testing.assert_allclose(mano[48:58], theta[:10])

@@ -12,11 +12,11 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from workers.capture.schema import ID_PATTERN
 from workers.geometry.camera import CalibrationError, Camera
+from workers.geometry.rotation import axis_angle_to_matrix
 from workers.rigs.extent import RigExtent, rig_extent
 
 UNITS_TO_M: dict[str, float] = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254}
@@ -118,17 +118,11 @@ def as_vector(value: object, where: str, field_name: str) -> np.ndarray:
     return array
 
 
-def rodrigues(rvec: np.ndarray) -> np.ndarray:
-    """(3, 3) rotation matrix of a (3,) Rodrigues (axis times angle, radians) vector."""
-
-    return cv2.Rodrigues(np.asarray(rvec, dtype=np.float64).reshape(3, 1))[0]
-
-
 def rotation_field(value: object, where: str, field_name: str) -> np.ndarray:
     """A rotation stored either as a 3x3 matrix or as a 3-vector (Rodrigues): the (3, 3) matrix."""
     array = np.asarray(value, dtype=np.float64) if value is not None else np.zeros(0)
     if array.size == 3:
-        return rodrigues(as_matrix(array, (3,), where, field_name))
+        return axis_angle_to_matrix(as_matrix(array, (3,), where, field_name))
     return as_matrix(array, (3, 3), where, field_name)
 
 

@@ -13,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from workers.rigs.formats.common import FormatError, RawCamera, as_matrix, rodrigues
+from workers.geometry.rotation import axis_angle_to_matrix
+from workers.rigs.formats.common import FormatError, RawCamera, as_matrix
 from workers.rigs.formats.opencv_yaml import Storage
 
 DEFAULT_UNIT = "m"
@@ -43,7 +44,7 @@ def read(path: Path) -> tuple[list[RawCamera], list[str]]:
             raise FormatError(f"{where_e}: missing field(s) 'R_{name}' or 'Rot_{name}', and 'T_{name}'")
         R = as_matrix(rot, (3, 3), where_e, f"Rot_{name}") if rot is not None else None
         if rvec is not None:
-            from_rvec = rodrigues(as_matrix(rvec, (3,), where_e, f"R_{name}"))
+            from_rvec = axis_angle_to_matrix(as_matrix(rvec, (3,), where_e, f"R_{name}"))
             if R is not None and not np.allclose(R, from_rvec, atol=1e-6):
                 raise FormatError(f"{where_e}: fields 'R_{name}' (Rodrigues) and 'Rot_{name}' (matrix) disagree")
             R = from_rvec if R is None else R

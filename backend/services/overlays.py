@@ -29,8 +29,9 @@ from backend.services.errors import ConflictError, NotFoundError
 from backend.services.fit_agreement import fit_confidences
 from backend.services.samples import get_sample
 from backend.services.users import Actor
-from backend.services.view_geometry import ViewCamera, pixels_or_none, project, view_cameras
+from backend.services.view_geometry import ViewCamera, pixels_or_none, view_cameras
 from backend.viewer.hand_mesh import fit_side, hand_model_label, is_stand_in, load_arrays
+from workers.geometry.projection import project_visible
 from workers.handmodel.keypoints import SKELETON_EDGES, SPARSE_KEYPOINTS
 from workers.handmodel.params import HandParams
 from workers.handmodel.posed import posed_mesh
@@ -92,7 +93,7 @@ def newest_prediction(session: Session, sample_id: int) -> Prediction | None:
 
 def _projections(points_m: Any, cameras: list[ViewCamera]) -> dict[int, np.ndarray]:
     points = np.asarray(points_m, dtype=np.float64).reshape(-1, 3)
-    return {cam.view_id: project(points, cam) for cam in cameras}
+    return {cam.view_id: project_visible(points, cam) for cam in cameras}
 
 
 def annotate_proposals(session: Session, user: Actor, sample_id: int, *, mano_path: Path | None = None

@@ -24,7 +24,8 @@ from backend.models.enums import SampleState
 from backend.models.fits import Fit, Prediction
 from backend.models.review import Round
 from backend.services.storage import Storage
-from backend.services.view_geometry import project, view_cameras
+from backend.services.view_geometry import view_cameras
+from workers.geometry.projection import project_visible
 
 log = logging.getLogger(__name__)
 
@@ -106,7 +107,7 @@ class _References:
         if sample.state == SampleState.accepted and sample.current_fit_id is not None:
             fit = self.session.get(Fit, sample.current_fit_id)
             points = np.asarray(fit.keypoints_m, np.float64).reshape(21, 3)
-            return "accepted_fit", points, {cam.view_id: project(points, cam) for cam in cameras}
+            return "accepted_fit", points, {cam.view_id: project_visible(points, cam) for cam in cameras}
         return None
 
 

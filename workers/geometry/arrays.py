@@ -44,3 +44,8 @@ def constant_like(values: Any, like: Array) -> Array:
     if xp is np:
         return np.asarray(values, dtype=like.dtype)
     return xp.as_tensor(values, dtype=like.dtype, device=like.device)
+
+
+def clip_min(x: Array, low: float) -> Array:
+    """max(x, low) elementwise (torch: `clamp`, whose gradient is 0 below `low`)."""
+    return np.maximum(x, low) if namespace(x) is np else x.clamp(min=low)

@@ -34,9 +34,10 @@ class Triangulation:
     median_reprojection_px: np.ndarray | None = None
 
 
-def _dlt_point(P: np.ndarray, uv: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """P (..., C, 3, 4), undistorted pixels uv (..., C, 2), weights w (..., C) -> (..., 3) world points by weighted
-    DLT, one per leading index (batched: numpy's SVD of a stack equals its SVDs one by one)."""
+def dlt_homogeneous(P: np.ndarray, uv: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """P (..., C, 3, 4), undistorted image points uv (..., C, 2) of those projections (pixels with P = K [R | t],
+    normalised with P = [R | t]), weights w (..., C) -> (..., 4) homogeneous world points by weighted DLT,
+    one per leading index (batched: numpy's SVD of a stack equals its SVDs one by one)."""
     rows = np.concatenate([
         uv[..., 0:1] * P[..., 2, :] - P[..., 0, :],
         uv[..., 1:2] * P[..., 2, :] - P[..., 1, :],
@@ -45,7 +46,12 @@ def _dlt_point(P: np.ndarray, uv: np.ndarray, w: np.ndarray) -> np.ndarray:
     rows /= np.linalg.norm(rows[..., :3], axis=-1, keepdims=True) + 1e-12
     rows *= np.concatenate([w, w], axis=-1)[..., None]
     _, _, vt = np.linalg.svd(rows)
-    X = vt[..., -1, :]
+    return vt[..., -1, :]
+
+
+def _dlt_point(P: np.ndarray, uv: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """`dlt_homogeneous` dehomogenised: (..., 3) world points, metres."""
+    X = dlt_homogeneous(P, uv, w)
     return X[..., :3] / X[..., 3:4]
 
 

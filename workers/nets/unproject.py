@@ -38,16 +38,6 @@ def voxel_centers(center_world: torch.Tensor, grid_size: int, side_m: float,
     return center_world[:, None, None, None, :] + torch.einsum("bxy,ijky->bijkx", rotation, offsets)
 
 
-def _distort_per_frame(xy: torch.Tensor, dist: torch.Tensor) -> torch.Tensor:
-    """`distort_normalized` with per-frame coefficients: xy (B, C, P, 2), dist (B, C, 5)."""
-    k1, k2, p1, p2, k3 = (dist[..., i, None] for i in range(5))  # each (B, C, 1)
-    x, y = xy[..., 0], xy[..., 1]
-    r2 = x * x + y * y
-    radial = 1 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2
-    return torch.stack([x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x),
-                        y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y], dim=-1)
-
-
 def project_batched(points_world: torch.Tensor, K: torch.Tensor, dist: torch.Tensor, R: torch.Tensor,
                     t: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Project points with per-frame intrinsics (crops have their own K).
@@ -66,7 +56,7 @@ def project_batched(points_world: torch.Tensor, K: torch.Tensor, dist: torch.Ten
         points_cam = torch.einsum("cij,bpj->bcpi", R, points_world) + t[None, :, None, :]
     depth = points_cam[..., 2]
     xy = points_cam[..., :2] / depth.clamp(min=1e-4)[..., None]
-    xy = distort_normalized(xy, dist) if dist.ndim == 2 else _distort_per_frame(xy, dist)  # (B, C, P, 2)
+    xy = distort_normalized(xy, dist)  # (B, C, P, 2); dist (C, 5) or per frame (B, C, 5)
     ones = torch.ones_like(xy[..., :1])
     uv = torch.einsum("bcij,bcpj->bcpi", K, torch.cat([xy, ones], dim=-1))
     return uv[..., :2], depth

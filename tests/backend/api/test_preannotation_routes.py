@@ -20,10 +20,11 @@ from backend.services import preannotation
 from backend.services.detection_points import fitted_detections
 from backend.services.fit_agreement import fit_confidences
 from backend.services.jobs import InMemoryJobQueue
-from backend.services.view_geometry import project, view_cameras
+from backend.services.view_geometry import view_cameras
 from backend.settings import Settings
 from tests.support.detector_fake import FakeDetector
 from tests.support.live_stack import TEST_SETTINGS, USERS, prepare_database, tiny_capture
+from workers.geometry.projection import project_visible as project
 from workers.tasks import preannotate
 from workers.tasks.context import build_context
 

@@ -9,7 +9,14 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from workers.geometry.projection import project_points, project_points_torch, stack_cameras, undistort_pixels
+from workers.geometry.projection import (
+    project_points,
+    project_points_torch,
+    project_visible,
+    stack_cameras,
+    undistort_normalized,
+    undistort_pixels,
+)
 from workers.geometry.rig import default_rig
 from workers.geometry.triangulation import triangulate
 
@@ -34,6 +41,37 @@ def test_torch_projection_is_differentiable():
     pixels, _ = project_points_torch(points, **stack_cameras(RIG, dtype=torch.float64))
     pixels.sum().backward()
     assert torch.isfinite(points.grad).all() and points.grad.abs().sum() > 0
+
+
+def test_the_numpy_and_torch_faces_are_one_projection():
+    points = _points(3)
+    pixels, depth = project_points(points, RIG)
+    assert isinstance(pixels, np.ndarray)
+    t_pixels, t_depth = project_points_torch(torch.as_tensor(points[None]), **stack_cameras(RIG, dtype=torch.float64))
+    np.testing.assert_allclose(pixels, t_pixels[0].numpy(), atol=1e-10)
+    np.testing.assert_allclose(depth, t_depth[0].numpy(), atol=1e-14)
+
+
+def test_project_visible_leaves_unseen_points_out():
+    cam = RIG[0]
+    behind = cam.center_world - 0.1 * cam.R[2]  # 10 cm behind the camera, on its axis
+    points = np.stack([_points(4, n=1)[0], behind, [np.nan, 0.0, 0.0]])
+    out = project_visible(points, cam)
+    np.testing.assert_allclose(out[0], project_points(points[:1], [cam])[0][0, 0])
+    assert np.isnan(out[1:]).all()
+
+
+def test_fixed_point_undistortion_takes_opencvs_steps():
+    cam = RIG[3]
+    pixels, _ = project_points(_points(5, spread_m=0.15), [cam])
+    yd = (pixels[0, :, 1] - cam.K[1, 2]) / cam.K[1, 1]
+    xd = (pixels[0, :, 0] - cam.K[0, 2]) / cam.K[0, 0]
+    for steps in (1, 3, 20):
+        ref = cv2.undistortPoints(pixels[0].reshape(-1, 1, 2), cam.K, cam.dist,
+                                  criteria=(cv2.TERM_CRITERIA_COUNT, steps, 0)).reshape(-1, 2)
+        np.testing.assert_allclose(np.stack(undistort_normalized(xd, yd, cam.dist, steps), -1), ref, atol=1e-12)
+        one = undistort_normalized(float(xd[0]), float(yd[0]), [float(k) for k in cam.dist], steps)
+        np.testing.assert_allclose(one, ref[0], atol=1e-12)
 
 
 def test_undistort_inverts_distortion():

@@ -106,7 +106,6 @@ def test_the_clock_counts_no_idle_gap(live_stack, tab):
 def _sent_back_with_a_true_fit(stack) -> dict:
     """One sample annotated from the truth, fitted with the true hand (as a worker records it) and sent back by
     the reviewer: the annotate page then offers the fit's proposals with the keypoints its mesh hides."""
-    import numpy as np
 
     from backend.services import records
     from backend.services.verification import HeuristicThresholds
@@ -120,8 +119,8 @@ def _sent_back_with_a_true_fit(stack) -> dict:
         assert submitted.status_code == 201, submitted.text
     gt = ground_truth_of(stack, task)
     with stack.session_factory().begin() as session:
-        records.record_fit(session, task["sample_id"], params=np.concatenate(
-            [gt.betas, gt.pose, gt.global_orient, gt.transl]).tolist(), keypoints_m=gt.keypoints_3d.tolist(),
+        records.record_fit(session, task["sample_id"], params=gt.params.to_theta().tolist(),
+            keypoints_m=gt.keypoints_3d.tolist(),
             view_ious={v["id"]: 0.9 for v in task["views"]}, diagnostics={}, inputs={"submission_ids": [
                 submitted.json()["id"]]}, model_file="handloop-builtin v1", thresholds=HeuristicThresholds())
     with stack.client("reviewer") as http:

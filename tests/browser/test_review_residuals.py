@@ -74,7 +74,7 @@ def test_the_review_page_measures_a_detector_fit_against_the_detector(live_stack
             detection = {"view_ids": [cam.view_id for cam in cameras], "views": views,
                          "inliers": np.ones((21, len(cameras)), dtype=bool).tolist(),
                          "points_world": gt.keypoints_3d.tolist(), "confidence": [0.9] * 21, "frame_confidence": 0.9}
-            params = np.concatenate([gt.betas, gt.pose, gt.global_orient, gt.transl])
+            params = gt.params.to_theta()
             records.record_fit(session, sample.id, params=params.tolist(), keypoints_m=gt.keypoints_3d.tolist(),
                                view_ious={cam.view_id: 0.9 for cam in cameras}, diagnostics={},
                                inputs={"source": "detector", "detection": detection},

@@ -10,7 +10,6 @@ from __future__ import annotations
 import re
 import time
 
-import numpy as np
 import pytest
 
 from tests.browser.conftest import sign_in
@@ -35,7 +34,7 @@ def _in_review(stack) -> int:
         submitted = http.post(f"/api/annotate/samples/{task['sample_id']}/submissions", json=clicks_body(stack, task))
         assert submitted.status_code == 201, submitted.text
     gt = ground_truth_of(stack, task)
-    params = np.concatenate([gt.betas, gt.pose, gt.global_orient, gt.transl])
+    params = gt.params.to_theta()
     with stack.session_factory().begin() as session:
         views = views_of(session, task["sample_id"], with_masks=False)
         records.record_fit(session, task["sample_id"], params=params.tolist(), keypoints_m=gt.keypoints_3d.tolist(),

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from workers.geometry.camera import Camera
+from workers.handmodel.params import HandParams
 
 FORMAT_NAME = "handloop-capture"
 FORMAT_VERSION = 2
@@ -239,3 +240,8 @@ class GroundTruth:
     visibility: np.ndarray
     camera_names: tuple[str, ...]
     hand_masks: dict[str, np.ndarray] = field(default_factory=dict)
+
+    @property
+    def params(self) -> HandParams:
+        """The true parameters as one value; `.to_theta()` gives the 61-value vector a fit stores."""
+        return HandParams(self.betas, self.pose, self.global_orient, self.transl)

@@ -239,7 +239,6 @@ def _into_review(base: str, tokens: dict[str, str], settings, capture: Path, cou
     """Submit the true clicks of `count` samples through the API, then record fits with the true
     parameters in the database (the worker's part), which sends them to review."""
     import httpx
-    import numpy as np
 
     from backend.db.session import create_engine_from_url, make_session_factory
     from backend.services import records
@@ -266,7 +265,7 @@ def _into_review(base: str, tokens: dict[str, str], settings, capture: Path, cou
                     "clicks": clicks}
             submitted = http.post(f"/api/annotate/samples/{task['sample_id']}/submissions", json=body)
             submitted.raise_for_status()
-            params = np.concatenate([gt.betas, gt.pose, gt.global_orient, gt.transl])
+            params = gt.params.to_theta()
             with factory.begin() as session:
                 records.record_fit(session, task["sample_id"], params=params.tolist(),
                                    keypoints_m=gt.keypoints_3d.tolist(),
@@ -582,7 +581,7 @@ def _scripted_occlusion(browser, base: str, token: str, truth: dict[int, Any], s
             cameras.append(ViewCamera(camera["camera"], camera["width"], camera["height"],
                                       *(np.asarray(camera[k], dtype=np.float64) for k in ("K", "dist", "R", "t")),
                                       view_id=camera["view_id"]))
-        params = np.concatenate([gt.betas, gt.pose, gt.global_orient, gt.transl])
+        params = gt.params.to_theta()
         hidden = mesh_hidden(arrays, params, gt.keypoints_3d, cameras)
         fit = {"kind": "fit", "label": "fit (bench: the true hand)", "confidences": None, "views": {
             str(c.view_id): gt.keypoints_2d[names.index(c.name)].round(2).tolist() for c in cameras}, "hidden": hidden}

@@ -60,7 +60,7 @@ def accept_all_with_true_fits(env, capture_dir: Path) -> dict[int, object]:
         with env.session() as s, s.begin():
             views = views_of(s, row["sample_id"], with_masks=False)
             records.record_fit(
-                s, row["sample_id"], params=np.concatenate([gt.betas, gt.pose, gt.global_orient, gt.transl]),
+                s, row["sample_id"], params=gt.params.to_theta(),
                 keypoints_m=gt.keypoints_3d, view_ious={v.id: 0.9 for v in views}, diagnostics={},
                 inputs={"submission_ids": [0]}, model_file="handloop-builtin v1",
                 thresholds=HeuristicThresholds())

@@ -55,8 +55,7 @@ def test_review_overlay_views_and_export_at_2048_px(sqlite_env, capture_dir: Pat
             s.execute(text("UPDATE samples SET state = 'fitting' WHERE id = :i"), {"i": row["sample_id"]})
         with env.session() as s, s.begin():
             views = views_of(s, row["sample_id"], with_masks=False)
-            records.record_fit(s, row["sample_id"], params=np.concatenate([gt.betas, gt.pose, gt.global_orient,
-                                                                             gt.transl]),
+            records.record_fit(s, row["sample_id"], params=gt.params.to_theta(),
                                keypoints_m=gt.keypoints_3d, view_ious={v.id: 0.9 for v in views}, diagnostics={},
                                inputs={"submission_ids": [0]}, model_file="handloop-builtin v1",
                                thresholds=HeuristicThresholds())

@@ -128,7 +128,7 @@ def _detector_fit_in_review(env, ui, capture, detection_of) -> dict:
     task = env.client.post("/api/annotate/next", headers=env.headers(Role.annotator)).json()
     ui.submit(env, task, capture)  # 'fitting': the clicks stay out of the fit's inputs
     _, gt = ui.ground_truth(capture, task["frame_index"])
-    params = np.concatenate([gt.betas, gt.pose, gt.global_orient, gt.transl])
+    params = gt.params.to_theta()
     with env.session() as session, session.begin():
         views = views_of(session, task["sample_id"], with_masks=False)
         records.record_fit(session, task["sample_id"], params=params.tolist(), keypoints_m=gt.keypoints_3d.tolist(),

@@ -5,7 +5,7 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Any
 
-from sqlalchemy import ForeignKey, String, UniqueConstraint
+from sqlalchemy import ForeignKey, LargeBinary, String, UniqueConstraint
 from sqlalchemy.orm import Mapped, mapped_column
 
 from backend.db.base import Base, utcnow
@@ -48,5 +48,8 @@ class Fit(Base):
     inputs: Mapped[dict[str, Any]]  # e.g. {"submission_ids": [...], "prediction_id": 3, "mask_ids": [...]}
     model_file: Mapped[str] = mapped_column(String(500))
     pose_distance: Mapped[float]  # Euclidean norm of the articulation from the flat hand
+    # The fitted mesh, little-endian float32 (V, 3), metres, world frame, as the worker posed it (None for fits
+    # recorded before revision 0012); loaded only when read (about 9 kB a fit).
+    vertices_f32: Mapped[bytes | None] = mapped_column(LargeBinary, deferred=True)
     heuristic: Mapped[dict[str, Any] | None]
     created_at: Mapped[datetime] = mapped_column(default=utcnow)

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 from sqlalchemy import select
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import Session, undefer
 
 from backend.models.enums import DecisionKind, LeaseKind
 from backend.models.fits import Fit, Prediction
@@ -30,11 +30,10 @@ from backend.services.fit_agreement import fit_confidences
 from backend.services.samples import get_sample
 from backend.services.users import Actor
 from backend.services.view_geometry import ViewCamera, pixels_or_none, view_cameras
-from backend.viewer.hand_mesh import fit_side, hand_model_label, is_stand_in, load_arrays
+from backend.viewer.hand_mesh import fit_mesh, fit_side, hand_model_label, is_stand_in, load_arrays
 from workers.geometry.projection import project_visible
 from workers.handmodel.keypoints import SKELETON_EDGES, SPARSE_KEYPOINTS
-from workers.handmodel.params import HandParams
-from workers.handmodel.posed import posed_mesh
+from workers.handmodel.posed import HandMesh
 
 logger = logging.getLogger(__name__)
 
@@ -107,7 +106,8 @@ def annotate_proposals(session: Session, user: Actor, sample_id: int, *, mano_pa
     sample = _held(session, user, sample_id, LeaseKind.annotate)
     cameras = view_cameras(session, sample_id)
     prediction = newest_prediction(session, sample_id)
-    fit = session.get(Fit, sample.current_fit_id) if sample.current_fit_id is not None else None
+    fit = (session.get(Fit, sample.current_fit_id, options=[undefer(Fit.vertices_f32)])
+           if sample.current_fit_id is not None else None)
     note = session.execute(
         select(Decision.reason).where(Decision.sample_id == sample_id, Decision.decision == DecisionKind.annotate)
         .order_by(Decision.id.desc()).limit(1)).scalar_one_or_none()
@@ -154,20 +154,19 @@ def hidden_keypoints(fit: Fit, cameras: list[ViewCamera], mano_path: Path | None
     if arrays is None or fit.params is None:
         return None
     try:
-        return mesh_hidden(arrays, fit.params, fit.keypoints_m, cameras)
-    except ValueError as exc:  # stored parameters this code cannot pose: no flags, the proposals still go
+        return mesh_hidden(fit_mesh(arrays, fit.params, fit.vertices_f32), fit.keypoints_m, cameras)
+    except ValueError as exc:  # a stored mesh or parameters this code cannot use: no flags, the proposals still go
         logger.warning("fit %s: %s; no occlusion flags", fit.id, exc)
         return None
 
 
-def mesh_hidden(arrays: Any, params: Any, keypoints_m: Any, cameras: list[ViewCamera]) -> dict[str, list[bool]]:
-    """View id -> (21,) whether the hand posed by `params` (61,) hides each keypoint (21, 3) metres, world frame,
-    from that camera; ValueError for parameters that cannot be posed."""
+def mesh_hidden(mesh: HandMesh, keypoints_m: Any, cameras: list[ViewCamera]) -> dict[str, list[bool]]:
+    """View id -> (21,) whether the hand's mesh hides each keypoint (21, 3) metres, world frame, from that
+    camera."""
     # deferred: the occlusion test and the skin tolerance load torch and cv2, kept out of the API's start-up
     from workers.rendering.occlusion import hidden_by_mesh
     from workers.synth.visibility import skin_depth_tolerance_m
 
-    mesh = posed_mesh(arrays, HandParams.from_theta(params))
     keypoints = np.asarray(keypoints_m, dtype=np.float64).reshape(21, 3)
     hidden = hidden_by_mesh(keypoints, mesh.vertices, mesh.faces, cameras,
                             skin_depth_tolerance_m(keypoints, mesh.vertices))
@@ -244,8 +243,12 @@ def _mesh_payload(fit: Fit, mano_path: Path | None) -> tuple[dict[str, Any] | No
     arrays = load_arrays(fit.model_file, mano_path, fit_side(fit.diagnostics))
     if arrays is None:
         return None, f"no mesh: the fit used {fit.model_file} and this server has no HANDLOOP_MANO_PATH", None
-    mesh = posed_mesh(arrays, HandParams.from_theta(fit.params))
-    # The mesh is rebuilt from the parameters; its keypoints should land on the stored ones.
+    try:
+        mesh = fit_mesh(arrays, fit.params, fit.vertices_f32)
+    except ValueError as exc:
+        logger.warning("fit %s: %s; no mesh", fit.id, exc)
+        return None, f"no mesh: {exc}", None
+    # The keypoints regressed from the mesh should land on the stored ones.
     offset_mm = float(np.max(np.linalg.norm(mesh.keypoints - np.asarray(fit.keypoints_m), axis=1)) * 1000)
     if offset_mm > 1.0:
         logger.warning("fit %s: mesh keypoints are %.1f mm from the stored keypoints", fit.id, offset_mm)
@@ -261,7 +264,7 @@ def review_overlay(session: Session, user: Actor, sample_id: int, *, secret_key:
     sample = _held(session, user, sample_id, LeaseKind.review)
     if sample.current_fit_id is None:
         raise ConflictError(f"sample {sample_id} has no fit to review")
-    fit = session.get(Fit, sample.current_fit_id)
+    fit = session.get(Fit, sample.current_fit_id, options=[undefer(Fit.vertices_f32)])
     if fit is None:
         raise NotFoundError(f"fit {sample.current_fit_id} of sample {sample_id} not found")
     cameras = view_cameras(session, sample_id)

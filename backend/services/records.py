@@ -93,12 +93,18 @@ def queue_fit(session: Session, queue: jobs.JobQueue, sample_id: int, *, source:
 def record_fit(session: Session, sample_id: int, *, params: Sequence[float], keypoints_m: Sequence[Sequence[float]],
                view_ious: Mapping[int, float], diagnostics: dict[str, Any], inputs: dict[str, Any],
                model_file: str, thresholds: HeuristicThresholds, job_id: int | None = None,
-               prediction_id: int | None = None) -> Fit:
+               prediction_id: int | None = None, vertices_m: np.ndarray | None = None) -> Fit:
     """Store a fit of a sample in 'fitting' and route it: heuristic accept (D^h) when a prediction passes
     all criteria; straight to review when fitted from annotations; else 'fitted', awaiting the reviewer
-    queue policy."""
+    queue policy. `vertices_m` (V, 3) metres, world frame: the fitted mesh as the worker posed it, stored
+    with the fit so the API shows it without posing the hand again (float32)."""
     theta = _finite_array(params, (NUM_PARAMS,), "params")
     kp = _finite_array(keypoints_m, (NUM_KEYPOINTS, 3), "keypoints_m")
+    vertices = None
+    if vertices_m is not None:
+        vertices = _finite_array(vertices_m, (len(vertices_m), 3), "vertices_m")
+        if not len(vertices):
+            raise InvalidInputError("vertices_m must hold at least one vertex")
     if job_id is not None and jobs.is_final(session, job_id):
         raise ConflictError(f"job {job_id} is already finished or cancelled; fit not recorded")
     sample = queues.load_locked(session, sample_id)
@@ -117,7 +123,8 @@ def record_fit(session: Session, sample_id: int, *, params: Sequence[float], key
     fit = Fit(sample_id=sample_id, job_id=job_id, prediction_id=prediction_id, params=theta.tolist(),
               keypoints_m=kp.tolist(), view_ious={str(k): v for k, v in ious.items()}, diagnostics=diagnostics,
               inputs=inputs, model_file=model_file, pose_distance=float(np.linalg.norm(articulation)),
-              round_id=rounds.open_round_id(session))
+              round_id=rounds.open_round_id(session),
+              vertices_f32=None if vertices is None else vertices.astype("<f4").tobytes())
     session.add(fit)
     session.flush()
     sample.current_fit_id = fit.id

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 from sqlalchemy import select
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import Session, undefer
 
 from backend.models.capture import View
 from backend.models.enums import Role
@@ -20,10 +20,8 @@ from backend.services.overlays import end_reads
 from backend.services.storage import Storage
 from backend.services.users import load_principal
 from backend.services.view_geometry import view_cameras
-from backend.viewer.hand_mesh import fit_side, hand_model_label, load_arrays
+from backend.viewer.hand_mesh import fit_mesh, fit_side, hand_model_label, load_arrays
 from backend.viewer.scene import SampleScene, record_scene, scene_camera, thumbnail
-from workers.handmodel.params import HandParams
-from workers.handmodel.posed import posed_mesh
 
 CACHE_ENTRIES = 32
 SCENE_VERSION = 1  # bump when the scene's content changes, so browsers drop cached recordings
@@ -60,7 +58,7 @@ def authorise(session: Session, secret_key: str, ticket: str, sample_id: int) ->
 
 
 def load_fit(session: Session, sample_id: int, fit_id: int) -> Fit:
-    fit = session.get(Fit, fit_id)
+    fit = session.get(Fit, fit_id, options=[undefer(Fit.vertices_f32)])
     if fit is None or fit.sample_id != sample_id:
         raise NotFoundError(f"fit {fit_id} of sample {sample_id} not found")
     return fit
@@ -86,7 +84,7 @@ def scene_bytes(session: Session, storage: Storage, fit: Fit, mano_path: Path | 
     views = view_cameras(session, fit.sample_id)
     end_reads(session)
     arrays = load_arrays(fit.model_file, mano_path, fit_side(fit.diagnostics))
-    mesh = posed_mesh(arrays, HandParams.from_theta(fit.params)) if arrays is not None else None
+    mesh = fit_mesh(arrays, fit.params, fit.vertices_f32) if arrays is not None else None
     cameras = [scene_camera(c.name, c.width, c.height, c.K, c.R, c.t, thumbnail(storage.get_bytes(keys[c.view_id])))
                for c in views]
     content = SampleScene(vertices=None if mesh is None else mesh.vertices, faces=None if mesh is None else mesh.faces,

@@ -1,16 +1,24 @@
 """Which hand model made a fit, and its arrays in the API process (torch-free).
 
-The mesh itself is the hand model's numpy face, `workers.handmodel.posed.posed_mesh`; parameters are
-`workers.handmodel.params.HandParams` (theta (61,), docs/conventions.md).
+A fit's mesh is the one the worker stored with it (`fit_mesh`); only fits from before it was stored are posed
+here, with the hand model's numpy face (`workers.handmodel.posed.posed_mesh`; parameters
+`workers.handmodel.params.HandParams`, theta (61,), docs/conventions.md).
 """
 
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from pathlib import Path
 
+import numpy as np
+
 from workers.handmodel.arrays import HandModelArrays
+from workers.handmodel.keypoints import FREIHAND_FROM_MANO
+from workers.handmodel.lbs import keypoints_from_vertices
 from workers.handmodel.loading import load_hand_model
+from workers.handmodel.params import HandParams
+from workers.handmodel.posed import HandMesh, posed_mesh
 
 logger = logging.getLogger(__name__)
 
@@ -47,3 +55,19 @@ def load_arrays(model_file: str, mano_path: Path | None, side: str = "right") ->
         logger.warning("fit made with %s but HANDLOOP_MANO_PATH is unset here: no mesh", model_file)
         return None
     return load_hand_model(Path(mano_path), side)
+
+
+def fit_mesh(arrays: HandModelArrays, params: Sequence[float], vertices_f32: bytes | None) -> HandMesh:
+    """A fit's mesh: the vertices the worker stored with it (`Fit.vertices_f32`, little-endian float32 (V, 3),
+    metres, world frame) with the model's faces and the keypoints regressed from them; only fits recorded
+    before those were stored (revision 0012) are posed here from their parameters (61,). ValueError for
+    stored vertices that are not this model's mesh, or parameters that cannot be posed."""
+    if vertices_f32 is None:
+        return posed_mesh(arrays, HandParams.from_theta(params))
+    vertices = np.frombuffer(vertices_f32, dtype="<f4").astype(np.float64)
+    if vertices.size != arrays.num_vertices * 3:
+        raise ValueError(f"the stored mesh has {vertices.size / 3:g} vertices, the hand model {arrays.num_vertices}")
+    vertices = vertices.reshape(-1, 3)
+    keypoints = keypoints_from_vertices(vertices[None], arrays.J_regressor, np.asarray(arrays.fingertip_vertex_ids),
+                                        np.asarray(FREIHAND_FROM_MANO))[0]
+    return HandMesh(vertices, np.asarray(arrays.faces, dtype=np.int64), keypoints)

@@ -270,7 +270,7 @@ def _record_all(ctx: WorkerContext, fitted: list[tuple[FitInput, Any]], config: 
                         session, fi.sample_id, params=result.theta.tolist(), keypoints_m=result.keypoints.tolist(),
                         view_ious=ious, diagnostics=diagnostics, inputs=json_safe(fi.inputs),
                         model_file=result.hand_model, thresholds=thresholds, job_id=fi.job_id,
-                        prediction_id=fi.prediction_id)
+                        prediction_id=fi.prediction_id, vertices_m=result.vertices)
                     session.flush()
                 summary.fitted.append(fit.id)
             except (DomainError, IntegrityError) as exc:  # cancelled, or recorded by a concurrent duplicate

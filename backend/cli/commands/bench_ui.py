@@ -564,6 +564,7 @@ def _scripted_occlusion(browser, base: str, token: str, truth: dict[int, Any], s
     from backend.services.overlays import mesh_hidden
     from backend.services.view_geometry import ViewCamera
     from backend.viewer.hand_mesh import load_arrays
+    from workers.handmodel.posed import posed_mesh
 
     rng = np.random.default_rng(13)
     arrays = load_arrays("handloop-builtin v1", None, "right")
@@ -581,8 +582,7 @@ def _scripted_occlusion(browser, base: str, token: str, truth: dict[int, Any], s
             cameras.append(ViewCamera(camera["camera"], camera["width"], camera["height"],
                                       *(np.asarray(camera[k], dtype=np.float64) for k in ("K", "dist", "R", "t")),
                                       view_id=camera["view_id"]))
-        params = gt.params.to_theta()
-        hidden = mesh_hidden(arrays, params, gt.keypoints_3d, cameras)
+        hidden = mesh_hidden(posed_mesh(arrays, gt.params), gt.keypoints_3d, cameras)
         fit = {"kind": "fit", "label": "fit (bench: the true hand)", "confidences": None, "views": {
             str(c.view_id): gt.keypoints_2d[names.index(c.name)].round(2).tolist() for c in cameras}, "hidden": hidden}
         body["sources"] = [{"kind": "mvnet", "label": "MVNet-like (bench)", "confidences": [0.9] * 21,

@@ -7,6 +7,7 @@ import time
 
 import numpy as np
 from sqlalchemy import select
+from sqlalchemy.orm import undefer
 
 from tests.support.annotate import clicks_body, ground_truth_of
 
@@ -41,7 +42,8 @@ def test_submitted_clicks_are_fitted_by_the_embedded_worker(live_stack):
     from backend.models.jobs import Job
 
     with stack.session_factory()() as session:
-        fits = session.execute(select(Fit).where(Fit.sample_id == task["sample_id"])).scalars().all()
+        fits = session.execute(select(Fit).options(undefer(Fit.vertices_f32))
+                               .where(Fit.sample_id == task["sample_id"])).scalars().all()
         row = session.get(Job, job_id)
     assert len(fits) == 1 and fits[0].job_id == job_id and row.attempts == 1
     assert fits[0].inputs["source"] == "annotation" and fits[0].inputs["submission_ids"]
@@ -50,3 +52,7 @@ def test_submitted_clicks_are_fitted_by_the_embedded_worker(live_stack):
     truth = ground_truth_of(stack, task)
     error_mm = 1000 * np.linalg.norm(np.asarray(fits[0].keypoints_m) - truth.keypoints_3d, axis=1).mean()
     assert error_mm < 40, error_mm
+    # The worker's mesh is stored with the fit (the API shows it without posing the hand again).
+    vertices = np.frombuffer(fits[0].vertices_f32, "<f4").reshape(-1, 3)
+    assert vertices.shape == truth.vertices.shape
+    assert 1000 * np.linalg.norm(vertices - truth.vertices, axis=1).mean() < 40

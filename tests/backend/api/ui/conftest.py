@@ -68,8 +68,9 @@ class UI:
 
     @staticmethod
     def record_truth_fit(env, sample_id: int, frame_index: int, capture: Path, submission_id: int,
-                         offset_m: float = 0.0, iou: float = 0.9) -> int:
-        """A fit with the ground-truth parameters (shifted by `offset_m` along x), as a worker records it."""
+                         offset_m: float = 0.0, iou: float = 0.9, mesh_offset_m: float | None = 0.0) -> int:
+        """A fit with the ground-truth parameters (shifted by `offset_m` along x), as a worker records it: with
+        the true mesh shifted by `mesh_offset_m` (None: no mesh stored, as fits before revision 0012)."""
         from backend.services import records
         from backend.services.samples import views_of
         from backend.services.verification import HeuristicThresholds
@@ -77,22 +78,24 @@ class UI:
         _, gt = UI.ground_truth(capture, frame_index)
         shift = np.array([offset_m, 0.0, 0.0])
         params = np.concatenate([gt.betas, gt.pose, gt.global_orient, gt.transl + shift])
+        vertices = None if mesh_offset_m is None else gt.vertices + np.array([mesh_offset_m, 0.0, 0.0])
         with env.session() as session, session.begin():
             views = views_of(session, sample_id, with_masks=False)
             fit = records.record_fit(
                 session, sample_id, params=params.tolist(), keypoints_m=(gt.keypoints_3d + shift).tolist(),
                 view_ious={v.id: iou for v in views}, diagnostics={"loss": 0.1},
                 inputs={"submission_ids": [submission_id]}, model_file="handloop-builtin v1",
-                thresholds=HeuristicThresholds())
+                thresholds=HeuristicThresholds(), vertices_m=vertices)
             return fit.id
 
     @staticmethod
-    def in_review(env, capture: Path, offset_m: float = 0.0) -> dict:
+    def in_review(env, capture: Path, offset_m: float = 0.0, mesh_offset_m: float | None = 0.0) -> dict:
         """Import, annotate one sample from the truth, fit it; the reviewer's task for it."""
         UI.import_capture(env, capture)
         task = env.client.post("/api/annotate/next", headers=env.headers(Role.annotator)).json()
         submission = UI.submit(env, task, capture)
-        UI.record_truth_fit(env, task["sample_id"], task["frame_index"], capture, submission["id"], offset_m)
+        UI.record_truth_fit(env, task["sample_id"], task["frame_index"], capture, submission["id"], offset_m,
+                            mesh_offset_m=mesh_offset_m)
         review = env.client.post("/api/review/next", headers=env.headers(Role.reviewer))
         assert review.status_code == 200, review.text
         return review.json()

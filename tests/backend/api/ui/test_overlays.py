@@ -3,9 +3,13 @@ says where everything must land."""
 
 from __future__ import annotations
 
+import base64
+
 import numpy as np
+from sqlalchemy import update
 
 from backend.models.enums import Role
+from backend.models.fits import Fit
 
 
 def test_review_overlay_puts_a_true_fit_on_the_clicks(sqlite_env, ui, ui_capture):
@@ -27,11 +31,30 @@ def test_review_overlay_puts_a_true_fit_on_the_clicks(sqlite_env, ui, ui_capture
         if view["clicks"]:
             assert view["mean_residual_px"] is not None and view["mean_residual_px"] < 0.05
     assert data["fit"]["source"] == "annotations" and data["fit"]["residual_reference"] == "clicks"
-    # The mesh rebuilt from the parameters lands on the stored keypoints (same conventions as the synth).
+    # The mesh stored with the fit; the keypoints regressed from it land on the stored ones.
     assert data["mesh"]["num_vertices"] > 100 and data["fit"]["mesh_keypoint_offset_mm"] < 0.5
-    vertices = np.frombuffer(__import__("base64").b64decode(data["mesh"]["vertices_f32"]), "<f4").reshape(-1, 3)
-    np.testing.assert_allclose(vertices, gt.vertices, atol=1e-4)
+    np.testing.assert_allclose(_mesh_vertices(data), gt.vertices, atol=1e-4)
     assert data["scene_path"].startswith(f"/api/viewer/samples/{task['sample_id']}/scene?ticket=")
+
+
+def _mesh_vertices(data: dict) -> np.ndarray:
+    return np.frombuffer(base64.b64decode(data["mesh"]["vertices_f32"]), "<f4").reshape(-1, 3)
+
+
+def test_the_overlay_shows_the_stored_mesh_and_poses_only_fits_without_one(sqlite_env, ui, ui_capture):
+    """The worker's vertices are shown as stored (here 2 cm off the parameters' hand, so a mesh posed again from
+    the parameters would differ); a fit recorded before meshes were stored is posed from its parameters."""
+    env = sqlite_env
+    task = ui.in_review(env, ui_capture, mesh_offset_m=0.02)
+    data = env.client.get(f"/api/review/samples/{task['sample_id']}/overlay", headers=env.headers(Role.reviewer)).json()
+    _, gt = ui.ground_truth(ui_capture, task["frame_index"])
+    np.testing.assert_allclose(_mesh_vertices(data), gt.vertices + np.array([0.02, 0.0, 0.0]), atol=1e-4)
+    assert 19.0 < data["fit"]["mesh_keypoint_offset_mm"] < 21.0
+    with env.session() as session, session.begin():
+        session.execute(update(Fit).where(Fit.sample_id == task["sample_id"]).values(vertices_f32=None))
+    data = env.client.get(f"/api/review/samples/{task['sample_id']}/overlay", headers=env.headers(Role.reviewer)).json()
+    np.testing.assert_allclose(_mesh_vertices(data), gt.vertices, atol=1e-4)
+    assert data["fit"]["mesh_keypoint_offset_mm"] < 0.5
 
 
 def test_residuals_grow_with_a_shifted_fit(sqlite_env, ui, ui_capture):

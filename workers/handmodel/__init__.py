@@ -1,5 +1,6 @@
-"""MANO-compatible hand models: the official MANO loader, the built-in procedural stand-in, the torch
-layer, joint limits and the pose sampler. See docs/hand-model.md.
+"""MANO-compatible hand models: the official MANO loader, the built-in procedural stand-in, the parameters
+(`HandParams`), one forward pass with a torch face (`HandLayer`) and a numpy face (`posed_mesh`), joint
+limits and the pose sampler. See docs/hand-model.md.
 
 Names are re-exported lazily so importing the package does not pull in torch.
 """
@@ -14,6 +15,9 @@ _EXPORTS = {
     "HandModelError": "arrays",
     "HandLayer": "layer",
     "HandOutput": "layer",
+    "HandParams": "params",
+    "HandMesh": "posed",
+    "posed_mesh": "posed",
     "load_hand_model": "loading",
     "STAND_IN_NOTICE": "loading",
     "load_mano": "mano_loader",

@@ -53,3 +53,16 @@ def test_a_block_that_drifted_is_reported_and_rewritten(tmp_path, monkeypatch: p
     assert doc_figures.write_pages() == ["docs/architecture.md"]
     assert doc_figures.page_disagreements() == []
     assert doc_figures.write_pages() == []
+
+
+def test_benchmarks_md_has_a_row_and_a_section_for_every_benchmark_command() -> None:
+    problems = doc_figures.benchmark_page_disagreements()
+    assert not problems, "\n".join(problems)
+
+
+def test_the_benchmark_check_would_see_a_missing_row_and_section() -> None:
+    text = (doc_figures.DOCS / "benchmarks.md").read_text()
+    lines = [line for line in text.splitlines() if not line.startswith("| jobs |") and line != "## jobs"]
+    problems = doc_figures.benchmark_page_disagreements("\n".join(lines))
+    assert problems == ["docs/benchmarks.md's table has no row for `handloop bench jobs`",
+                        "docs/benchmarks.md has no section '## jobs' (how to run it, what it measures)"]

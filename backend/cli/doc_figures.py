@@ -215,6 +215,33 @@ def write_pages() -> list[str]:
     return changed
 
 
+# --- docs/benchmarks.md against the `handloop bench` commands ------------------------------------------------
+
+FIGURES_TABLE_HEADER = "| benchmark | figure | today | target | command | machine | date (commit) |"
+
+
+def benchmark_page_disagreements(text: str | None = None) -> list[str]:
+    """A line per `handloop bench` command without a row in benchmarks.md's table of today's figures or without
+    a section of its own, and per row that does not give all seven columns."""
+    text = (DOCS / "benchmarks.md").read_text() if text is None else text
+    if FIGURES_TABLE_HEADER not in text:
+        return [f"docs/benchmarks.md has no table of today's figures (header {FIGURES_TABLE_HEADER!r})"]
+    rows = []
+    for line in text[text.index(FIGURES_TABLE_HEADER):].splitlines()[2:]:
+        if not line.startswith("|"):
+            break
+        rows.append([cell.strip() for cell in line.strip().strip("|").split("|")])
+    problems = [f"docs/benchmarks.md's row {' | '.join(r)!r} has {len(r)} columns, not 7" for r in rows if len(r) != 7
+                or not all(r)]
+    sections = set(re.findall(r"^## (\S+)$", text, re.MULTILINE))
+    for row in bench_placement():
+        if not any(r[0] == row.name for r in rows):
+            problems.append(f"docs/benchmarks.md's table has no row for `handloop bench {row.name}`")
+        if row.name not in sections:
+            problems.append(f"docs/benchmarks.md has no section '## {row.name}' (how to run it, what it measures)")
+    return problems
+
+
 # --- docs/api.md against the OpenAPI document ---------------------------------------------------------------
 
 ROUTE_TABLE_HEADER = "| Route | Minimum role |"

@@ -14,7 +14,8 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
     def figures(
         names: list[str] | None = typer.Argument(None, help="Figures to print (default: all)."),
         check: bool = typer.Option(False, "--check", help="Exit 1 naming each page that disagrees with the code "
-                                   "(a figure's block, or a route missing from docs/api.md)."),
+                                   "(a figure's block; a route missing from docs/api.md; a benchmark missing "
+                                   "from docs/benchmarks.md)."),
         write: bool = typer.Option(False, "--write", help="Rewrite the pages' generated blocks from the code."),
     ) -> None:
         """Print each figure as its page's generated block holds it (<!-- figures:NAME ... --> markers)."""
@@ -31,11 +32,13 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
             typer.echo("rewrote " + ", ".join(changed) if changed else "the pages already hold today's figures")
             return
         if check:
-            problems = doc_figures.page_disagreements() + doc_figures.route_disagreements()
+            problems = (doc_figures.page_disagreements() + doc_figures.route_disagreements()
+                        + doc_figures.benchmark_page_disagreements())
             for problem in problems:
                 typer.echo(problem, err=True)
             if problems:
-                typer.echo("run `handloop docs figures --write` (and add the routes to docs/api.md)", err=True)
+                typer.echo("run `handloop docs figures --write` (routes and benchmarks go on their pages by hand)",
+                           err=True)
                 raise typer.Exit(1)
             typer.echo("the docs agree with the code")
             return

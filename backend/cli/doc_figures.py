@@ -18,7 +18,6 @@ from the `handloop bench` command group), so modules may move without this file 
 from __future__ import annotations
 
 import ast
-import inspect
 import re
 import tempfile
 from collections import Counter
@@ -28,6 +27,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 DOCS = ROOT / "docs"
+COMMANDS = Path(__file__).resolve().parent / "commands"  # the CLI's command modules
 SOURCE_PACKAGES = ("backend", "workers")
 JOB_LAYER = "workers.tasks"
 JOBS = ("workers.tasks.inference", "workers.tasks.training")
@@ -131,25 +131,41 @@ def _module_path(module: str) -> Path | None:
     return None
 
 
-def bench_placement() -> list[BenchPlacement]:
-    """Every command of the `handloop bench` group, read from the CLI as `handloop --help` builds it."""
-    from backend.cli.main import bench  # deferred: building the CLI imports every command module
+def _bench_commands(tree: ast.Module) -> list[str]:
+    """The names of the `@bench.command(...)` functions a command module defines (as typer names them)."""
+    names = []
+    for node in ast.walk(tree):
+        if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            continue
+        for decorator in node.decorator_list:
+            call = decorator if isinstance(decorator, ast.Call) else None
+            func = call.func if call else decorator
+            if isinstance(func, ast.Attribute) and func.attr == "command" and isinstance(func.value, ast.Name) \
+                    and func.value.id == "bench":
+                given = call.args[0] if call and call.args and isinstance(call.args[0], ast.Constant) else None
+                names.append(str(given.value) if given else node.name.replace("_", "-"))
+    return names
 
+
+def bench_placement() -> list[BenchPlacement]:
+    """Every command of the `handloop bench` group, read from the CLI's command modules' source (by AST: nothing
+    imported, so no import circle through the CLI; tests/test_docs.py holds it equal to the built CLI's group)."""
     rows = []
-    for info in bench.registered_commands:
-        callback = info.callback
-        assert callback is not None
-        name = info.name or callback.__name__.replace("_", "-")
-        wrapper = Path(inspect.getsourcefile(callback) or "")
+    for wrapper in sorted(COMMANDS.glob("*.py")):
+        tree = ast.parse(wrapper.read_text())
+        names = _bench_commands(tree)
+        if not names:
+            continue
         modules = set()
-        for node in ast.walk(ast.parse(wrapper.read_text())):
+        for node in ast.walk(tree):
             if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("backend.bench"):
-                names = [f"{node.module}.{a.name}" for a in node.names] + [node.module]
-                modules.update(m for m in names if _module_path(m) is not None)
+                candidates = [f"{node.module}.{a.name}" for a in node.names] + [node.module]
+                modules.update(m for m in candidates if _module_path(m) is not None)
         modules = {m for m in modules if not any(o.startswith(m + ".") for o in modules)}  # a package's submodule
         paths = sorted(p for m in modules if m != "backend.bench.common" and (p := _module_path(m)) is not None)
-        rows.append(BenchPlacement(name, str(wrapper.relative_to(ROOT)), _lines(wrapper),
-                                   tuple((str(p.relative_to(ROOT)), _lines(p)) for p in paths)))
+        for name in names:
+            rows.append(BenchPlacement(name, str(wrapper.relative_to(ROOT)), _lines(wrapper),
+                                       tuple((str(p.relative_to(ROOT)), _lines(p)) for p in paths)))
     return sorted(rows, key=lambda r: r.name)
 
 

@@ -52,10 +52,10 @@ class Tab:
     page: object
     errors: list[str] = field(default_factory=list)
 
-    def shot(self, name: str) -> Path:
+    def shot(self, name: str, timeout_ms: float = 30_000) -> Path:
         SHOTS.mkdir(parents=True, exist_ok=True)
         path = SHOTS / f"{name}.png"
-        self.page.screenshot(path=str(path))
+        self.page.screenshot(path=str(path), timeout=timeout_ms)
         return path
 
 

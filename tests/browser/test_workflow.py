@@ -122,7 +122,11 @@ def test_annotate_fit_review_and_round_in_the_browser(live_stack, tab):
     page.wait_for_function("() => { const d = document.querySelector('iframe.viewer-frame')?.contentDocument;"
                            " return d && d.readyState === 'complete' && d.querySelector('canvas') !== null; }",
                            timeout=60_000)
-    reviewer.shot("03-review-fit")
+    # ... and the page drawing again: two animation frames (software WebGL can hold the renderer while the scene
+    # loads; the limits only guard a hang).
+    page.wait_for_function("() => new Promise((done) => requestAnimationFrame(() => requestAnimationFrame(() =>"
+                           " done(true))))", timeout=120_000)
+    reviewer.shot("03-review-fit", timeout_ms=120_000)
     page.keyboard.press("a")  # one key accepts
     page.wait_for_function("() => document.body.dataset.ready === 'review-empty' || "
                            f"document.body.dataset.sample !== '{sample_id}'", timeout=30_000)

@@ -67,11 +67,11 @@ def _fraction(job: Job) -> float:
 PACE_AFTER = 0.02
 
 
-def train_weight_s(job: Job, budget_s: float, now: datetime) -> float:
+def train_weight_s(job: Job, budget_s: float, now: datetime, last_took_s: float | None = None) -> float:
     """Seconds a train phase weighs: what it took once over, the time its progress so far says it takes while it
-    runs (at most the budget), else its budget."""
+    runs (at most the budget), else what the same network's last training took (`last_took_s`) or its budget."""
     if job.started_at is None:
-        return budget_s
+        return max(1.0, min(budget_s, last_took_s)) if last_took_s else budget_s
     if JobState(job.state) in jobs.FINAL_STATES and job.finished_at is not None:
         return max(1.0, min(budget_s, (job.finished_at - job.started_at).total_seconds()))
     progress = float(job.progress or 0.0)
@@ -102,6 +102,20 @@ def train_detail(job: Job, net: str, budget_s: float) -> str:
     return f"{done * budget_s:.0f} of {budget_s:.0f} s"
 
 
+def _last_training_s(session: Session, round_id: int | None) -> dict[str, float]:
+    """Per network, the seconds its newest finished training of an earlier round took (the estimate of a
+    training not started yet)."""
+    rows = session.execute(select(Job.payload, Job.started_at, Job.finished_at)
+                           .where(Job.kind == JobKind.train, Job.state == JobState.succeeded,
+                                  Job.round_id != round_id, Job.started_at.is_not(None),
+                                  Job.finished_at.is_not(None))
+                           .order_by(Job.id.desc()).limit(20)).all()
+    took: dict[str, float] = {}
+    for payload, started, finished in rows:
+        took.setdefault(str((payload or {}).get("net")), (finished - started).total_seconds())
+    return took
+
+
 def phases(session: Session, round_job: Job, settings: Settings, now: datetime | None = None) -> list[Phase]:
     """The round's phases at `now` (default: the clock), from its jobs' rows and its result (`candidates`: the
     samples it predicts, known once the predict jobs exist; before, start_round's `candidates_estimate`)."""
@@ -115,11 +129,14 @@ def phases(session: Session, round_job: Job, settings: Settings, now: datetime |
     out: list[Phase] = []
     budgets = {"handsegnet": settings.round_handsegnet_budget_s, "mvnet": settings.round_mvnet_budget_s}
     trains = {(j.payload or {}).get("net"): j for j in by_kind.get(JobKind.train.value, [])}
+    last_took = _last_training_s(session, round_job.round_id) if any(
+        j.started_at is None for j in trains.values()) else {}
     for net, budget in budgets.items():
         job = trains.get(net)
         if job is None:
             continue  # launched with an existing model (or not started yet): nothing to train
-        out.append(Phase(f"train {NET_LABELS[net]}", train_weight_s(job, budget, now), _fraction(job),
+        out.append(Phase(f"train {NET_LABELS[net]}", train_weight_s(job, budget, now, last_took.get(net)),
+                         _fraction(job),
                          train_detail(job, net, budget)))
     result = round_job.result or {}
     predicts = by_kind.get(JobKind.predict.value, [])

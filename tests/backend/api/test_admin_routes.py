@@ -300,8 +300,13 @@ def test_a_step_capped_training_weighs_the_time_it_took_not_its_budget(env, h):
         predict_fit = 2 * (round_progress.PREDICT_S_PER_SAMPLE + round_progress.FIT_S_PER_SAMPLE)
         expected = (130 + 340) / (130 + 340 + predict_fit + round_progress.FINISH_S)
         assert progress is not None and abs(progress - expected) < 1e-6, (progress, expected)
-        # a train job not started yet still weighs its budget
-        assert round_progress.train_weight_s(Job(kind="train", state=JobState.queued), 90.0, utcnow()) == 90.0
+        # a train job not started yet weighs what the network's last training took, else its budget
+        with ctx.session_factory() as session:
+            assert round_progress._last_training_s(session, -1) == {"handsegnet": 130.0, "mvnet": 340.0}
+            assert round_progress._last_training_s(session, round_job.round_id) == {}  # not this round's own
+        queued = Job(kind="train", state=JobState.queued)
+        assert round_progress.train_weight_s(queued, 7200.0, utcnow(), last_took_s=340.0) == 340.0
+        assert round_progress.train_weight_s(queued, 90.0, utcnow()) == 90.0
     finally:
         ctx.session_factory.kw["bind"].dispose()
 

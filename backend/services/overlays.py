@@ -31,6 +31,7 @@ from backend.services.samples import get_sample
 from backend.services.users import Actor
 from backend.services.view_geometry import ViewCamera, pixels_or_none, view_cameras
 from backend.viewer.hand_mesh import fit_mesh, fit_side, hand_model_label, is_stand_in, load_arrays
+from backend.viewer.scene import viewpoint
 from workers.geometry.projection import project_visible
 from workers.handmodel.keypoints import SKELETON_EDGES, SPARSE_KEYPOINTS
 from workers.handmodel.posed import HandMesh
@@ -324,5 +325,11 @@ def review_overlay(session: Session, user: Actor, sample_id: int, *, secret_key:
         "mesh_note": mesh_note,
         "skeleton_edges": [list(e) for e in SKELETON_EDGES],
         "scene_path": f"/api/viewer/samples/{sample_id}/scene?ticket={ticket}",
-        "scene_look_at": keypoints.mean(axis=0).round(4).tolist(),
+        **_scene_view(keypoints, cameras),
     }
+
+
+def _scene_view(keypoints: np.ndarray, cameras: list[ViewCamera]) -> dict[str, list[float]]:
+    """Where the page's 3D view starts (backend.viewer.scene.viewpoint: the rig's own up, the cameras' side)."""
+    view = viewpoint(keypoints, [c.R for c in cameras], [c.t for c in cameras])
+    return {"scene_look_at": list(view.look_at), "scene_eye": list(view.eye), "scene_up": list(view.up)}

@@ -14,13 +14,13 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.orm import Session
 
 from backend.models.enums import Role
-from backend.services.auth_cache import AuthCache
+from backend.services.accounts.auth_cache import AuthCache
+from backend.services.accounts.security import parse_token
+from backend.services.accounts.users import Principal, load_principal
+from backend.services.captures.storage import Storage
 from backend.services.errors import AuthError, PermissionDeniedError
-from backend.services.jobs import JobQueue
-from backend.services.security import parse_token
-from backend.services.storage import Storage
+from backend.services.jobs.jobs import JobQueue
 from backend.services.transactions import discard_after_commit, run_after_commit
-from backend.services.users import Principal, load_principal
 from backend.settings import Settings
 
 
@@ -131,7 +131,7 @@ async def get_current_user(
     settings: SettingsDep,
     credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)],
 ) -> Principal:
-    """The token's user, from the process's short-lived cache (services.auth_cache) or, on a miss or when the
+    """The token's user, from the process's short-lived cache (services.accounts.auth_cache) or, on a miss or when the
     token is newer than the cached row, one Core SELECT in a read transaction of its own, whose connection is
     back in the pool when the thread-pool call returns (the request's own session takes one only in the
     route's thread)."""

@@ -65,7 +65,7 @@ async def _unauthenticated(request: Request) -> JSONResponse | None:
     """The 401 a caller without a valid token gets on a route that needs one, else None.
 
     FastAPI parses a JSON body before it resolves the route's dependencies, so a body it cannot parse would be
-    answered before authentication; this runs the same check (services.security, the user's row) first."""
+    answered before authentication; this runs the same check (services.accounts.security, the user's row) first."""
     route = request.scope.get("route")
     dependant = getattr(route, "dependant", None)
     if dependant is None or not depends_on(dependant, get_current_user):

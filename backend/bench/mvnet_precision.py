@@ -42,7 +42,7 @@ import torch
 from scipy.stats import spearmanr
 
 from backend.bench.common import emit
-from backend.services.verification import HeuristicThresholds, heuristic_verdict
+from backend.services.review.verification import HeuristicThresholds, heuristic_verdict
 from backend.settings import get_settings
 from workers.capture.reader import load_frame_masks, load_ground_truth, read_capture
 from workers.capture.schema import FrameRef

@@ -7,7 +7,7 @@ import json
 from sqlalchemy import text
 
 from backend.models.enums import JobState, Role
-from backend.services import jobs
+from backend.services.jobs import jobs
 
 ADMIN = Role.admin
 

@@ -8,8 +8,8 @@ from datetime import UTC, datetime
 from sqlalchemy import text
 
 from backend.models.enums import Role
-from backend.services.auth_cache import AuthCache
-from backend.services.users import Principal
+from backend.services.accounts.auth_cache import AuthCache
+from backend.services.accounts.users import Principal
 
 
 class FakeClock:
@@ -86,7 +86,7 @@ def test_revocation_by_another_process_takes_effect_within_the_ttl(sqlite_env):
 
 
 def test_a_newer_token_reads_the_row_again(sqlite_env):
-    from backend.services.security import create_token
+    from backend.services.accounts.security import create_token
 
     env = sqlite_env
     uid = env.user_ids[Role.annotator]

@@ -18,15 +18,15 @@ from typer.testing import CliRunner
 
 from backend.cli.main import app
 from backend.models.enums import Role
-from backend.services import records
-from backend.services.samples import views_of
-from backend.services.verification import HeuristicThresholds
+from backend.services.captures.samples import views_of
+from backend.services.review.verification import HeuristicThresholds
 from backend.settings import get_settings
 from workers.capture import load_ground_truth, read_capture
 from workers.export.freihand import mesh_from_freihand, read_freihand_set
 from workers.export.meshes import read_mesh
 from workers.geometry.projection import undistort_pixels
 from workers.handmodel.loading import load_hand_model
+from workers.tasks import records
 
 runner = CliRunner()
 

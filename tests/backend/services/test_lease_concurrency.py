@@ -10,16 +10,16 @@ import pytest
 from backend.db.base import utcnow
 from backend.models.enums import LeaseKind, Role, SampleState
 from backend.models.users import User
-from backend.services import queues
-from backend.services.seed import seed_samples
-from backend.services.users import create_user
+from backend.services.accounts.users import create_user
+from backend.services.captures.seed import seed_samples
+from backend.services.leases import queues
 
 N_THREADS = 20
 
 
 def _make_users(factory, n):
     with factory() as s, s.begin():
-        hashed = __import__("backend.services.security", fromlist=["x"]).hash_password("password-123")
+        hashed = __import__("backend.services.accounts.security", fromlist=["x"]).hash_password("password-123")
         users = [User(email=f"a{i}@x.org", role=Role.annotator, hashed_password=hashed) for i in range(n)]
         s.add_all(users)
         s.flush()

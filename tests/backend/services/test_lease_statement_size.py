@@ -1,13 +1,13 @@
 """The one-statement lease of PostgreSQL stays under psycopg's query cache limit (its text is parsed again on
-every execution beyond 4096 bytes; backend/services/lease_statement.py)."""
+every execution beyond 4096 bytes; backend/db/statements/lease_statement.py)."""
 
 from __future__ import annotations
 
 import pytest
 from sqlalchemy.dialects import postgresql
 
+from backend.db.statements.lease_statement import acquire_statement
 from backend.models.enums import LeaseKind
-from backend.services.lease_statement import acquire_statement
 
 
 @pytest.mark.parametrize("kind", list(LeaseKind), ids=lambda k: k.value)

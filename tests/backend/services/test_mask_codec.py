@@ -6,8 +6,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
+from backend.services.captures.masks import decode_png, decode_rle, encode_png, encode_rle
 from backend.services.errors import InvalidInputError
-from backend.services.masks import decode_png, decode_rle, encode_png, encode_rle
 
 
 @settings(max_examples=50, deadline=None)

@@ -1,6 +1,6 @@
 """PostgreSQL reads a queue's head from an index in the queue's order: the annotate queue from ix_samples_queue, even
 with statistics from when every sample was in the queue (a project's start), so a lease does not walk past the
-samples already done (backend/services/lease_statement.py: free_pick); the review queue from
+samples already done (backend/db/statements/lease_statement.py: free_pick); the review queue from
 ix_samples_review_queue, so a lease does not sort every sample in review (migration 0009)."""
 
 from __future__ import annotations
@@ -14,12 +14,12 @@ from sqlalchemy.dialects import postgresql
 
 from backend.db.base import utcnow
 from backend.db.session import make_session_factory
+from backend.db.statements.lease_statement import acquire_statement
 from backend.models.capture import Sample
 from backend.models.enums import LeaseKind, Role, SampleState
 from backend.models.users import User
-from backend.services import queues
-from backend.services.lease_statement import acquire_statement
-from backend.services.seed import seed_samples
+from backend.services.captures.seed import seed_samples
+from backend.services.leases import queues
 
 pytestmark = pytest.mark.postgres
 

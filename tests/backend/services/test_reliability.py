@@ -1,11 +1,11 @@
-"""The reliability binning on hand-made values (services.reliability.reliability_bins)."""
+"""The reliability binning on hand-made values (services.statistics.reliability.reliability_bins)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from backend.services.reliability import reliability_bins
+from backend.services.statistics.reliability import reliability_bins
 
 
 def test_bins_count_and_average_the_errors_by_confidence():

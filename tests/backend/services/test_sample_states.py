@@ -3,7 +3,7 @@ from __future__ import annotations
 import pytest
 
 from backend.models.enums import SampleState as S
-from backend.services.state_machine import TRANSITIONS, can_transition
+from backend.services.captures.state_machine import TRANSITIONS, can_transition
 
 
 @pytest.mark.parametrize(("a", "b"), [

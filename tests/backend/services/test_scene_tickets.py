@@ -2,9 +2,9 @@ from __future__ import annotations
 
 import pytest
 
-from backend.services import scene_tickets
+from backend.services.accounts.security import create_token, parse_token
+from backend.services.display import scene_tickets
 from backend.services.errors import AuthError, PermissionDeniedError
-from backend.services.security import create_token, parse_token
 
 SECRET = "a-secret-for-the-tests-0123"
 

@@ -12,11 +12,12 @@ from backend.db.base import utcnow
 from backend.models.enums import LeaseKind, Role
 from backend.models.users import User
 from backend.schemas.tasks import SubmissionCreate
-from backend.services import queues, submissions
-from backend.services.jobs import InMemoryJobQueue
-from backend.services.seed import seed_samples
-from backend.services.storage import LocalDiskStorage
-from backend.services.users import create_user
+from backend.services.accounts.users import create_user
+from backend.services.captures.seed import seed_samples
+from backend.services.captures.storage import LocalDiskStorage
+from backend.services.jobs.jobs import InMemoryJobQueue
+from backend.services.labeling import submissions
+from backend.services.leases import queues
 from tests.support.concurrency import all_at_once
 
 N_THREADS = 8

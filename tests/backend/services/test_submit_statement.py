@@ -1,4 +1,4 @@
-"""A submission as one statement (services.submit_statement.SUBMIT_ALONE, the route's path on PostgreSQL):
+"""A submission as one statement (backend.db.statements.submit_statement.SUBMIT_ALONE, the route's path on PostgreSQL):
 what it writes, that a failed check writes nothing and the checked path names the error, idempotent retries
 and a client id taken meanwhile; on both databases (SQLite takes the checked path: same results)."""
 
@@ -15,11 +15,14 @@ from sqlalchemy.dialects import postgresql
 from sqlalchemy.orm import Session
 
 from backend.db.base import utcnow
+from backend.db.statements.submit_statement import SUBMIT, SUBMIT_ALONE
 from backend.models.drafts import Draft
 from backend.models.enums import LeaseKind, Role
 from backend.models.users import User
 from backend.schemas.tasks import SubmissionCreate
-from backend.services import queues, submissions
+from backend.services.accounts.users import create_user
+from backend.services.captures.seed import seed_samples
+from backend.services.captures.storage import LocalDiskStorage
 from backend.services.errors import (
     ConflictError,
     InvalidInputError,
@@ -28,12 +31,10 @@ from backend.services.errors import (
     PermissionDeniedError,
     ServiceUnavailableError,
 )
-from backend.services.jobs import InMemoryJobQueue
-from backend.services.seed import seed_samples
-from backend.services.storage import LocalDiskStorage
-from backend.services.submit_statement import SUBMIT, SUBMIT_ALONE
+from backend.services.jobs.jobs import InMemoryJobQueue
+from backend.services.labeling import submissions
+from backend.services.leases import queues
 from backend.services.transactions import run_after_commit
-from backend.services.users import create_user
 from tests.support.concurrency import all_at_once
 
 TABLES = ("submissions", "clicks", "jobs", "audit_events", "drafts")

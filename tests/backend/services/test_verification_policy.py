@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from backend.services.verification import (
+from backend.services.review.verification import (
     Candidate,
     HeuristicThresholds,
     ReviewPolicy,

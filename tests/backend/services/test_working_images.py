@@ -1,4 +1,4 @@
-"""backend/services/working_images.py: working copies in storage follow their originals."""
+"""backend/services/captures/working_images.py: working copies in storage follow their originals."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ import cv2
 import numpy as np
 import pytest
 
+from backend.services.captures.storage import LocalDiskStorage
+from backend.services.captures.working_images import ensure_working_copy
 from backend.services.errors import NotFoundError
-from backend.services.storage import LocalDiskStorage
-from backend.services.working_images import ensure_working_copy
 
 
 def _png(value: int) -> bytes:

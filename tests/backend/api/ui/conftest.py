@@ -70,9 +70,9 @@ class UI:
     def record_truth_fit(env, sample_id: int, frame_index: int, capture: Path, submission_id: int,
                          offset_m: float = 0.0, iou: float = 0.9) -> int:
         """A fit with the ground-truth parameters (shifted by `offset_m` along x), as a worker records it."""
-        from backend.services import records
-        from backend.services.samples import views_of
-        from backend.services.verification import HeuristicThresholds
+        from backend.services.captures.samples import views_of
+        from backend.services.review.verification import HeuristicThresholds
+        from workers.tasks import records
 
         _, gt = UI.ground_truth(capture, frame_index)
         shift = np.array([offset_m, 0.0, 0.0])

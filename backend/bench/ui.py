@@ -37,57 +37,45 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 import shutil
 import statistics
 import sys
-import tempfile
 import time
 import uuid
 from datetime import timedelta
 from pathlib import Path
 from typing import Any
 
-import typer
+import httpx
+import numpy as np
+from sqlalchemy import text
+
+from backend.db.base import utcnow
+from backend.db.migrate import upgrade
+from backend.db.session import create_engine_from_url, make_session_factory
+from backend.models.enums import Role
+from backend.runtime import start_stack
+from backend.services.accounts.users import create_user
+from backend.services.captures.importer import import_capture
+from backend.services.captures.storage import LocalDiskStorage
+from backend.services.display.overlays import mesh_hidden
+from backend.services.display.view_geometry import ViewCamera
+from backend.services.review.verification import HeuristicThresholds
+from backend.settings import Settings
+from backend.viewer.hand_mesh import load_arrays
+from workers.capture import load_ground_truth, read_capture
+from workers.handmodel.builtin import build_builtin_hand, cache
+from workers.synth.generator import generate_capture
+from workers.synth.plan import SynthConfig
+from workers.tasks import records
 
 logger = logging.getLogger("handloop.bench.ui")
 
-CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                  "--disable-background-networking", "--disable-component-update", "--disable-sync"]
 PASSWORD = "bench-password-123"
 ROLES = ("annotator", "reviewer", "admin")
 DWELL_MS = 3000  # how long the simulated reviewer looks at a sample before pressing the key
-
-
-def register(app: typer.Typer, bench: typer.Typer) -> None:
-    @bench.command("ui")
-    def bench_ui(
-        json_out: bool = typer.Option(False, "--json", help="Print only the JSON line on stdout."),
-        quick: bool = typer.Option(False, "--quick", help="Fewer frames and repeats (about a minute)."),
-        width: int = typer.Option(1280, min=320, max=4096, help="Image width of the synthetic capture."),
-        frames: int = typer.Option(13, min=7, max=200, help="Frames (samples) in the capture."),
-        repeats: int = typer.Option(3, min=1, max=50, help="Cold page loads per page."),
-        brush_events: int = typer.Option(300, min=10, max=100_000, help="Pointer events in the brush test."),
-        scripted: int = typer.Option(3, min=1, max=50, help="Samples per scripted-annotator run (T, M)."),
-        chromium: str = typer.Option(CHROMIUM, help="Chromium executable."),
-    ) -> None:
-        """Page interactive, next sample after a decision, brush event handling: in a real browser."""
-        from backend.bench.common import emit
-
-        if quick:
-            frames, repeats, brush_events, scripted = min(frames, 7), 1, min(brush_events, 150), min(scripted, 1)
-        if not Path(chromium).exists():
-            raise typer.BadParameter(f"Chromium not found at {chromium} (apt-get install -y chromium)")
-        started = time.perf_counter()
-        with tempfile.TemporaryDirectory(prefix="handloop-bench-ui-") as tmp:
-            result = run(Path(tmp), width=width, frames=frames, repeats=repeats, brush_events=brush_events,
-                         chromium=chromium, scripted=scripted)
-        emit("ui", result, {"width": width, "frames": frames, "repeats": repeats, "brush_events": brush_events,
-                            "scripted_samples": scripted,
-                            "chromium": chromium, "chromium_args": CHROMIUM_ARGS, "quick": quick,
-                            "load_average": [round(v, 2) for v in os.getloadavg()]}, started)
-        del json_out  # the JSON line is always the last stdout line; progress goes to stderr
 
 
 def _progress(message: str) -> None:
@@ -97,9 +85,6 @@ def _progress(message: str) -> None:
 
 def run(tmp: Path, *, width: int, frames: int, repeats: int, brush_events: int, chromium: str,
         scripted: int = 3) -> dict[str, Any]:
-    from backend.runtime import start_stack
-    from backend.settings import Settings
-
     # `frames` samples as before (all but one reviewed), plus the scripted annotator's (3 runs of `scripted`,
     # and one for the work-loss checks), left in the annotation queue after them.
     capture = _synthesise(tmp / "capture", width, frames + 3 * scripted + 1)
@@ -113,7 +98,7 @@ def run(tmp: Path, *, width: int, frames: int, repeats: int, brush_events: int, 
         reviewable = frames - 1  # one sample stays in the annotation queue for the brush test
         _progress(f"annotating and fitting {reviewable} samples from the ground truth (as a worker would)")
         _into_review(base, tokens, settings, capture, reviewable)
-        from playwright.sync_api import sync_playwright
+        from playwright.sync_api import sync_playwright  # deferred: a dev dependency, needed only here
 
         with sync_playwright() as playwright:
             browser = playwright.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
@@ -182,9 +167,6 @@ def run(tmp: Path, *, width: int, frames: int, repeats: int, brush_events: int, 
 
 
 def _synthesise(out: Path, width: int, frames: int) -> Path:
-    from workers.synth.generator import generate_capture
-    from workers.synth.plan import SynthConfig
-
     _progress(f"synthesising {frames} frames at {width} px")
     t0 = time.perf_counter()
     generate_capture(out, SynthConfig(num_sequences=1, frames_per_sequence=frames, seed=7, width_px=width), workers=1,
@@ -194,13 +176,6 @@ def _synthesise(out: Path, width: int, frames: int) -> Path:
 
 
 def _prepare_database(settings, capture: Path) -> None:
-    from backend.db.migrate import upgrade
-    from backend.db.session import create_engine_from_url, make_session_factory
-    from backend.models.enums import Role
-    from backend.services.accounts.users import create_user
-    from backend.services.captures.importer import import_capture
-    from backend.services.captures.storage import LocalDiskStorage
-
     settings.data_dir.mkdir(parents=True, exist_ok=True)
     upgrade(settings.resolved_database_url)
     engine = create_engine_from_url(settings.resolved_database_url)
@@ -216,9 +191,6 @@ def _prepare_database(settings, capture: Path) -> None:
 def _share_hand_model(data_dir: Path) -> None:
     """The generated built-in hand of this machine's cache, so the fresh data folder does not regenerate it
     (a deployment's workers have made it long before a reviewer opens a fit)."""
-
-    from workers.handmodel.builtin import build_builtin_hand, cache
-
     build_builtin_hand("right")  # makes sure this process's cache holds it
     target = data_dir / "cache"
     target.mkdir(parents=True, exist_ok=True)
@@ -227,8 +199,6 @@ def _share_hand_model(data_dir: Path) -> None:
 
 
 def _token(base: str, role: str) -> str:
-    import httpx
-
     response = httpx.post(f"{base}/api/auth/token", data={"username": f"{role}@bench.local", "password": PASSWORD},
                           timeout=30)
     response.raise_for_status()
@@ -238,14 +208,6 @@ def _token(base: str, role: str) -> str:
 def _into_review(base: str, tokens: dict[str, str], settings, capture: Path, count: int) -> None:
     """Submit the true clicks of `count` samples through the API, then record fits with the true
     parameters in the database (the worker's part), which sends them to review."""
-    import httpx
-    import numpy as np
-
-    from backend.db.session import create_engine_from_url, make_session_factory
-    from backend.services.review.verification import HeuristicThresholds
-    from workers.capture import load_ground_truth, read_capture
-    from workers.tasks import records
-
     frames = read_capture(capture, check_images=False).sequences[0].frames
     engine = create_engine_from_url(settings.resolved_database_url)
     factory = make_session_factory(engine)
@@ -435,8 +397,6 @@ NOISE_PX = 3.0
 
 
 def _truth_by_frame(capture: Path) -> dict[int, Any]:
-    from workers.capture import load_ground_truth, read_capture
-
     frames = read_capture(capture, check_images=False).sequences[0].frames
     return {i: load_ground_truth(f) for i, f in enumerate(frames)}
 
@@ -470,9 +430,6 @@ def _scripted_annotator(browser, base: str, token: str, truth: dict[int, Any], s
     """Annotate `samples` samples from proposals ("T": two views by hand, Enter in the rest; "M": Enter in
     every view on a network's proposals), correcting every accepted point more than CORRECT_PX off.
     Counts pointer clicks (placements and thumbnail clicks) and key presses; wall seconds per sample."""
-
-    import numpy as np
-
     rng = np.random.default_rng(11)
 
     def network(route) -> None:
@@ -559,13 +516,6 @@ def _scripted_occlusion(browser, base: str, token: str, truth: dict[int, Any], s
     drag each point more than CORRECT_PX off into place (a drag keeps its visibility), place a missing one by
     hand, then flip (digit, O) each keypoint whose visibility differs from the truth. Counts clicks (drags
     included), keys, and the keys spent on occlusion (the flips) per truly occluded keypoint in the image."""
-
-    import numpy as np
-
-    from backend.services.display.overlays import mesh_hidden
-    from backend.services.display.view_geometry import ViewCamera
-    from backend.viewer.hand_mesh import load_arrays
-
     rng = np.random.default_rng(13)
     arrays = load_arrays("handloop-builtin v1", None, "right")
 
@@ -651,10 +601,6 @@ def _scripted_occlusion(browser, base: str, token: str, truth: dict[int, Any], s
 
 def _frames_of(settings) -> dict[int, int]:
     """sample id -> frame index (the capture has one sequence)."""
-    from sqlalchemy import text
-
-    from backend.db.session import create_engine_from_url, make_session_factory
-
     engine = create_engine_from_url(settings.resolved_database_url)
     with make_session_factory(engine)() as session:
         rows = session.execute(text("SELECT id, frame_index FROM samples")).all()
@@ -665,12 +611,6 @@ def _frames_of(settings) -> dict[int, int]:
 def _work_loss(browser, base: str, token: str, settings, truth: dict[int, Any]) -> dict[str, Any]:
     """Clicks lost by a reload, by the Back button and by a lapsed lease on a free sample (each should be 0),
     and the reload's time to the draft restored."""
-
-    from sqlalchemy import text
-
-    from backend.db.base import utcnow
-    from backend.db.session import create_engine_from_url, make_session_factory
-
     context, page = _annotate_page(browser, base, token)
     task = page.evaluate(TASK)
     placed = 0

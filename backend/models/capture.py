@@ -107,8 +107,8 @@ class Sample(Base):
 
 
 # The review queue in its order (backend/db/statements/lease_statement.py: queue_order), so a reviewer's lease reads
-# its head instead of sorting every sample in review (20,000 in review: 5-9 ms a lease, EXPLAIN ANALYZE). PostgreSQL only:
-# SQLite refuses NULLS LAST in an index, and an embedded project's review queue is small.
+# its head instead of sorting every sample in review (20,000 in review: 5-9 ms a lease, EXPLAIN ANALYZE). PostgreSQL
+# only: SQLite refuses NULLS LAST in an index, and an embedded project's review queue is small.
 Index("ix_samples_review_queue", Sample.state, Sample.confidence.desc().nulls_last(), Sample.id).ddl_if(
     dialect="postgresql")
 

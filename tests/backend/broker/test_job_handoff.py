@@ -78,7 +78,7 @@ def test_an_attempt_records_its_start_and_a_finished_job_keeps_no_progress_messa
 def dead_process() -> str:
     """The identity of a process of this machine that has exited (backend.broker.worker_processes)."""
     child = subprocess.Popen([sys.executable, "-c", "import os, sys; "
-                              "from backend.services import worker_processes; print(worker_processes.current())"],
+                              "from backend.broker import worker_processes; print(worker_processes.current())"],
                              stdout=subprocess.PIPE, text=True)
     identity = child.communicate(timeout=60)[0].strip()
     assert identity != "None", "no process identity on this machine (no /proc)"

@@ -19,7 +19,7 @@ def passed_over(sample_id: Any, user_id: Any) -> Any:
     """SQL condition: `user_id` neither skipped `sample_id` nor had a fit fail on it."""
     f = _FLAGS.c
     # SQL constants, not an expanding IN nor binds: the lease is one statement prepared once (psycopg), its text
-    # under psycopg's 4096-byte cache limit (tests/backend/services/test_lease_statement_size.py) and its parameters
-    # rendered once (test_queue_head_plan.py); the kinds are the enum's own values, never user input.
+    # under psycopg's 4096-byte cache limit (tests/backend/db/statements/test_lease_statement_size.py) and its
+    # parameters rendered once (test_queue_head_plan.py); the kinds are the enum's own values, never user input.
     return ~exists().where(f.sample_id == sample_id, f.user_id == user_id,
                            f.kind.in_([literal_column(f"'{kind}'") for kind in PASSED]))

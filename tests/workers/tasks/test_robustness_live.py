@@ -134,7 +134,7 @@ def test_a_delivery_for_a_job_another_machine_runs_comes_back_until_that_attempt
     stack = live_stack(frames=1, worker=False, job_heartbeat_timeout_s=15, outbox_poll_s=3600)
     job_id = _submit_fit(stack)
     # No process recorded: nothing a claimant here could look up (backend.broker.worker_processes; an identity from
-    # another machine reads the same, tests/backend/services/test_job_handoff.py).
+    # another machine reads the same, tests/backend/broker/test_job_handoff.py).
     elsewhere = {"state": "running", "attempts": 1, "worker": "gpu9:77"}
     beating, stopped = threading.Event(), threading.Event()
 

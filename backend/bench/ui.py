@@ -480,11 +480,7 @@ def _scripted_annotator(browser, base: str, token: str, truth: dict[int, Any], s
                     keys += 2
                 _click(page, v, k, uv)
                 clicks, keys = clicks + 1, keys + 1
-        before = task["sample_id"]
-        page.keyboard.press("Control+Enter")
-        keys += 1
-        page.wait_for_function(f"() => document.body.dataset.sample !== '{before}' || "
-                               "document.body.dataset.ready === 'annotate-empty'", timeout=60_000)
+        keys += _submit(page, task["sample_id"])
         seconds.append(time.perf_counter() - t0)
     context.close()
     out = {"samples": samples, "clicks_per_sample": round(clicks / samples, 2),
@@ -499,6 +495,21 @@ def _scripted_annotator(browser, base: str, token: str, truth: dict[int, Any], s
 VISIBILITY = """() => { const p = window.__handloop.page; const out = [];
   for (const [view, m] of p.annotation.clicks) for (const [k, c] of m) out.push([view, k, c.x, c.y, c.visibility]);
   return out; }"""
+
+
+def _submit(page, sample_id: int) -> int:
+    """Ctrl+Enter, and once more where the page asks first (points left unset): the keys it took, once the page
+    has moved on from `sample_id`."""
+    gone = (f"document.body.dataset.sample !== '{sample_id}' || "
+            "document.body.dataset.ready === 'annotate-empty'")
+    page.keyboard.press("Control+Enter")
+    page.wait_for_function(f"() => {gone} || !!document.querySelector('.ask .confirm-submit')", timeout=60_000)
+    keys = 1
+    if page.evaluate(f"() => !({gone})"):
+        page.keyboard.press("Control+Enter")
+        keys += 1
+        page.wait_for_function(f"() => {gone}", timeout=60_000)
+    return keys
 
 
 def _drag(page, view_index: int, start: Any, end: Any) -> None:
@@ -581,11 +592,7 @@ def _scripted_occlusion(browser, base: str, token: str, truth: dict[int, Any], s
                  for v, view in enumerate(task["views"]) if view["id"] == view_id and _true_uv(truth, task, v, k)
                  and vis != ("visible" if gt.visibility[names.index(view["camera"]), k] else "occluded")]
         left_wrong += len(wrong)
-        before = task["sample_id"]
-        page.keyboard.press("Control+Enter")
-        keys += 1
-        page.wait_for_function(f"() => document.body.dataset.sample !== '{before}' || "
-                               "document.body.dataset.ready === 'annotate-empty'", timeout=60_000)
+        keys += _submit(page, task["sample_id"])
         seconds.append(time.perf_counter() - t0)
     context.close()
     out = {"samples": samples, "clicks_per_sample": round(clicks / samples, 2),
@@ -643,9 +650,7 @@ def _work_loss(browser, base: str, token: str, settings, truth: dict[int, Any]) 
     _click(page, 2, 0, _true_uv(truth, task, 2, 0) or [10.0, 10.0])  # saved under a re-taken lease
     page.wait_for_function("() => document.body.dataset.draftState === 'saved'", timeout=60_000)
     before = sorted(map(tuple, page.evaluate(SET)))
-    page.keyboard.press("Control+Enter")
-    page.wait_for_function(f"() => document.body.dataset.sample !== '{task['sample_id']}' || "
-                           "document.body.dataset.ready === 'annotate-empty'", timeout=60_000)
+    _submit(page, task["sample_id"])
     engine = create_engine_from_url(settings.resolved_database_url)
     with make_session_factory(engine)() as session:
         stored = session.execute(text("SELECT count(*) FROM clicks WHERE sample_id = :s AND visibility != "

@@ -100,7 +100,9 @@ class ReviewOverlayPublic(Public):
     mesh_note: str | None
     skeleton_edges: list[list[int]]
     scene_path: str = Field(description="The 3D scene of this sample for viser's client (?playbackPath=).")
-    scene_look_at: list[float]
+    scene_look_at: list[float] = Field(description="The hand's centre: where the 3D view looks (world, metres).")
+    scene_eye: list[float] = Field(description="Where the 3D view starts (world, metres), on the cameras' side.")
+    scene_up: list[float] = Field(description="The rig's up (unit vector): a real rig's world is often y-down.")
 
 
 class ActionIn(Strict):

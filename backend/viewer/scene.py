@@ -1,5 +1,6 @@
 """One sample's 3D scene for reviewers: the fitted mesh, its skeleton and keypoints, MVNet's keypoints,
-and the rig's camera frustums showing their images. World frame, metres, z up (docs/conventions.md)."""
+and the rig's camera frustums showing their images. The rig's world frame, metres; "up" is the rig's own (a
+synthetic rig's +z, a real rig's often its first camera's -y: see `viewpoint`)."""
 
 from __future__ import annotations
 
@@ -72,12 +73,62 @@ def _skeleton_segments(keypoints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return points, colors
 
 
+@dataclass(frozen=True)
+class Viewpoint:
+    """Where the 3D view starts, in the rig's world frame (metres): `eye` looks at `look_at` with `up` (unit)."""
+
+    eye: tuple[float, float, float]
+    look_at: tuple[float, float, float]
+    up: tuple[float, float, float]
+
+
+EYE_DISTANCE_M = 0.45  # a hand (~0.2 m) fills about half of viser's 75-degree view from here
+
+
+def _unit(v: np.ndarray) -> np.ndarray | None:
+    n = float(np.linalg.norm(v))
+    return v / n if n > 1e-9 and math.isfinite(n) else None
+
+
+def viewpoint(keypoints: np.ndarray, rotations: list[np.ndarray], translations: list[np.ndarray]) -> Viewpoint:
+    """The starting view of a sample's scene, whatever the rig's world frame: a real rig's world is often its
+    first camera's (y down, z forward) where a synthetic one's is z up, and a fixed "+z up, eye beside the
+    origin" showed a real recording's hand from behind a camera or not at all (issue 38 item 13).
+
+    keypoints (21, 3) metres; rotations R (3, 3) world -> camera and translations t (3,) per camera. Up is
+    against the cameras' mean image-down axis (cameras stand upright); the eye is EYE_DISTANCE_M from the
+    hand's centre, on the side of the cameras, raised 30 degrees."""
+    at = np.asarray(keypoints, dtype=np.float64).mean(axis=0)
+    downs = [np.asarray(R, dtype=np.float64)[1] for R in rotations]  # each camera's image y axis in the world
+    up = _unit(-np.mean(downs, axis=0)) if downs else None
+    up = up if up is not None else np.array([0.0, 0.0, 1.0])
+    centres = [-np.asarray(R, dtype=np.float64).T @ np.asarray(t, dtype=np.float64)
+               for R, t in zip(rotations, translations, strict=True)]
+    toward = _unit(np.mean(centres, axis=0) - at) if centres else None
+    if toward is None:
+        toward = _unit(np.cross(up, [1.0, 0.0, 0.0])) if abs(up[0]) < 0.9 else _unit(np.cross(up, [0.0, 1.0, 0.0]))
+    side = _unit(toward - float(toward @ up) * up)  # the cameras' direction in the horizontal plane
+    if side is None:  # cameras straight above or below the hand
+        side = _unit(np.cross(up, [1.0, 0.0, 0.0])) if abs(up[0]) < 0.9 else _unit(np.cross(up, [0.0, 1.0, 0.0]))
+    eye = at + EYE_DISTANCE_M * (math.cos(math.radians(30)) * side + math.sin(math.radians(30)) * up)
+
+    def rounded(v: np.ndarray) -> tuple[float, float, float]:
+        return tuple(round(float(x), 4) for x in v)  # type: ignore[return-value]
+
+    return Viewpoint(eye=rounded(eye), look_at=rounded(at), up=rounded(up))
+
+
 def build(scene, content: SampleScene) -> None:
-    """Add `content` to a viser scene (a `viser.SceneApi`)."""
+    """Add `content` to a viser scene (a `viser.SceneApi`), with the rig's up (`viewpoint`) and a floor grid
+    under the hand."""
     from viser import transforms  # deferred: viser (~0.5 s) only when a scene is recorded
 
-    scene.set_up_direction("+z")
-    scene.add_grid("/floor", width=1.0, height=1.0, cell_size=0.1, section_size=0.5, position=(0.0, 0.0, -0.5))
+    view = viewpoint(content.keypoints, [c.R for c in content.cameras], [c.t for c in content.cameras])
+    up = np.asarray(view.up)
+    scene.set_up_direction(view.up)
+    floor = transforms.SO3.from_matrix(_frame_with_z(up))  # the grid's xy plane across the rig's up
+    scene.add_grid("/floor", width=1.0, height=1.0, cell_size=0.1, section_size=0.5, plane="xy",
+                   wxyz=floor.wxyz, position=tuple(np.asarray(view.look_at) - 0.3 * up))
     if content.vertices is not None and content.faces is not None:
         scene.add_mesh_simple("/fit/mesh", vertices=content.vertices.astype(np.float32),
                               faces=content.faces.astype(np.uint32), color=SKIN_RGB, opacity=0.85, side="double")
@@ -96,6 +147,14 @@ def build(scene, content: SampleScene) -> None:
             f"/cameras/{cam.name}", fov=cam.fov_y_rad, aspect=cam.aspect, scale=0.07, thickness=0.002,
             image=cam.image, format="jpeg", jpeg_quality=80, wxyz=transforms.SO3.from_matrix(R_world_cam).wxyz,
             position=-R_world_cam @ cam.t, color=(40, 40, 40))
+
+
+def _frame_with_z(z: np.ndarray) -> np.ndarray:
+    """A rotation (3, 3) whose third column is the unit vector `z`."""
+    helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    x = np.cross(helper, z)
+    x /= np.linalg.norm(x)
+    return np.stack([x, np.cross(z, x), z], axis=1)
 
 
 def record_scene(content: SampleScene) -> bytes:

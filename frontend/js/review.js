@@ -585,11 +585,11 @@ class ReviewPage {
 
   viewerUrl() {
     const { overlay } = this.current;
-    const at = overlay.scene_look_at;
-    const eye = [at[0] + 0.22, at[1] - 0.3, at[2] + 0.26];
+    // The server picks the start (the rig's own up, from the cameras' side): a real rig's world is often y-down.
     const q = (v) => v.map((x) => x.toFixed(3)).join(",");
     return `/viewer/?playbackPath=${encodeURIComponent(overlay.scene_path)}` +
-      `&initialCameraPosition=${q(eye)}&initialCameraLookAt=${q(at)}&initialCameraUp=0,0,1`;
+      `&initialCameraPosition=${q(overlay.scene_eye)}&initialCameraLookAt=${q(overlay.scene_look_at)}` +
+      `&initialCameraUp=${q(overlay.scene_up)}`;
   }
 
   render3d() {

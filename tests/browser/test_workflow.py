@@ -5,8 +5,6 @@ progress bar moves to the end. Screenshots of every page in test-output/browser/
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 from sqlalchemy import select
@@ -18,6 +16,22 @@ pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
 SCREEN_OF = """([u, v]) => { const p = window.__handloop.page; const r = p.canvas.getBoundingClientRect();
   const s = p.vp.toScreen(u, v); return [r.left + s[0], r.top + s[1]]; }"""
+
+
+# Records every (state, progress) the admin page's live job bar takes, as the page changes it.
+RECORD_LIVE_BAR = """() => {
+  window.__liveBar = [];
+  const note = () => {
+    const l = document.querySelector('.live');
+    if (!l || !l.dataset.job) return;
+    const entry = [l.dataset.state || '', Number(l.dataset.progress || 0)];
+    const last = window.__liveBar[window.__liveBar.length - 1];
+    if (!last || last[0] !== entry[0] || last[1] !== entry[1]) window.__liveBar.push(entry);
+  };
+  new MutationObserver(note).observe(document.body, { subtree: true, childList: true, attributes: true,
+    attributeFilter: ['data-state', 'data-progress', 'data-job'] });
+  note();
+}"""
 
 
 def _state_count(page, state: str) -> int:
@@ -104,8 +118,15 @@ def test_annotate_fit_review_and_round_in_the_browser(live_stack, tab):
     if not page.evaluate("() => window.__handloop.page.show3d"):
         page.keyboard.press("v")  # closed by default where WebGL is software-rendered (this headless browser)
     page.wait_for_selector("iframe.viewer-frame")
-    page.wait_for_timeout(4000)  # let viser's client load the recording and draw
-    reviewer.shot("03-review-fit")
+    # viser's client loaded and drawing: the frame's document complete and its WebGL canvas in it.
+    page.wait_for_function("() => { const d = document.querySelector('iframe.viewer-frame')?.contentDocument;"
+                           " return d && d.readyState === 'complete' && d.querySelector('canvas') !== null; }",
+                           timeout=60_000)
+    # ... and the page drawing again: two animation frames (software WebGL can hold the renderer while the scene
+    # loads; the limits only guard a hang).
+    page.wait_for_function("() => new Promise((done) => requestAnimationFrame(() => requestAnimationFrame(() =>"
+                           " done(true))))", timeout=120_000)
+    reviewer.shot("03-review-fit", timeout_ms=120_000)
     page.keyboard.press("a")  # one key accepts
     page.wait_for_function("() => document.body.dataset.ready === 'review-empty' || "
                            f"document.body.dataset.sample !== '{sample_id}'", timeout=30_000)
@@ -118,23 +139,22 @@ def test_annotate_fit_review_and_round_in_the_browser(live_stack, tab):
     assert _state_count(page, "accepted") == 1
     assert page.inner_text(".rounds-table tr[data-round='0'] td:nth-child(5)") == "1"  # D^l annotated
     admin.shot("05-admin-before-round")
+    # Every state and progress the bar shows is recorded as the page sets it (not sampled), from the click on.
+    page.evaluate(RECORD_LIVE_BAR)
     page.click("button.launch-round")
     page.wait_for_selector(".live[data-job]", timeout=30_000)
-    seen = set()
-    deadline = time.monotonic() + 600
-    while time.monotonic() < deadline:
-        state, progress = page.evaluate("() => { const l = document.querySelector('.live');"
-                                        " return [l.dataset.state || '', Number(l.dataset.progress || 0)]; }")
-        seen.add((state, round(progress, 2)))
-        if 0 < progress < 1 and "mid" not in {s for s, _ in seen}:
-            admin.shot("06-admin-round-in-progress")
-            seen.add(("mid", 0))
-        if state in ("succeeded", "failed", "cancelled"):
-            break
-        time.sleep(0.5)
+    ended = ("() => ['succeeded', 'failed', 'cancelled'].includes("
+             "document.querySelector('.live')?.dataset.state || '')")
+    # The bar between its ends, or the job already over (then the record says whether it moved; guards only).
+    page.wait_for_function(f"() => {{ const p = Number(document.querySelector('.live')?.dataset.progress || 0);"
+                           f" return (0 < p && p < 1) || ({ended})(); }}", timeout=600_000)
+    admin.shot("06-admin-round-in-progress")
+    page.wait_for_function(ended, timeout=600_000)
     admin.shot("07-admin-round-done")
-    assert state == "succeeded", (state, sorted(seen), stack.stack.worker_log.read_text()[-3000:])
-    assert any(0 < p < 1 for _, p in seen), sorted(seen)  # the bar moved through intermediate values
+    seen = [tuple(x) for x in page.evaluate("() => window.__liveBar")]
+    state = page.evaluate("() => document.querySelector('.live').dataset.state")
+    assert state == "succeeded", (state, seen, stack.stack.worker_log.read_text()[-3000:])
+    assert any(0 < p < 1 for _, p in seen), seen  # the bar moved through intermediate values
     page.wait_for_selector(".rounds-table tr[data-round='1']")
     for t in (annotator, reviewer, admin):
         assert not t.errors, t.errors

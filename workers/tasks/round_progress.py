@@ -1,12 +1,14 @@
 """A round's progress, phase by phase: train HandSegNet -> train MVNet -> predict -> fit -> heuristic and
 review queue.
 
-Each phase weighs what it is expected to take: a network's training its time budget (training stops at the
-budget, so the elapsed share of it is its progress), prediction and fitting their sample count times the
-per-sample cost the benchmarks measured, the last step a few seconds. The round job's progress is the
-weighted share done, recomputed from the rows of its train, predict and fit jobs whenever one of them
-reports (so two networks training at once on two workers do not overwrite each other's share), and its
-message names the phase(s) running. The phases are also kept in the round job's result (`phases`), for the
+Each phase weighs what it is expected to take: a network's training its time budget until it shows its own
+pace (training stops at the budget or at a step cap, whichever comes first), then the time its progress says it
+takes, and once done the time it took: a step-capped network that trains 2 minutes of a 2-hour budget must not
+make the bar read 100 % while prediction and fitting still run (issue 38 item 9). Prediction and fitting weigh
+their sample count times the per-sample cost the benchmarks measured, the last step a few seconds. The round
+job's progress is the weighted share done, recomputed from the rows of its train, predict and fit jobs whenever
+one of them reports (so two networks training at once on two workers do not overwrite each other's share), and
+its message names the phase(s) running. The phases are also kept in the round job's result (`phases`), for the
 admin page's steps.
 """
 
@@ -14,11 +16,13 @@ from __future__ import annotations
 
 import contextlib
 from dataclasses import dataclass
+from datetime import datetime
 from typing import Any
 
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from backend.db.base import utcnow
 from backend.models.enums import JobKind, JobState
 from backend.models.jobs import Job
 from backend.services.errors import DomainError
@@ -59,6 +63,23 @@ def _fraction(job: Job) -> float:
     return min(1.0, max(0.0, float(job.progress or 0.0)))
 
 
+# A running network's own pace is trusted once it has done this share of its work (before, its budget stands).
+PACE_AFTER = 0.02
+
+
+def train_weight_s(job: Job, budget_s: float, now: datetime, last_took_s: float | None = None) -> float:
+    """Seconds a train phase weighs: what it took once over, the time its progress so far says it takes while it
+    runs (at most the budget), else what the same network's last training took (`last_took_s`) or its budget."""
+    if job.started_at is None:
+        return max(1.0, min(budget_s, last_took_s)) if last_took_s else budget_s
+    if JobState(job.state) in jobs.FINAL_STATES and job.finished_at is not None:
+        return max(1.0, min(budget_s, (job.finished_at - job.started_at).total_seconds()))
+    progress = float(job.progress or 0.0)
+    if progress < PACE_AFTER:
+        return budget_s
+    return max(1.0, min(budget_s, (now - job.started_at).total_seconds() / progress))
+
+
 def train_message(net: str, step: int, seconds: float, budget_s: float, min_steps: int | None, loss: float) -> str:
     """A train job's progress message. Its part before the loss is the round's phase detail (train_detail): the
     steps and seconds the job counted itself, since with a step floor or cap its progress is not seconds over the
@@ -81,9 +102,24 @@ def train_detail(job: Job, net: str, budget_s: float) -> str:
     return f"{done * budget_s:.0f} of {budget_s:.0f} s"
 
 
-def phases(session: Session, round_job: Job, settings: Settings) -> list[Phase]:
-    """The round's phases now, from its jobs' rows and its result (`candidates`: the samples it predicts, known
-    once the predict jobs exist; before, start_round's `candidates_estimate`)."""
+def _last_training_s(session: Session, round_id: int | None) -> dict[str, float]:
+    """Per network, the seconds its newest finished training of an earlier round took (the estimate of a
+    training not started yet)."""
+    rows = session.execute(select(Job.payload, Job.started_at, Job.finished_at)
+                           .where(Job.kind == JobKind.train, Job.state == JobState.succeeded,
+                                  Job.round_id != round_id, Job.started_at.is_not(None),
+                                  Job.finished_at.is_not(None))
+                           .order_by(Job.id.desc()).limit(20)).all()
+    took: dict[str, float] = {}
+    for payload, started, finished in rows:
+        took.setdefault(str((payload or {}).get("net")), (finished - started).total_seconds())
+    return took
+
+
+def phases(session: Session, round_job: Job, settings: Settings, now: datetime | None = None) -> list[Phase]:
+    """The round's phases at `now` (default: the clock), from its jobs' rows and its result (`candidates`: the
+    samples it predicts, known once the predict jobs exist; before, start_round's `candidates_estimate`)."""
+    now = now or utcnow()
     round_jobs = session.execute(select(Job).where(Job.round_id == round_job.round_id,
                                                    Job.kind.in_([JobKind.train, JobKind.predict, JobKind.fit]))
                                  ).scalars().all()
@@ -93,11 +129,15 @@ def phases(session: Session, round_job: Job, settings: Settings) -> list[Phase]:
     out: list[Phase] = []
     budgets = {"handsegnet": settings.round_handsegnet_budget_s, "mvnet": settings.round_mvnet_budget_s}
     trains = {(j.payload or {}).get("net"): j for j in by_kind.get(JobKind.train.value, [])}
+    last_took = _last_training_s(session, round_job.round_id) if any(
+        j.started_at is None for j in trains.values()) else {}
     for net, budget in budgets.items():
         job = trains.get(net)
         if job is None:
             continue  # launched with an existing model (or not started yet): nothing to train
-        out.append(Phase(f"train {NET_LABELS[net]}", budget, _fraction(job), train_detail(job, net, budget)))
+        out.append(Phase(f"train {NET_LABELS[net]}", train_weight_s(job, budget, now, last_took.get(net)),
+                         _fraction(job),
+                         train_detail(job, net, budget)))
     result = round_job.result or {}
     predicts = by_kind.get(JobKind.predict.value, [])
     candidates = max(int(result.get("candidates", result.get("candidates_estimate", 1))), 1)

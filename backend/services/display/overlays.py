@@ -32,6 +32,7 @@ from backend.services.errors import ConflictError, NotFoundError
 from backend.services.leases import queues
 from backend.services.leases.annotation_flags import last_fit_failure
 from backend.viewer.hand_mesh import fit_side, hand_model_label, is_stand_in, load_arrays, posed_mesh
+from backend.viewer.scene import viewpoint
 from workers.handmodel.keypoints import SKELETON_EDGES, SPARSE_KEYPOINTS
 
 logger = logging.getLogger(__name__)
@@ -319,5 +320,11 @@ def review_overlay(session: Session, user: Actor, sample_id: int, *, secret_key:
         "mesh_note": mesh_note,
         "skeleton_edges": [list(e) for e in SKELETON_EDGES],
         "scene_path": f"/api/viewer/samples/{sample_id}/scene?ticket={ticket}",
-        "scene_look_at": keypoints.mean(axis=0).round(4).tolist(),
+        **_scene_view(keypoints, cameras),
     }
+
+
+def _scene_view(keypoints: np.ndarray, cameras: list[ViewCamera]) -> dict[str, list[float]]:
+    """Where the page's 3D view starts (backend.viewer.scene.viewpoint: the rig's own up, the cameras' side)."""
+    view = viewpoint(keypoints, [c.R for c in cameras], [c.t for c in cameras])
+    return {"scene_look_at": list(view.look_at), "scene_eye": list(view.eye), "scene_up": list(view.up)}

@@ -6,7 +6,9 @@ import json
 
 from sqlalchemy import text
 
+from backend.db.base import utcnow
 from backend.models.enums import JobState, Role
+from backend.models.jobs import Job
 from backend.services.jobs import jobs
 
 ADMIN = Role.admin
@@ -254,6 +256,59 @@ def test_the_round_progress_follows_its_phases_and_training_by_elapsed_budget(en
     finally:
         ctx.session_factory.kw["bind"].dispose()
     assert round_job()["message"] == ""  # finished: no stale phase message
+
+
+def test_a_step_capped_training_weighs_the_time_it_took_not_its_budget(env, h):
+    """Issue 38 item 9: with the step-counted plan (7,200 s budgets, training stopped by a step cap after a few
+    minutes) the bar read 100 % while prediction and fits were at 112 of 191. A train phase weighs its budget only
+    until its own pace is known; once over, the time it took."""
+    from datetime import timedelta
+
+    from workers.tasks import round_progress
+    from workers.tasks.context import build_context
+    from workers.tasks.round_steps import start_round
+
+    ids = h.seed(env, frames=4, cameras=1, state="fitting")
+    for sample_id in ids[:2]:
+        h.record_fit(env, sample_id, prediction={"confidences": [0.95] * 21})
+    h.set_state(env, ids[2:], "unlabeled")
+    launched = env.client.post("/api/admin/rounds", headers=env.headers(ADMIN), json={}).json()
+    settings = env.settings.model_copy(update={"round_handsegnet_budget_s": 7200.0, "round_mvnet_budget_s": 7200.0})
+    ctx = build_context(settings, job_queue=env.queue)
+    try:
+        train = dict(zip(("handsegnet", "mvnet"), start_round(ctx, launched["job_id"]), strict=True))
+        t0 = utcnow() - timedelta(seconds=300)
+        with ctx.session_factory.begin() as session:
+            for net, (start, end) in {"handsegnet": (0, 130), "mvnet": (130, None)}.items():
+                job = session.get(Job, train[net])
+                job.started_at = t0 + timedelta(seconds=start)
+                if end is not None:
+                    jobs.finish(session, job.id, JobState.succeeded)
+                    job.finished_at = t0 + timedelta(seconds=end)
+            # MVNet 170 s in and half-way through its step cap: it will take ~340 s, not 7,200
+            jobs.update_progress(session, train["mvnet"], 0.5, "training")
+            round_job = session.get(Job, launched["job_id"])
+            steps = round_progress.phases(session, round_job, settings, now=t0 + timedelta(seconds=300))
+        weights = {p.name: p.weight_s for p in steps}
+        assert weights["train HandSegNet"] == 130.0
+        assert abs(weights["train MVNet"] - 340.0) < 1e-6
+        # both networks done, nothing predicted yet: the bar is the training's share, not ~100 %
+        with ctx.session_factory.begin() as session:
+            jobs.finish(session, train["mvnet"], JobState.succeeded)
+            session.get(Job, train["mvnet"]).finished_at = t0 + timedelta(seconds=470)
+            progress = round_progress.refresh(session, launched["job_id"], settings)
+        predict_fit = 2 * (round_progress.PREDICT_S_PER_SAMPLE + round_progress.FIT_S_PER_SAMPLE)
+        expected = (130 + 340) / (130 + 340 + predict_fit + round_progress.FINISH_S)
+        assert progress is not None and abs(progress - expected) < 1e-6, (progress, expected)
+        # a train job not started yet weighs what the network's last training took, else its budget
+        with ctx.session_factory() as session:
+            assert round_progress._last_training_s(session, -1) == {"handsegnet": 130.0, "mvnet": 340.0}
+            assert round_progress._last_training_s(session, round_job.round_id) == {}  # not this round's own
+        queued = Job(kind="train", state=JobState.queued)
+        assert round_progress.train_weight_s(queued, 7200.0, utcnow(), last_took_s=340.0) == 340.0
+        assert round_progress.train_weight_s(queued, 90.0, utcnow()) == 90.0
+    finally:
+        ctx.session_factory.kw["bind"].dispose()
 
 
 def test_one_round_at_a_time_and_a_cancelled_round_leaves_no_column(env, h):

@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
-import pytest
 from typer.testing import CliRunner
 
 from backend.cli.main import app
+from tests.support.requirements import missing
 
 
 def test_bench_import_prints_json_last(monkeypatch) -> None:
@@ -34,9 +33,7 @@ def test_bench_import_times_the_annotate_page_at_the_working_width_and_at_full_r
 
     if not Path(CHROMIUM).exists():
         message = f"Chromium is not installed at {CHROMIUM}"
-        if os.environ.get("CI"):
-            pytest.fail(message + " (CI is set: the browser step must run)")
-        pytest.skip(message)
+        missing(message, needed_by="the browser step")
     monkeypatch.setattr(bench, "SIZES", {True: (2, 2), False: (2, 2)})
     monkeypatch.setattr(bench, "WIDTH", 256)
     monkeypatch.setattr(bench, "HEIGHT", 192)

@@ -47,20 +47,23 @@ def _produce(root: Path, count: int) -> None:
             queue.put({"i": i, "body": "x" * PAYLOAD_CHARS})
 
 
-def _consume(root: Path, start: Any, out: Any) -> None:
+def _consume(root: Path, start: Any, taken: Any, count: int, out: Any) -> None:
+    """Take messages until the consumers together have taken `count` (a shared counter: a state, not a time
+    window); a message taken twice or lost shows in what they return (the deadline only guards a hang)."""
     seen: list[int] = []
     with _connection(root) as conn:
         queue = conn.SimpleQueue("cpu")
         start.wait(30)  # both consumers ready: they start together
-        until = time.monotonic() + 8
-        while time.monotonic() < until:
+        deadline = time.monotonic() + 120
+        while taken.value < count and time.monotonic() < deadline:
             try:
                 message = queue.get(block=False)
             except Empty:
-                time.sleep(0.001)
                 continue
             seen.append(message.payload["i"])
             message.ack()
+            with taken.get_lock():
+                taken.value += 1
     out.put(seen)
 
 
@@ -71,12 +74,13 @@ def _take_one(conn: Connection, root: Path) -> tuple[Any, Any, Path]:
     return queue, message, next(root.glob("claimed/*/*.msg"))
 
 
-def _take_and_hold(root: Path, taken: Any) -> None:
-    """Take one message without acknowledging it, say so, then wait to be killed."""
+def _take_and_hold(root: Path, taken: Any, killed: Any) -> None:
+    """Take one message without acknowledging it, say so, then wait to be killed (`killed` is never set; its
+    wait's limit only ends the process should the test die first)."""
     with _connection(root) as conn:
         message = conn.SimpleQueue("cpu").get(block=True, timeout=10)
         taken.put(message.payload["i"])
-        time.sleep(60)
+        killed.wait(60)
 
 
 def _bind_everywhere(root: Path, queue: str, exchanges: int) -> None:
@@ -117,11 +121,11 @@ def test_messages_written_while_a_consumer_polls_arrive_whole_and_in_order(tmp_p
 def test_two_consumers_claim_each_message_exactly_once(tmp_path):
     count = 600
     _produce(tmp_path, count)
-    results, start = FORK.Queue(), FORK.Barrier(2)
-    consumers = [FORK.Process(target=_consume, args=(tmp_path, start, results)) for _ in range(2)]
+    results, start, taken = FORK.Queue(), FORK.Barrier(2), FORK.Value("i", 0)
+    consumers = [FORK.Process(target=_consume, args=(tmp_path, start, taken, count, results)) for _ in range(2)]
     for consumer in consumers:
         consumer.start()
-    seen = [results.get(timeout=30) for _ in consumers]
+    seen = [results.get(timeout=180) for _ in consumers]
     for consumer in consumers:
         consumer.join(10)
     assert sorted(seen[0] + seen[1]) == list(range(count))
@@ -162,8 +166,8 @@ def test_a_message_whose_properties_are_not_an_object_is_set_aside(tmp_path):
 
 def test_a_message_taken_by_a_consumer_that_was_killed_is_delivered_again(tmp_path):
     _produce(tmp_path, 2)
-    taken = FORK.Queue()
-    holder = FORK.Process(target=_take_and_hold, args=(tmp_path, taken))
+    taken, never = FORK.Queue(), FORK.Event()
+    holder = FORK.Process(target=_take_and_hold, args=(tmp_path, taken, never))
     holder.start()
     try:
         assert taken.get(timeout=30) == 0

@@ -36,14 +36,16 @@ def _new_job(env, **values) -> int:
 
 def test_claim_starts_skips_duplicates_and_takes_over_dead_jobs(env):
     job_id = _new_job(env)
+    started = utcnow()  # the claims are told the time: no window around the clock
     with env.session() as session, session.begin():
-        job = jobs.claim(session, job_id, "w1:1", stale_after_s=60)
+        job = jobs.claim(session, job_id, "w1:1", stale_after_s=60, now=started)
         assert job.state == JobState.running and job.attempts == 1 and job.worker == "w1:1"
     with env.session() as session, session.begin():  # may be alive: the delivery must come back, not be dropped
         with pytest.raises(jobs.JobStillRunningError) as busy:
-            jobs.claim(session, job_id, "w2:2", stale_after_s=60)
+            jobs.claim(session, job_id, "w2:2", stale_after_s=60, now=started + timedelta(seconds=10))
         assert busy.value.job_ids == [job_id] and busy.value.workers == ["w1:1"]
-        assert 59 <= busy.value.retry_after_s <= 61  # when the heartbeat will be stale
+        # when the heartbeat will be stale (60 - 10 s), and a second more
+        assert busy.value.retry_after_s == pytest.approx(51.0, abs=1e-3)
     with env.session() as session, session.begin():
         session.execute(text("UPDATE jobs SET updated_at = :t WHERE id = :i"),
                         {"t": utcnow() - timedelta(seconds=120), "i": job_id})
@@ -102,16 +104,17 @@ def test_a_live_process_or_one_on_another_machine_keeps_its_job_until_its_heartb
     here = worker_processes.current()
     elsewhere = "00000000-0000-0000-0000-000000000000/4026531836/12345/678"
     for process in (here, elsewhere, None):
+        beat = utcnow()  # the claims are told the time: no window around the clock
         with env.session() as session, session.begin():
             session.execute(text("UPDATE jobs SET state = 'running', updated_at = :t, worker_process = :p "
-                                 "WHERE id = :i"), {"t": utcnow() - timedelta(seconds=5), "p": process, "i": job_id})
-        with env.session() as session, session.begin():
+                                 "WHERE id = :i"), {"t": beat, "p": process, "i": job_id})
+        with env.session() as session, session.begin():  # its heartbeat 5 s old
             with pytest.raises(jobs.JobStillRunningError) as busy:
-                jobs.claim(session, job_id, "w2:2", stale_after_s=60, process=here)
-            assert 55 <= busy.value.retry_after_s <= 57, process
+                jobs.claim(session, job_id, "w2:2", stale_after_s=60, process=here, now=beat + timedelta(seconds=5))
+            assert busy.value.retry_after_s == pytest.approx(56.0, abs=1e-3), process
         with env.session() as session, session.begin():  # the retry, once the heartbeat is stale: taken over
             assert jobs.claim(session, job_id, "w2:2", stale_after_s=60, process=here,
-                              now=utcnow() + timedelta(seconds=56)) is not None, process
+                              now=beat + timedelta(seconds=5 + 56)) is not None, process
     assert not worker_processes.is_gone(here) and not worker_processes.is_gone(elsewhere)
     assert not worker_processes.is_gone(None) and not worker_processes.is_gone("garbage")
 

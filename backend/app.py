@@ -15,10 +15,10 @@ from backend.api.limits import BodySizeLimit
 from backend.api.main import api_router
 from backend.api.security_headers import SecurityHeaders
 from backend.db.session import create_engine_from_url, make_session_factory, read_only_engine
-from backend.services.auth_cache import AuthCache, watch_user_changes
-from backend.services.jobs import JobQueue
-from backend.services.login_limits import LoginLimiter, LoginPolicy
-from backend.services.storage import LocalDiskStorage, Storage
+from backend.services.accounts.auth_cache import AuthCache, watch_user_changes
+from backend.services.accounts.login_limits import LoginLimiter, LoginPolicy
+from backend.services.captures.storage import LocalDiskStorage, Storage
+from backend.services.jobs.jobs import JobQueue
 from backend.settings import Settings, get_settings
 
 logger = logging.getLogger(__name__)

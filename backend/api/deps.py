@@ -14,13 +14,13 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.orm import Session
 
 from backend.models.enums import Role
-from backend.services.auth_cache import AuthCache
+from backend.services.accounts.auth_cache import AuthCache
+from backend.services.accounts.security import parse_token
+from backend.services.accounts.users import Principal, load_principal
+from backend.services.captures.storage import Storage
 from backend.services.errors import AuthError, PermissionDeniedError
-from backend.services.jobs import JobQueue
-from backend.services.security import parse_token
-from backend.services.storage import Storage
+from backend.services.jobs.jobs import JobQueue
 from backend.services.transactions import discard_after_commit, run_after_commit
-from backend.services.users import Principal, load_principal
 from backend.settings import Settings
 
 
@@ -131,7 +131,7 @@ async def get_current_user(
     settings: SettingsDep,
     credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)],
 ) -> Principal:
-    """The token's user, from the process's short-lived cache (services.auth_cache) or, on a miss or when the
+    """The token's user, from the process's short-lived cache (services.accounts.auth_cache) or, on a miss or when the
     token is newer than the cached row, one Core SELECT in a read transaction of its own, whose connection is
     back in the pool when the thread-pool call returns (the request's own session takes one only in the
     route's thread)."""
@@ -142,11 +142,7 @@ async def get_current_user(
     user = state.auth_cache.get(user_id)
     if user is None or user.token_version < version:
         user = await run_in_threadpool(read_principal, state, user_id)
-    if user is None or user.token_version != version:
-        raise AuthError("access token revoked; log in again")
-    if not user.is_active:
-        raise AuthError("this account is deactivated")
-    return user
+    return checked_principal(user, version)
 
 
 CurrentUser = Annotated[Principal, Depends(get_current_user, scope="function")]
@@ -167,14 +163,30 @@ def bearer_claims(state: Any, authorization: bytes | None) -> tuple[int, int] | 
         return None
 
 
-def current_principal(state: Any, user_id: int, version: int) -> Principal | None:
+def current_principal(state: Any, user_id: int, version: int) -> Principal:
     """The user a valid token names, as `get_current_user` finds it (the cache, else the row, read here:
-    blocking), if it is current and active; None otherwise."""
+    blocking), checked as it checks it (`checked_principal`: AuthError when revoked or deactivated)."""
     user = state.auth_cache.get(user_id)
     if user is None or user.token_version < version:
         user = read_principal(state, user_id)
-    if user is None or user.token_version != version or not user.is_active:
-        return None
+    return checked_principal(user, version)
+
+
+def checked_principal(user: Principal | None, version: int) -> Principal:
+    """The token's user if the token is current (its version the row's) and the account active; else AuthError
+    naming which. The one check of `get_current_user` and the annotators' hot path (backend.api.hot_path)."""
+    if user is None or user.token_version != version:
+        raise AuthError("access token revoked; log in again")
+    if not user.is_active:
+        raise AuthError("this account is deactivated")
+    return user
+
+
+def checked_role(user: Principal, minimum: Role) -> Principal:
+    """`user` if their role ranks at least `minimum` (annotator < reviewer < admin); else PermissionDeniedError.
+    The one check of `require_role` and the annotators' hot path."""
+    if Role(user.role).rank < minimum.rank:
+        raise PermissionDeniedError(f"this needs the {minimum.value} role; you are {user.role}")
     return user
 
 
@@ -187,9 +199,7 @@ def require_role(minimum: Role) -> Callable[[Principal], Principal]:
     """Dependency admitting users whose role ranks at least `minimum` (annotator < reviewer < admin)."""
 
     async def check(user: CurrentUser) -> Principal:  # async: no I/O, so no thread-pool hop
-        if Role(user.role).rank < minimum.rank:
-            raise PermissionDeniedError(f"this needs the {minimum.value} role; you are {user.role}")
-        return user
+        return checked_role(user, minimum)
 
     check.__name__ = f"require_{minimum.value}"
     return check

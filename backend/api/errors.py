@@ -56,6 +56,20 @@ def status_of(exc: DomainError) -> int:
     return 400
 
 
+def domain_response(exc: DomainError) -> JSONResponse:
+    """A domain error as the API answers it: {"detail": message}, its status, and the headers the status calls for
+    (401: WWW-Authenticate; 429, 503: Retry-After). The app's handler and the annotators' hot path both answer so."""
+    status = status_of(exc)
+    headers = None
+    if status == 401:
+        headers = {"WWW-Authenticate": "Bearer"}
+    elif isinstance(exc, RateLimitedError):
+        headers = {"Retry-After": str(exc.retry_after_s)}
+    elif status == 503:
+        headers = {"Retry-After": "5"}
+    return JSONResponse({"detail": exc.message}, status_code=status, headers=headers)
+
+
 def _location(loc: tuple) -> str:
     parts = [str(p) for p in loc if p not in ("body",)]
     return ".".join(parts) or "body"
@@ -65,7 +79,7 @@ async def _unauthenticated(request: Request) -> JSONResponse | None:
     """The 401 a caller without a valid token gets on a route that needs one, else None.
 
     FastAPI parses a JSON body before it resolves the route's dependencies, so a body it cannot parse would be
-    answered before authentication; this runs the same check (services.security, the user's row) first."""
+    answered before authentication; this runs the same check (services.accounts.security, the user's row) first."""
     route = request.scope.get("route")
     dependant = getattr(route, "dependant", None)
     if dependant is None or not depends_on(dependant, get_current_user):
@@ -93,15 +107,7 @@ def _unparseable_body(exc: BaseException | None) -> str | None:
 def install(app: FastAPI) -> None:
     @app.exception_handler(DomainError)
     async def _domain(_request: Request, exc: DomainError) -> JSONResponse:
-        status = status_of(exc)
-        headers = None
-        if status == 401:
-            headers = {"WWW-Authenticate": "Bearer"}
-        elif isinstance(exc, RateLimitedError):
-            headers = {"Retry-After": str(exc.retry_after_s)}
-        elif status == 503:
-            headers = {"Retry-After": "5"}
-        return JSONResponse({"detail": exc.message}, status_code=status, headers=headers)
+        return domain_response(exc)
 
     @app.exception_handler(HTTPException)
     async def _http(request: Request, exc: HTTPException) -> JSONResponse:

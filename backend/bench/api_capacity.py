@@ -51,8 +51,8 @@ from backend.db.migrate import upgrade
 from backend.db.session import create_engine_from_url, make_session_factory
 from backend.models.enums import Role
 from backend.models.users import User
-from backend.services.security import create_token, hash_password
-from backend.services.seed import seed_samples
+from backend.services.accounts.security import create_token, hash_password
+from backend.services.captures.seed import seed_samples
 from backend.settings import Settings
 
 logger = logging.getLogger(__name__)

@@ -30,8 +30,8 @@ from backend.bench.common import emit
 from backend.bench.import_ui import measure
 from backend.db.migrate import upgrade
 from backend.db.session import create_engine_from_url, make_session_factory
-from backend.services.importer import import_capture
-from backend.services.storage import LocalDiskStorage
+from backend.services.captures.importer import import_capture
+from backend.services.captures.storage import LocalDiskStorage
 from workers.capture import read_capture
 from workers.capture.assemble import assemble_capture
 from workers.geometry.rig import default_rig

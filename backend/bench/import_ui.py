@@ -30,7 +30,7 @@ from backend.db.session import create_engine_from_url, make_session_factory
 from backend.models.capture import Project
 from backend.models.enums import Role
 from backend.runtime import start_stack
-from backend.services.users import create_user
+from backend.services.accounts.users import create_user
 from backend.settings import Settings
 from workers.capture.working import DERIVED_PREFIX
 

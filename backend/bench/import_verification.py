@@ -25,8 +25,8 @@ from tqdm import tqdm
 from backend.bench.common import emit
 from backend.db.migrate import upgrade
 from backend.db.session import create_engine_from_url, make_session_factory
-from backend.services.importer import write_project
-from backend.services.storage import LocalDiskStorage
+from backend.services.captures.importer import write_project
+from backend.services.captures.storage import LocalDiskStorage
 from backend.settings import get_settings
 from workers.capture import read_capture
 from workers.capture.verify import count_files, verify_capture_files

@@ -41,10 +41,10 @@ from backend.models.capture import Sequence
 from backend.models.enums import Role
 from backend.models.jobs import Job
 from backend.runtime import start_stack
-from backend.services.importer import import_capture
-from backend.services.jobs import InMemoryJobQueue
-from backend.services.storage import LocalDiskStorage
-from backend.services.users import create_user
+from backend.services.accounts.users import create_user
+from backend.services.captures.importer import import_capture
+from backend.services.captures.storage import LocalDiskStorage
+from backend.services.jobs.jobs import InMemoryJobQueue
 from backend.settings import Settings
 from workers.capture import CaptureError, load_ground_truth, read_capture
 from workers.synth.generator import generate_capture

@@ -17,7 +17,7 @@ the mean confidence (eq. 8).
 
 `heuristic`: for the largest step count, each held-out frame is fitted from the MVNet's prediction as a round fits
 it (workers/tasks/inputs.from_prediction: its 3D keypoints weighted by their confidences, the later rounds' loss
-weights) with two kinds of masks, and the paper's heuristic (services/verification.heuristic_verdict, paper
+weights) with two kinds of masks, and the paper's heuristic (services/review/verification.heuristic_verdict, paper
 thresholds) judges the fit against the prediction: `gt_hand_masks`, the ground-truth hand masks (what a perfect
 HandSegNet would give: the IoU criterion as the paper presumes it), and `chroma_key`, the capture's chroma-key
 foreground cut at MVNet's predicted wrist, the loop's reference (`heuristic_iou_reference=chroma_key`, the same
@@ -42,7 +42,7 @@ import torch
 from scipy.stats import spearmanr
 
 from backend.bench.common import emit
-from backend.services.verification import HeuristicThresholds, heuristic_verdict
+from backend.services.review.verification import HeuristicThresholds, heuristic_verdict
 from backend.settings import get_settings
 from workers.capture.reader import load_frame_masks, load_ground_truth, read_capture
 from workers.capture.schema import FrameRef

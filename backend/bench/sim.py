@@ -20,8 +20,8 @@ from typing import Any
 from tqdm import tqdm
 
 from backend.bench.common import emit
-from backend.services import preannotation
-from backend.services.preannotation import DEFAULT_REST, RESTS
+from backend.services.rounds import preannotation
+from backend.services.rounds.preannotation import DEFAULT_REST, RESTS
 from backend.settings import get_settings
 from backend.simulation.annotator import AnnotatorConfig
 from backend.simulation.bootstrap import BootstrapConfig

@@ -26,7 +26,7 @@ from tqdm import tqdm
 
 from backend.bench import sim
 from backend.bench.common import emit, git_commit
-from backend.services import preannotation
+from backend.services.rounds import preannotation
 from backend.settings import get_settings
 from backend.simulation.annotator import AnnotatorConfig
 from backend.simulation.reviewer import ReviewerConfig

@@ -6,7 +6,7 @@ Two brokers, one code path (docs/deployment.md):
   whole-file writes (broker.embedded);
 - distributed: Redis (HANDLOOP_BROKER_URL=redis://...), with a visibility timeout above the longest task so
   that a task whose worker died is delivered again.
-Job state and progress live in the database (services.jobs); Celery's result backend only serves chords.
+Job state and progress live in the database (services.jobs.jobs); Celery's result backend only serves chords.
 """
 
 from __future__ import annotations
@@ -176,7 +176,7 @@ def make_client_app(settings: Settings) -> Celery:
 
 
 class CeleryJobQueue:
-    """`services.jobs.JobQueue` on Celery.
+    """`services.jobs.jobs.JobQueue` on Celery.
 
     - `ensure_available` pings the broker (trusting a success for `broker_check_cache_s`) before a request
       writes a job: an unreachable broker is a 503 that writes nothing.

@@ -9,7 +9,7 @@ the commit (broker down, process killed in between). This pass, run every `outbo
 - running jobs whose row has not changed for twice `job_heartbeat_timeout_s` (their worker died and the
   broker did not deliver the task again: a Redis restart without persistence, a broker folder lost, no
   worker left to recover the embedded broker's held messages).
-Tasks claim their job row (services.jobs.claim), so a task delivered twice runs once.
+Tasks claim their job row (services.jobs.jobs.claim), so a task delivered twice runs once.
 """
 
 from __future__ import annotations

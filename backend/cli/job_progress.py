@@ -13,7 +13,7 @@ from sqlalchemy.orm import Session
 from tqdm import tqdm
 
 from backend.models.enums import JobState
-from backend.services import jobs
+from backend.services.jobs import jobs
 
 WAITING = "waiting for a worker (`handloop worker`)"
 

@@ -73,7 +73,7 @@ class Sample(Base):
     """One synchronized multi-view frame: the unit that is annotated, fitted and verified.
 
     The lease columns implement the queues: a sample is held by at most one user at a time because the
-    lease lives in the sample's own row and is taken by one atomic update (see services.queues).
+    lease lives in the sample's own row and is taken by one atomic update (see services.leases.queues).
     """
 
     __tablename__ = "samples"
@@ -106,9 +106,9 @@ class Sample(Base):
     views: Mapped[list[View]] = relationship(back_populates="sample", order_by="View.id", lazy="raise")
 
 
-# The review queue in its order (services/lease_statement.py: queue_order), so a reviewer's lease reads its head
-# instead of sorting every sample in review (20,000 in review: 5-9 ms a lease, EXPLAIN ANALYZE). PostgreSQL only:
-# SQLite refuses NULLS LAST in an index, and an embedded project's review queue is small.
+# The review queue in its order (backend/db/statements/lease_statement.py: queue_order), so a reviewer's lease reads
+# its head instead of sorting every sample in review (20,000 in review: 5-9 ms a lease, EXPLAIN ANALYZE). PostgreSQL
+# only: SQLite refuses NULLS LAST in an index, and an embedded project's review queue is small.
 Index("ix_samples_review_queue", Sample.state, Sample.confidence.desc().nulls_last(), Sample.id).ddl_if(
     dialect="postgresql")
 

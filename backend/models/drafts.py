@@ -18,7 +18,7 @@ class Draft(Base):
     One per sample, queue and user, read only while holding a live lease of that queue on the sample: its
     author's, or (work left on a lease that lapsed) the sample's next holder's until they save their own.
     `lease_token` is the lease it was saved under; `revision` counts saves (1, 2, ...): the draft's version.
-    Deleted when the author submits or decides the sample (backend.services.drafts)."""
+    Deleted when the author submits or decides the sample (backend.services.leases.drafts)."""
 
     __tablename__ = "drafts"
     __table_args__ = (enum_check("kind", LeaseKind), UniqueConstraint("sample_id", "kind", "user_id"))

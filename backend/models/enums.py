@@ -90,7 +90,7 @@ class RoundState(StrEnum):
     running = "running"
     completed = "completed"
     cancelled = "cancelled"
-    failed = "failed"  # its job failed; the round before it was reopened (services.round_failure)
+    failed = "failed"  # its job failed; the round before it was reopened (services.jobs.round_failure)
 
 
 class JobState(StrEnum):

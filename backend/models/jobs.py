@@ -33,7 +33,7 @@ class Job(Base):
     created_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
     updated_at: Mapped[datetime] = mapped_column(default=utcnow, onupdate=utcnow)
-    # When the current attempt started (services.jobs.claim): the jobs list's duration runs from here, not
+    # When the current attempt started (services.jobs.jobs.claim): the jobs list's duration runs from here, not
     # from created_at (which includes the wait in the queue).
     started_at: Mapped[datetime | None]
     finished_at: Mapped[datetime | None]
@@ -42,6 +42,6 @@ class Job(Base):
     dispatched_at: Mapped[datetime | None]
     attempts: Mapped[int] = mapped_column(default=0, server_default="0")
     worker: Mapped[str | None] = mapped_column(String(200))
-    # The operating-system process of the current attempt (services.worker_processes): a claimant on the same
+    # The operating-system process of the current attempt (backend.broker.worker_processes): a claimant on the same
     # machine takes the job over as soon as that process is gone, without waiting for the heartbeat to age.
     worker_process: Mapped[str | None] = mapped_column(String(120))

@@ -1,4 +1,4 @@
-"""Per-person statistics (services.team_statistics gives the definitions)."""
+"""Per-person statistics (services.statistics.team_statistics gives the definitions)."""
 
 from __future__ import annotations
 

@@ -119,7 +119,7 @@ class ActionIn(Strict):
 
 
 class ActivityCreate(Strict):
-    # services.activity's rule (a log belongs to a submission or a decision), in the published schema too.
+    # services.statistics.activity's rule (a log belongs to a submission or a decision), in the published schema too.
     model_config = ConfigDict(json_schema_extra={"allOf": [
         {"if": {"properties": {"context": {"const": "annotate"}}},
          "then": {"required": ["submission_id"], "properties": {"submission_id": {"type": "string"}}}},

@@ -51,7 +51,7 @@ class Token(Public):
 
 
 class AccountLock(Public):
-    """An account refused logins after too many failures (services.login_limits), in the answering process."""
+    """An account refused logins after too many failures (services.accounts.login_limits), in the answering process."""
 
     user_id: int
     email: str

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from backend.services.masks import encode_rle as encode
+from backend.services.captures.masks import encode_rle as encode
 from backend.simulation.client import ApiClient
 from backend.simulation.costs import HumanLedger
 from backend.simulation.page_triangulation import inside, project_point, triangulate_clicked, triangulated_proposal

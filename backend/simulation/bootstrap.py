@@ -26,7 +26,7 @@ from typing import Any
 import httpx
 import numpy as np
 
-from backend.services.preannotation import DEFAULT_REST, RESTS
+from backend.services.rounds.preannotation import DEFAULT_REST, RESTS
 from backend.simulation.annotator import AnnotatorConfig, SimulatedAnnotator
 from backend.simulation.client import ApiClient, ApiError
 from backend.simulation.costs import PAPER_FULL_ANNOTATION_S, HumanLedger, UnitCosts

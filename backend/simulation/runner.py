@@ -19,7 +19,7 @@ from backend.db.migrate import upgrade
 from backend.db.session import create_engine_from_url, make_session_factory
 from backend.models.enums import Role
 from backend.runtime import start_stack
-from backend.services.users import create_user
+from backend.services.accounts.users import create_user
 from backend.settings import Settings
 from backend.simulation.bootstrap import BootstrapConfig, BootstrapSimulation, RoundReport
 from backend.simulation.client import ApiClient

@@ -1,5 +1,5 @@
 // Work in progress saved on the server as it is made (PUT .../draft, debounced), so a reload, another tab,
-// the Back button or a new login restores it (backend/services/drafts.py). While a change is not yet
+// the Back button or a new login restores it (backend/services/leases/drafts.py). While a change is not yet
 // saved, leaving the page asks first; a page being hidden or unmounted saves at once.
 //
 // What the server could not take when the page went (the token expired or was revoked: a 401, and the page
@@ -179,7 +179,7 @@ export class DraftSaver {
     if (!snapshot) return null;
     const sampleId = this.sampleId;
     const base = this.revision, madeAt = Date.now();
-    // The version check (backend/services/drafts.py): only with a page that can show both sides.
+    // The version check (backend/services/leases/drafts.py): only with a page that can show both sides.
     const body = this.onconflict ? { ...snapshot, base_revision: base, writer: this.writer } : snapshot;
     this.dirty = false;
     this.onstatus("saving");

@@ -1,5 +1,5 @@
 // Hand masks in the browser: a bit per pixel, brush and eraser strokes, undo snapshots, the run-length
-// encoding the API takes (row-major runs starting with background, backend/services/masks.py), and an
+// encoding the API takes (row-major runs starting with background, backend/services/captures/masks.py), and an
 // RGBA overlay canvas updated only where a stroke changed pixels (so a stroke stays cheap on 1280x1024).
 
 export class MaskLayer {

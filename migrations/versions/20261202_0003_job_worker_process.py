@@ -1,6 +1,6 @@
 """jobs.worker_process
 
-The operating-system process of a job's current attempt (services.worker_processes), so that a claimant on
+The operating-system process of a job's current attempt (backend.broker.worker_processes), so that a claimant on
 the same machine takes over a job whose process is gone without waiting for its heartbeat to grow old.
 
 Revision ID: 0003

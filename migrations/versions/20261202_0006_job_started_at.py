@@ -1,10 +1,10 @@
 """jobs.started_at, failed rounds
 
-jobs.started_at: when the job's current attempt started (services.jobs.claim sets it at each claim), so the
+jobs.started_at: when the job's current attempt started (services.jobs.jobs.claim sets it at each claim), so the
 jobs list can show how long the work took apart from the time the job waited in the queue. NULL for a job no
 worker has started (and for jobs finished before this revision: their start was not recorded).
 
-rounds.state 'failed' and rounds.failure: a round whose job failed, and why (services.round_failure); the round
+rounds.state 'failed' and rounds.failure: a round whose job failed, and why (services.jobs.round_failure); the round
 before it is open again, as it was before the launch.
 
 Revision ID: 0006

@@ -25,8 +25,8 @@ from backend.app import create_app
 from backend.db.migrate import upgrade
 from backend.db.session import create_engine_from_url, make_session_factory
 from backend.models.enums import Role
-from backend.services.jobs import InMemoryJobQueue
-from backend.services.security import create_token, hash_password
+from backend.services.accounts.security import create_token, hash_password
+from backend.services.jobs.jobs import InMemoryJobQueue
 from backend.settings import Settings
 from tests.support.requirements import missing
 
@@ -128,7 +128,7 @@ class Env:
         return self.session_factory()  # type: ignore[operator]
 
     def app_cache(self):
-        """The app's token -> user cache (backend.services.auth_cache.AuthCache)."""
+        """The app's token -> user cache (backend.services.accounts.auth_cache.AuthCache)."""
         return self.client.app.state.auth_cache
 
 
@@ -196,7 +196,7 @@ def engine_factory():
 class Helpers:
     @staticmethod
     def seed(env: Env, **kwargs: object) -> list[int]:
-        from backend.services.seed import seed_samples
+        from backend.services.captures.seed import seed_samples
 
         with env.session() as session, session.begin():
             return seed_samples(session, **kwargs)  # type: ignore[arg-type]
@@ -223,9 +223,9 @@ class Helpers:
         """Record (as a worker would) a fit for a sample in 'fitting'; returns the fit id."""
         import numpy as np
 
-        from backend.services import records
-        from backend.services.samples import views_of
-        from backend.services.verification import HeuristicThresholds
+        from backend.services.captures.samples import views_of
+        from backend.services.review.verification import HeuristicThresholds
+        from workers.tasks import records
 
         with env.session() as session, session.begin():
             prediction_id = None

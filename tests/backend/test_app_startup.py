@@ -9,13 +9,13 @@ from pathlib import Path
 import pytest
 from pydantic import ValidationError
 
-from backend.services.jobs import InMemoryJobQueue
-from backend.services.security import create_token
+from backend.services.accounts.security import create_token
+from backend.services.jobs.jobs import InMemoryJobQueue
 from backend.settings import PUBLISHED_SECRET_KEYS, SECRET_KEY_FILE, Settings
 
 
 def test_api_import_leaves_torch_out():
-    code = ("import sys, backend.app, backend.api.main, backend.services.records, backend.services.importer; "
+    code = ("import sys, backend.app, backend.api.main, workers.tasks.records, backend.services.captures.importer; "
             "from backend.app import create_app; create_app(); "
             "assert 'torch' not in sys.modules, 'torch imported'; print('ok')")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,

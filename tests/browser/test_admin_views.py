@@ -11,8 +11,8 @@ import pytest
 
 from backend.db.base import utcnow
 from backend.models.enums import JobKind, JobState
-from backend.services import jobs
-from backend.services.jobs import InMemoryJobQueue
+from backend.services.jobs import jobs
+from backend.services.jobs.jobs import InMemoryJobQueue
 from tests.browser.conftest import sign_in
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
@@ -72,7 +72,7 @@ def _two_jobs(stack, sample_id: int) -> tuple[int, int]:
 def test_the_round_progress_bar_follows_its_phases_live(live_stack, tab):
     # The round's bar moves with its phases as the workers report (training by the elapsed share of its
     # budget), on the open page, and a finished round keeps no phase message.
-    from backend.services import rounds
+    from backend.services.rounds import rounds
     from workers.tasks import round_progress
     from workers.tasks.context import build_context
     from workers.tasks.round_steps import start_round
@@ -121,7 +121,7 @@ def test_the_round_progress_bar_follows_its_phases_live(live_stack, tab):
 
 
 def test_a_failed_round_shows_why_and_the_round_before_it_open_again(live_stack, tab):
-    from backend.services import rounds
+    from backend.services.rounds import rounds
 
     stack = live_stack(worker=False)
     factory = stack.session_factory()
@@ -145,7 +145,7 @@ def test_a_failed_round_shows_why_and_the_round_before_it_open_again(live_stack,
 def test_one_round_at_a_time_and_a_cancelled_round_leaves_no_row(live_stack, tab):
     # Issue 38 item 5: "Complete D1 and launch the next round" stayed enabled while D1's job trained (clicking it
     # completed D1 with no models and queued round 2); a cancelled round left a "D2 cancelled" row and column.
-    from backend.services import rounds
+    from backend.services.rounds import rounds
 
     stack = live_stack(worker=False)
     with stack.session_factory()() as session, session.begin():

@@ -107,9 +107,9 @@ def _sent_back_with_a_true_fit(stack) -> dict:
     """One sample annotated from the truth, fitted with the true hand (as a worker records it) and sent back by
     the reviewer: the annotate page then offers the fit's proposals with the keypoints its mesh hides."""
 
-    from backend.services import records
-    from backend.services.verification import HeuristicThresholds
+    from backend.services.review.verification import HeuristicThresholds
     from tests.support.annotate import clicks_body, ground_truth_of
+    from workers.tasks import records
 
     with stack.client("annotator") as http:
         task = http.post("/api/annotate/next").json()

@@ -1,5 +1,5 @@
 """The UI's pure JavaScript modules, run in Chromium and checked against the Python references: the
-camera model (cv2.projectPoints), triangulation, the mask codec (backend/services/masks.py), brush
+camera model (cv2.projectPoints), triangulation, the mask codec (backend/services/captures/masks.py), brush
 strokes, undo/redo, the viewport's pixel convention, proposals and the mesh outline."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from backend.services.masks import decode_rle, encode_rle
+from backend.services.captures.masks import decode_rle, encode_rle
 from workers.geometry.projection import project_points
 from workers.geometry.rig import default_rig
 

@@ -51,13 +51,13 @@ def test_the_review_page_measures_a_detector_fit_against_the_detector(live_stack
 
     from backend.models.capture import Sample
     from backend.models.enums import SampleState
-    from backend.services import records
-    from backend.services.state_machine import transition
-    from backend.services.verification import HeuristicThresholds
-    from backend.services.view_geometry import view_cameras
+    from backend.services.captures.state_machine import transition
+    from backend.services.display.view_geometry import view_cameras
+    from backend.services.review.verification import HeuristicThresholds
     from workers.capture import read_capture
     from workers.capture.reader import load_ground_truth
     from workers.geometry.projection import project_visible as project
+    from workers.tasks import records
 
     stack = live_stack(frames=2, worker=False, queue_for_annotation=False)
     capture = read_capture(stack.capture_dir, check_images=False)

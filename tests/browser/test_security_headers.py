@@ -25,9 +25,9 @@ RECORD_VIOLATIONS = """document.addEventListener("securitypolicyviolation", (e) 
 
 def _in_review(stack) -> int:
     """Annotate the first sample through the API and record a fit from its ground truth: it is in review."""
-    from backend.services import records
-    from backend.services.samples import views_of
-    from backend.services.verification import HeuristicThresholds
+    from backend.services.captures.samples import views_of
+    from backend.services.review.verification import HeuristicThresholds
+    from workers.tasks import records
 
     with stack.client("annotator") as http:
         task = http.post("/api/annotate/next").json()

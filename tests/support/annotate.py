@@ -48,7 +48,7 @@ def queue_for_annotation(stack: LiveStack, count: int) -> list[int]:
     """Move the first `count` unlabeled samples to the annotators' queue (round 0's D_0 candidates)."""
     from backend.models.capture import Sample
     from backend.models.enums import SampleState
-    from backend.services.state_machine import transition
+    from backend.services.captures.state_machine import transition
 
     with stack.session_factory().begin() as session:
         samples = session.execute(select(Sample).where(Sample.state == SampleState.unlabeled).order_by(Sample.id)

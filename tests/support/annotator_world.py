@@ -10,7 +10,7 @@ from pathlib import Path
 from fastapi.testclient import TestClient
 
 from backend.app import create_app
-from backend.services.jobs import InMemoryJobQueue
+from backend.services.jobs.jobs import InMemoryJobQueue
 from backend.settings import Settings
 from tests.support.live_stack import TEST_SETTINGS, USERS, prepare_database
 from workers.tasks.context import WorkerContext, build_context

@@ -180,9 +180,9 @@ def prepare_database(settings: Settings, capture_dir: Path, *, queue_for_annotat
     from backend.db.migrate import upgrade
     from backend.db.session import create_engine_from_url, make_session_factory
     from backend.models.enums import Role
-    from backend.services.importer import import_capture
-    from backend.services.storage import LocalDiskStorage
-    from backend.services.users import create_user
+    from backend.services.accounts.users import create_user
+    from backend.services.captures.importer import import_capture
+    from backend.services.captures.storage import LocalDiskStorage
 
     settings.data_dir.mkdir(parents=True, exist_ok=True)
     upgrade(settings.resolved_database_url)

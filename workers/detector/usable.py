@@ -1,6 +1,6 @@
 """Which of a view's stored detections a fit from the detector uses: one rule for the fit's input
 (workers.tasks.detection_inputs) and for the review page that measures the fit against them
-(backend.services.detection_points)."""
+(backend.services.display.detection_points)."""
 
 from __future__ import annotations
 

@@ -204,7 +204,7 @@ def write_freihand(samples: Sequence[SampleRecord], out_dir: Path, read_bytes: C
     """Write `samples` in FreiHAND's layout to `out_dir`.
 
     Args:
-        samples: accepted samples with their fits (backend.services.export.export_records).
+        samples: accepted samples with their fits (backend.services.exports.export.export_records).
         out_dir: the folder to create (must be absent or empty unless options.force).
         read_bytes: storage key -> file bytes (images and masks).
         arrays: the hand model that made the fits (checked against each fit's keypoints), of its side.

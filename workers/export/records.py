@@ -1,5 +1,5 @@
 """What an export needs to know about one accepted sample: plain values, no database and no torch, so the
-server side (backend/services/export.py) can build them and the writers can be tested without a server."""
+server side (backend/services/exports/export.py) can build them and the writers can be tested without a server."""
 
 from __future__ import annotations
 

@@ -13,10 +13,11 @@ from typing import Any
 
 from sqlalchemy.orm import Session, sessionmaker
 
+from backend.broker import worker_processes
 from backend.broker.celery_queue import CeleryJobQueue
 from backend.db.session import create_engine_from_url, make_session_factory
-from backend.services import jobs, worker_processes
-from backend.services.storage import LocalDiskStorage, Storage
+from backend.services.captures.storage import LocalDiskStorage, Storage
+from backend.services.jobs import jobs
 from backend.settings import Settings, get_settings
 from workers.handmodel.loading import load_hand_model
 
@@ -30,7 +31,7 @@ class WorkerContext:
     settings: Settings
     session_factory: sessionmaker[Session]
     storage: Storage
-    job_queue: Any  # backend.services.jobs.JobQueue: where jobs created by tasks are handed over
+    job_queue: Any  # backend.services.jobs.jobs.JobQueue: where jobs created by tasks are handed over
     worker_name: str = field(default_factory=lambda: f"{socket.gethostname()}:{os.getpid()}")
     _cache: dict[Any, Any] = field(default_factory=dict)
     _lock: threading.Lock = field(default_factory=threading.Lock)
@@ -43,8 +44,8 @@ class WorkerContext:
             return self._cache[key]
 
     def claim(self, session: Session, job_id: int) -> Any:
-        """services.jobs.claim with this worker's name and process and the configured heartbeat and attempt
-        limits. Raises services.jobs.JobStillRunningError for a job that may run elsewhere: the task is then
+        """services.jobs.jobs.claim with this worker's name and process and the configured heartbeat and attempt
+        limits. Raises services.jobs.jobs.JobStillRunningError for a job that may run elsewhere: the task is then
         retried (workers.tasks.recovery)."""
 
         return jobs.claim(session, job_id, self.worker_name, self.settings.job_heartbeat_timeout_s,

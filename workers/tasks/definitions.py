@@ -100,7 +100,7 @@ def preannotate(job_id: int) -> dict[str, Any]:
 
 @celery_app.task(name=TASK_EXPORT)
 def export_freihand(job_id: int) -> dict[str, Any]:
-    """The accepted dataset in FreiHAND's layout, zipped into storage (services.export_jobs)."""
+    """The accepted dataset in FreiHAND's layout, zipped into storage (services.exports.export_jobs)."""
     from workers.tasks.export import run_freihand_export_job  # deferred: see the docstring
 
     return run_freihand_export_job(get_context(), int(job_id))

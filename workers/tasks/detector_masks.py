@@ -21,11 +21,11 @@ from backend.models.capture import Sample
 from backend.models.enums import MaskKind
 from backend.models.fits import Fit
 from backend.models.labels import Mask
-from backend.services.records import add_mask
 from workers.fitting.masks import cut_forearm
 from workers.tasks.context import WorkerContext
 from workers.tasks.detection_inputs import SOURCE
 from workers.tasks.inputs import load_frames, newest_masks, read_mask, rig_of
+from workers.tasks.records import add_mask
 
 log = logging.getLogger(__name__)
 

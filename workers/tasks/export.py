@@ -1,5 +1,5 @@
-"""The admin page's FreiHAND export (services.export_jobs): write the accepted samples in FreiHAND's layout
-into a scratch folder next to storage, zip it into storage under services.export_jobs.archive_key, and report
+"""The admin page's FreiHAND export (services.exports.export_jobs): write the accepted samples in FreiHAND's layout
+into a scratch folder next to storage, zip it into storage under services.exports.export_jobs.archive_key, and report
 the progress on the job row (writing: 0-90 %, packing: 90-100 %)."""
 
 from __future__ import annotations
@@ -11,8 +11,9 @@ from pathlib import Path
 from typing import Any
 
 from backend.models.enums import JobState
-from backend.services import export, export_jobs, jobs
 from backend.services.errors import DomainError
+from backend.services.exports import export, export_jobs
+from backend.services.jobs import jobs
 from workers.export.freihand import ExportError, ExportOptions, write_freihand
 from workers.export.hand_models import export_hand_models
 from workers.tasks.context import WorkerContext

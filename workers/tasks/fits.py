@@ -26,15 +26,16 @@ from sqlalchemy.exc import DataError, IntegrityError
 from backend.models.capture import Sample
 from backend.models.enums import JobState, SampleState
 from backend.models.jobs import Job
-from backend.services import jobs, records
+from backend.services.captures.masks import encode_png
 from backend.services.errors import DomainError
-from backend.services.jobs import JobStillRunningError
-from backend.services.masks import encode_png
-from backend.services.verification import HeuristicThresholds
+from backend.services.jobs import jobs
+from backend.services.jobs.jobs import JobStillRunningError
+from backend.services.review.verification import HeuristicThresholds
 from backend.settings import Settings
 from workers.capture.schema import CaptureError
 from workers.fitting.config import FitConfig, source_weights
 from workers.fitting.inputs import FitInputError
+from workers.tasks import records
 from workers.tasks.context import WorkerContext
 from workers.tasks.detection_inputs import SOURCE as DETECTOR_SOURCE
 from workers.tasks.fit_sources import fit_input

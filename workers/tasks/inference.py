@@ -1,5 +1,5 @@
 """Prediction jobs of a round: HandSegNet masks and MVNet 3D keypoints for samples not yet in the dataset,
-recorded per sample (services.records.record_prediction); samples that may be refitted ('unlabeled',
+recorded per sample (workers.tasks.records.record_prediction); samples that may be refitted ('unlabeled',
 'fitted') get a fit job from the prediction, run by the fit task that follows in the round's canvas.
 
 A redelivered job skips the samples it already recorded (predictions are unique per job and sample).
@@ -19,9 +19,9 @@ from backend.models.capture import Sample
 from backend.models.enums import JobState, SampleState
 from backend.models.fits import Prediction
 from backend.models.jobs import Job
-from backend.services import jobs, records
 from backend.services.errors import DomainError
-from workers.tasks import round_progress
+from backend.services.jobs import jobs
+from workers.tasks import records, round_progress
 from workers.tasks.context import WorkerContext
 from workers.tasks.inputs import InputError, load_frames, rig_of
 from workers.tasks.progress import JobCancelledError, ProgressReporter

@@ -4,14 +4,14 @@ For each of the job's samples still 'unlabeled': the pretrained detector's per-v
 the views (`workers.detector.detect_frame`) -> a fit job of source "detector", whose input is the inlier views'
 detections as 2D keypoints weighted by their confidence, plus the masks the annotation fits use -> the fit
 (workers.tasks.fits, the round-0 weights) -> the reviewers' queue by the paper's policy
-(services.verification.select_for_review: every fit, ranked, up to the reviewers' capacity), the detector's
+(services.review.verification.select_for_review: every fit, ranked, up to the reviewers' capacity), the detector's
 frame confidence standing in for MVNet's. The samples the policy does not pick, those where no hand was
 found and those whose fit failed go to the annotators (payload "rest": "annotate"; failed fits always do, as
 for every fit) or stay 'unlabeled' / 'fitted' ("keep"); annotators then see the fit's and the detector's
 keypoints as proposals ("F", "D") and, per view, the chroma-key mask cut at the fit's wrist
 (workers.tasks.detector_masks) instead of hand and forearm.
 
-The detector core is reached only through `detect` here and `services.preannotation.detector_problem`
+The detector core is reached only through `detect` here and `services.rounds.preannotation.detector_problem`
 (tests swap in fakes). A job is
 claimed like every other; a redelivered one continues from what is recorded: a sample with its fit job
 already made is not detected again, and the routing only moves samples still 'fitted'.
@@ -34,16 +34,18 @@ from backend.models.capture import Sample
 from backend.models.enums import JobKind, JobState, SampleState
 from backend.models.fits import Fit
 from backend.models.jobs import Job
-from backend.services import jobs, preannotation, records
+from backend.services.captures.state_machine import transition
 from backend.services.errors import DomainError
-from backend.services.state_machine import transition
-from backend.services.verification import Candidate, ReviewPolicy, select_for_review
+from backend.services.jobs import jobs
+from backend.services.review.verification import Candidate, ReviewPolicy, select_for_review
+from backend.services.rounds import preannotation
 from workers.capture.reader import load_frame_images
 from workers.capture.schema import CaptureError
 from workers.detector.handedness import side_disagreement
 from workers.detector.types import DetectorInputError, DetectorUnavailableError, Handedness, LiftedKeypoints
 from workers.geometry.camera import Camera
 from workers.rigs.hand_scale import estimate_hand_scale, hand_scale_of_views
+from workers.tasks import records
 from workers.tasks.context import WorkerContext
 from workers.tasks.detection_inputs import SOURCE, detection_record, lifted_count, masks_for
 from workers.tasks.detector_masks import record_hand_masks

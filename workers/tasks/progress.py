@@ -1,7 +1,7 @@
 """Progress of running jobs, written to their rows (the UI reads it there) at most every few seconds.
 
 Each write is also the job's heartbeat (its `updated_at`): a job whose row stops changing belongs to a
-dead worker (services.jobs.claim, broker.outbox). A job cancelled meanwhile makes the write fail
+dead worker (services.jobs.jobs.claim, broker.outbox). A job cancelled meanwhile makes the write fail
 with ConflictError; the reporter then drops it, and raises `JobCancelledError` once every job it reports for
 is gone, so the work stops.
 """
@@ -12,8 +12,8 @@ import logging
 import time
 from collections.abc import Iterable
 
-from backend.services import jobs
 from backend.services.errors import ConflictError, NotFoundError
+from backend.services.jobs import jobs
 from workers.tasks import round_progress
 from workers.tasks.context import WorkerContext
 

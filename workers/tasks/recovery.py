@@ -1,6 +1,6 @@
 """The base class of every handloop task: a delivery for a job that runs under another attempt comes back.
 
-A task's claim (services.jobs.claim) raises JobStillRunningError when its job is 'running' under an attempt
+A task's claim (services.jobs.jobs.claim) raises JobStillRunningError when its job is 'running' under an attempt
 that may be alive (its heartbeat is recent and its process cannot be seen to be gone). Acknowledging that
 delivery would lose the job if the attempt is in fact dead (a worker killed just after a heartbeat, its
 message delivered again at once): the task is retried instead, after the time left until the heartbeat
@@ -16,7 +16,7 @@ from typing import Any
 
 from celery import Task
 
-from backend.services.jobs import JobStillRunningError
+from backend.services.jobs.jobs import JobStillRunningError
 
 log = logging.getLogger(__name__)
 

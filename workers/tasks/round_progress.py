@@ -25,8 +25,8 @@ from sqlalchemy.orm import Session
 from backend.db.base import utcnow
 from backend.models.enums import JobKind, JobState
 from backend.models.jobs import Job
-from backend.services import jobs
 from backend.services.errors import DomainError
+from backend.services.jobs import jobs
 from backend.settings import Settings
 
 # Expected seconds per sample, from the benchmarks (docs/benchmarks.md): MVNet + HandSegNet inference on an
@@ -174,7 +174,7 @@ def describe(steps: list[Phase], round_index: int | None) -> str:
 def lock(session: Session, round_job_id: int) -> Job | None:
     """The round job's row, locked for this transaction. Train and predict jobs on several workers refresh the
     same row (its result is read, then written); a reporter takes this lock before writing its own jobs, so
-    every transaction locks the round before a child (services.round_failure, from a failed child, locks the
+    every transaction locks the round before a child (services.jobs.round_failure, from a failed child, locks the
     other train jobs after the round: the other order would deadlock). Pending changes are flushed first (the
     sessions do not autoflush): re-reading the row must not drop what the caller just merged into its result."""
     session.flush()

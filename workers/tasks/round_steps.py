@@ -28,12 +28,13 @@ from backend.models.enums import JobKind, JobState, RoundState, SampleState, Str
 from backend.models.fits import Fit, Prediction
 from backend.models.jobs import Job
 from backend.models.review import Round, RoundMember
-from backend.services import jobs, review
-from backend.services.records import iou_reference
-from backend.services.verification import HeuristicThresholds, ReviewPolicy, heuristic_verdict
+from backend.services.jobs import jobs
+from backend.services.review import review
+from backend.services.review.verification import HeuristicThresholds, ReviewPolicy, heuristic_verdict
 from workers.tasks import round_progress
 from workers.tasks.context import WorkerContext
 from workers.tasks.inference import PREDICTABLE
+from workers.tasks.records import iou_reference
 from workers.tasks.training import NETS, checkpoint_of, version_of
 
 log = logging.getLogger(__name__)
@@ -213,7 +214,7 @@ def run_heuristic(ctx: WorkerContext, round_job_id: int) -> dict[str, Any] | Non
 
 
 def _criterion(reason: str) -> str:
-    """The heuristic criterion a failure message (services.verification.heuristic_verdict) is about."""
+    """The heuristic criterion a failure message (services.review.verification.heuristic_verdict) is about."""
     for name in ("mean confidence", "min keypoint confidence", "mean IoU", "mean 3D distance", "max 3D distance"):
         if reason.startswith(name):
             return name
@@ -221,7 +222,7 @@ def _criterion(reason: str) -> str:
 
 
 def build_review_queue(ctx: WorkerContext, round_job_id: int) -> dict[str, Any] | None:
-    """The manual verification queue by the paper's policy (services.review.build_queue)."""
+    """The manual verification queue by the paper's policy (services.review.review.build_queue)."""
     with ctx.session_factory.begin() as session:
         job = session.get(Job, round_job_id)
         if job is None or JobState(job.state) in jobs.FINAL_STATES:

@@ -27,8 +27,8 @@ from backend.models.enums import JobState
 from backend.models.fits import Fit
 from backend.models.jobs import Job
 from backend.models.review import Round, RoundMember
-from backend.services import jobs
 from backend.services.errors import DomainError
+from backend.services.jobs import jobs
 from backend.settings import Settings
 from workers.handmodel.params import HandParams
 from workers.handmodel.posed import posed_mesh

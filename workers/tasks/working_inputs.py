@@ -3,7 +3,7 @@ back in full-resolution pixels.
 
 A project with a working width W narrower than its cameras has its views read by HandSegNet, MVNet (training
 and prediction) and the detector from working copies in storage (`derived-v2/w<W>/...`, the copies the UI
-shows, derived once and again when stale: backend.services.working_images), with the cameras scaled alike
+shows, derived once and again when stale: backend.services.captures.working_images), with the cameras scaled alike
 (`Camera.scaled`). What leaves for storage or the fits is mapped back: HandSegNet's masks resized to the
 views' full size, the detector's keypoints and boxes to full-resolution pixels (workers/capture/working.py)
 and its residuals measured again in them. 3D outputs (MVNet's keypoints, lifted points) are in metres and need nothing.
@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 from sqlalchemy.orm import Session
 
-from backend.services.working_images import ensure_working_copy, project_working_width
+from backend.services.captures.working_images import ensure_working_copy, project_working_width
 from workers.capture.working import (
     is_reduced,
     mask_to_working,

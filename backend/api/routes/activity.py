@@ -5,7 +5,7 @@ from fastapi import APIRouter, Response
 from backend.api.deps import AnnotatorUser, SessionDep
 from backend.api.routes.tasks_common import json_response
 from backend.schemas.ui import ActivityCreate, ActivityPublic
-from backend.services import activity
+from backend.services.statistics import activity
 
 router = APIRouter(prefix="/activity", tags=["activity"])
 

@@ -18,8 +18,9 @@ from backend.schemas.tasks import (
     SubmissionPublic,
     TaskPublic,
 )
-from backend.services import annotation_flags, queues, submissions
-from backend.services.users import Principal
+from backend.services.accounts.users import Principal
+from backend.services.labeling import submissions
+from backend.services.leases import annotation_flags, queues
 
 router = APIRouter(prefix="/annotate", tags=["annotator queue"])
 router.include_router(lease_routes(LeaseKind.annotate, AnnotatorUser, AnnotateDraftIn, "clicks and masks"))

@@ -6,7 +6,7 @@ from fastapi import APIRouter
 
 from backend.api.deps import AdminUser, SessionDep
 from backend.schemas.annotation_set import AnnotationSetQueued, AnnotationSetRequest
-from backend.services.annotation_set import queue_for_annotation
+from backend.services.labeling.annotation_set import queue_for_annotation
 
 router = APIRouter(prefix="/admin/samples", tags=["admin: samples"])
 

@@ -6,10 +6,10 @@ from fastapi import APIRouter, Form, Request
 
 from backend.api.deps import AnnotatorUser, SessionDep, SettingsDep
 from backend.schemas.users import Token, UserPublic
-from backend.services import users
+from backend.services.accounts import users
+from backend.services.accounts.login_limits import LoginLimiter
+from backend.services.accounts.security import create_token
 from backend.services.errors import AuthError
-from backend.services.login_limits import LoginLimiter
-from backend.services.security import create_token
 
 router = APIRouter(prefix="/auth", tags=["auth"])
 
@@ -21,7 +21,7 @@ def login(request: Request, session: SessionDep, settings: SettingsDep,
     """OAuth2 password flow: `username` is the email. Returns a bearer token.
 
     429 with Retry-After after too many failed logins for the account or from the client's address, or when
-    the server is busy checking other passwords (services.login_limits)."""
+    the server is busy checking other passwords (services.accounts.login_limits)."""
     limiter: LoginLimiter = request.app.state.login_limiter
     account = users.normalise_email(username)
     address = request.client.host if request.client else "unknown"

@@ -6,7 +6,7 @@ from fastapi import APIRouter
 
 from backend.api.deps import AdminUser, SessionDep
 from backend.schemas.base import Id
-from backend.services.calibration_check import calibration_check
+from backend.services.captures.calibration_check import calibration_check
 
 router = APIRouter(prefix="/admin/projects", tags=["admin: calibration"])
 

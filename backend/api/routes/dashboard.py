@@ -6,7 +6,7 @@ from fastapi import APIRouter
 
 from backend.api.deps import AdminUser, SessionDep, SettingsDep
 from backend.schemas.ui import DashboardPublic
-from backend.services import dashboard
+from backend.services.statistics import dashboard
 
 router = APIRouter(prefix="/admin/dashboard", tags=["admin: dashboard"])
 

@@ -13,8 +13,8 @@ from fastapi.responses import FileResponse, Response
 from backend.api.deps import AdminUser, JobQueueDep, SessionDep, StorageDep
 from backend.schemas.base import Id
 from backend.schemas.exports import ExportQueued, FreihandExportCreate
-from backend.services import export, export_jobs
-from backend.services.storage import LocalDiskStorage
+from backend.services.captures.storage import LocalDiskStorage
+from backend.services.exports import export, export_jobs
 
 router = APIRouter(prefix="/admin/exports", tags=["admin: exports"])
 # A project's name as a query parameter: PostgreSQL text cannot hold NUL, so it is a 422 here, not at the query.

@@ -8,8 +8,8 @@ from fastapi import APIRouter, Query, Request, Response
 
 from backend.api.deps import AnnotatorUser, SessionDep, SettingsDep, StorageDep
 from backend.schemas.base import Id
-from backend.services.samples import get_mask, get_view
-from backend.services.working_images import working_image_key
+from backend.services.captures.samples import get_mask, get_view
+from backend.services.captures.working_images import working_image_key
 
 router = APIRouter(prefix="/files", tags=["files"])
 

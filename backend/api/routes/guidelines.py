@@ -10,7 +10,7 @@ from fastapi.responses import Response
 
 from backend.api.deps import AdminUser, AnnotatorUser, SessionDep, StorageDep
 from backend.schemas.guidelines import GuidelinesPublic, GuidelinesText
-from backend.services import guidelines
+from backend.services.labeling import guidelines
 
 router = APIRouter(tags=["guidelines"])
 ImageId = Annotated[str, Path(pattern=r"^[0-9a-f]{32}$", description="An image's id (32 hex digits).")]

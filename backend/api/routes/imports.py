@@ -6,7 +6,8 @@ from fastapi import APIRouter
 
 from backend.api.deps import AdminUser, JobQueueDep, SessionDep, SettingsDep, StorageDep
 from backend.schemas.admin import ImportPublic, ImportRequest
-from backend.services import importer, preannotation
+from backend.services.captures import importer
+from backend.services.rounds import preannotation
 
 router = APIRouter(prefix="/admin/imports", tags=["admin: import"])
 
@@ -18,7 +19,7 @@ def import_capture(body: ImportRequest, session: SessionDep, storage: StorageDep
     <data_dir>/captures; 422 naming them otherwise, and for a file linked to outside the capture) validated by
     the capture reader; with
     `preannotate` (left out: HANDLOOP_PREANNOTATE_ON_IMPORT), then queue its samples' pre-annotation
-    (services.preannotation): the job's progress is `GET /api/admin/jobs/{preannotation_job_id}/events`."""
+    (services.rounds.preannotation): the job's progress is `GET /api/admin/jobs/{preannotation_job_id}/events`."""
     asked = body.preannotate is not None
     path = importer.check_import_path(Path(body.path), settings.allowed_import_roots)
     return preannotation.import_capture(session, storage, queue, path,

@@ -14,7 +14,7 @@ from backend.models.enums import JobKind, JobState
 from backend.models.jobs import Job
 from backend.schemas.admin import JobPublic
 from backend.schemas.base import Id
-from backend.services import jobs
+from backend.services.jobs import jobs
 
 router = APIRouter(prefix="/admin/jobs", tags=["admin: jobs"])
 

@@ -16,7 +16,7 @@ from backend.models.enums import LeaseKind
 from backend.schemas.base import Id, Strict
 from backend.schemas.drafts import DraftPublic
 from backend.schemas.tasks import LeasePublic, LeaseRequest
-from backend.services import drafts, queues
+from backend.services.leases import drafts, queues
 
 
 def lease_routes(kind: LeaseKind, user_dep: Any, draft_body: type[Strict], draft_contents: str) -> APIRouter:

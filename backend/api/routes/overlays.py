@@ -1,4 +1,4 @@
-"""What the annotate and review pages draw: proposals and review overlays (services.overlays)."""
+"""What the annotate and review pages draw: proposals and review overlays (services.display.overlays)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from fastapi import APIRouter, Query
 from backend.api.deps import AnnotatorUser, ReviewerUser, SessionDep, SettingsDep
 from backend.schemas.base import Id
 from backend.schemas.ui import ProposalsPublic, ReviewOverlayPublic
-from backend.services import overlays
+from backend.services.display import overlays
 
 router = APIRouter(tags=["overlays"])
 

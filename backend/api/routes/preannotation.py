@@ -6,7 +6,7 @@ from fastapi import APIRouter
 
 from backend.api.deps import AdminUser, JobQueueDep, SessionDep
 from backend.schemas.admin import PreannotateLaunched, PreannotateRequest, PreannotationOverview
-from backend.services import preannotation
+from backend.services.rounds import preannotation
 
 router = APIRouter(prefix="/admin/preannotation", tags=["admin: pre-annotation"])
 

@@ -1,4 +1,4 @@
-"""Prefetch for both queues: lease the task after the one on screen (services.prefetch)."""
+"""Prefetch for both queues: lease the task after the one on screen (services.leases.prefetch)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from backend.api.routes.tasks_common import json_response, task_of
 from backend.models.enums import LeaseKind
 from backend.schemas.tasks import TaskPublic
 from backend.schemas.ui import PrefetchRequest
-from backend.services import prefetch
+from backend.services.leases import prefetch
 
 router = APIRouter(tags=["prefetch"])
 EMPTY = {204: {"description": "Nothing more in the queue."}}

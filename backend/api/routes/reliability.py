@@ -7,7 +7,7 @@ from typing import Any
 from fastapi import APIRouter, Query
 
 from backend.api.deps import AdminUser, SessionDep, StorageDep
-from backend.services import reliability as service
+from backend.services.statistics import reliability as service
 
 router = APIRouter(prefix="/admin/reliability", tags=["admin: reliability"])
 

@@ -9,7 +9,8 @@ from backend.models.enums import LeaseKind
 from backend.schemas.base import Id
 from backend.schemas.drafts import ReviewDraftIn
 from backend.schemas.tasks import DecisionCreate, DecisionPublic, TaskPublic
-from backend.services import queues, review
+from backend.services.leases import queues
+from backend.services.review import review
 
 router = APIRouter(prefix="/review", tags=["reviewer queue"])
 router.include_router(lease_routes(LeaseKind.review, ReviewerUser, ReviewDraftIn, "decision and reason"))

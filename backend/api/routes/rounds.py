@@ -6,8 +6,9 @@ from backend.api.deps import AdminUser, JobQueueDep, SessionDep, SettingsDep
 from backend.models.review import Round
 from backend.schemas.admin import ReviewQueueBuilt, RoundCreate, RoundLaunched, RoundPublic, Statistics
 from backend.schemas.base import Id
-from backend.services import review, rounds
-from backend.services.verification import ReviewPolicy
+from backend.services.review import review
+from backend.services.review.verification import ReviewPolicy
+from backend.services.rounds import rounds
 
 router = APIRouter(prefix="/admin/rounds", tags=["admin: rounds"])
 

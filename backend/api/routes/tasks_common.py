@@ -11,8 +11,8 @@ from backend.models.capture import Sequence
 from backend.models.enums import SampleState
 from backend.models.fits import Fit
 from backend.schemas.tasks import TaskPublic, ViewPublic
-from backend.services.queues import Lease
-from backend.services.samples import get_sample, views_of
+from backend.services.captures.samples import get_sample, views_of
+from backend.services.leases.queues import Lease
 from workers.handmodel.keypoints import SPARSE_KEYPOINTS
 
 

@@ -1,4 +1,4 @@
-"""Per-person statistics on the admin page (services.team_statistics)."""
+"""Per-person statistics on the admin page (services.statistics.team_statistics)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ from fastapi import APIRouter
 
 from backend.api.deps import AdminUser, SessionDep
 from backend.schemas.team import PersonStatistics
-from backend.services.team_statistics import team_statistics
+from backend.services.statistics.team_statistics import team_statistics
 
 router = APIRouter(prefix="/admin/team", tags=["admin: team"])
 

@@ -9,8 +9,9 @@ from backend.api.deps import AdminUser, SessionDep
 from backend.models.users import User
 from backend.schemas.base import Id
 from backend.schemas.users import AccountLock, Unlocked, UserCreate, UserPublic, UserUpdate
-from backend.services import audit, users
-from backend.services.login_limits import LoginLimiter
+from backend.services import audit
+from backend.services.accounts import users
+from backend.services.accounts.login_limits import LoginLimiter
 
 router = APIRouter(prefix="/admin/users", tags=["admin: users"])
 

@@ -1,7 +1,7 @@
 """The 3D view's recording of one sample, for viser's client embedded in the review page.
 
 viser's client fetches `?playbackPath=` itself and cannot send the bearer token, so this route takes a
-short-lived scene ticket instead (issued with the review overlay, services.scene_tickets)."""
+short-lived scene ticket instead (issued with the review overlay, services.display.scene_tickets)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from fastapi import APIRouter, Query, Request, Response
 
 from backend.api.deps import SessionDep, SettingsDep, StorageDep
 from backend.schemas.base import Id
-from backend.services import scene_tickets, scenes
+from backend.services.display import scene_tickets, scenes
 from backend.services.errors import AuthError
 
 router = APIRouter(prefix="/viewer", tags=["3D viewer"])

@@ -46,7 +46,7 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
     ) -> None:
         """Set up a demo: synthetic capture, preview, database, import (pre-annotated where the detector is
         installed), admin login; then serve, showing the pre-annotation's progress."""
-        from backend.services.preannotation import quick_detector_problem
+        from backend.services.rounds.preannotation import quick_detector_problem
         from backend.settings import get_settings
 
         settings = get_settings()
@@ -118,7 +118,7 @@ def _follow_preannotation(settings: Settings, stopped: Callable[[float], bool]) 
     from backend.cli.job_progress import follow_job, preannotation_summary
     from backend.db.session import create_engine_from_url, make_session_factory
     from backend.models.capture import Project
-    from backend.services.preannotation import running_job
+    from backend.services.rounds.preannotation import running_job
 
     engine = create_engine_from_url(settings.resolved_database_url)
     try:
@@ -182,10 +182,10 @@ def _ensure_database(capture_dir: Path, data_dir: Path, *, preannotate: bool) ->
     from backend.models.capture import Project
     from backend.models.enums import Role
     from backend.models.users import User
-    from backend.services import preannotation
-    from backend.services.storage import LocalDiskStorage
+    from backend.services.accounts.users import create_user
+    from backend.services.captures.storage import LocalDiskStorage
+    from backend.services.rounds import preannotation
     from backend.services.transactions import run_after_commit
-    from backend.services.users import create_user
     from backend.settings import get_settings
 
     settings = get_settings()

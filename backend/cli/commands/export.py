@@ -31,9 +31,9 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         from tqdm import tqdm
 
         from backend.db.session import create_engine_from_url, make_session_factory
+        from backend.services.captures.storage import LocalDiskStorage
         from backend.services.errors import DomainError
-        from backend.services.export import export_records
-        from backend.services.storage import LocalDiskStorage
+        from backend.services.exports.export import export_records
         from backend.settings import get_settings
         from workers.export.freihand import ExportError, ExportOptions, hand_model_notice, write_freihand
         from workers.export.hand_models import export_hand_models

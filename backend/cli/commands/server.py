@@ -61,9 +61,9 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         from backend.broker.celery_queue import CeleryJobQueue
         from backend.cli.job_progress import follow_job, preannotation_summary
         from backend.db.session import create_engine_from_url, make_session_factory
-        from backend.services import preannotation
+        from backend.services.captures.storage import LocalDiskStorage
         from backend.services.errors import DomainError
-        from backend.services.storage import LocalDiskStorage
+        from backend.services.rounds import preannotation
         from backend.services.transactions import run_after_commit
         from backend.settings import get_settings
 
@@ -125,8 +125,8 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         """Create an account (the first admin is made this way)."""
         from backend.db.session import create_engine_from_url, make_session_factory
         from backend.models.enums import Role
+        from backend.services.accounts.users import create_user as create
         from backend.services.errors import DomainError
-        from backend.services.users import create_user as create
         from backend.settings import get_settings
 
         if role not in {r.value for r in Role}:

@@ -96,7 +96,7 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         if detector not in (None, "on", "off"):
             fail(f"--detector must be on or off, not {detector!r}")
         if url is None and detector != "off":  # the started stack shares this install: settled before it starts
-            from backend.services.preannotation import detector_problem
+            from backend.services.rounds.preannotation import detector_problem
 
             problem = detector_problem()
             if detector == "on" and problem is not None:

@@ -9,7 +9,7 @@ from sqlalchemy import text
 from backend.db.base import utcnow
 from backend.models.enums import JobState, Role
 from backend.models.jobs import Job
-from backend.services import jobs
+from backend.services.jobs import jobs
 
 ADMIN = Role.admin
 

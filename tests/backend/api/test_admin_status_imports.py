@@ -29,7 +29,7 @@ import json, sys
 from fastapi.testclient import TestClient
 from backend.app import create_app
 from backend.settings import Settings
-from backend.services.jobs import InMemoryJobQueue
+from backend.services.jobs.jobs import InMemoryJobQueue
 args = json.loads(sys.argv[1])
 watched = args["watched"]
 loaded = lambda: sorted(m for m in watched if m in sys.modules)
@@ -112,7 +112,7 @@ def test_a_runtime_that_cannot_load_passes_the_status_but_not_the_workers(monkey
     monkeypatch.syspath_prepend(str(tmp_path))
     monkeypatch.setattr(model_files, "RUNTIME", "handloop_broken_runtime")
     monkeypatch.setattr(model_files, "model_files_status", lambda: None)  # the files as if present and verified
-    from backend.services import preannotation  # deferred: after the runtime is swapped for the broken one
+    from backend.services.rounds import preannotation  # deferred: after the runtime is swapped for the broken one
     from workers.detector import detector_status as workers_status  # deferred: the same
     from workers.nets.configs import CONFIGS  # deferred: the same
     from workers.nets.detections import detector_backed  # deferred: the same

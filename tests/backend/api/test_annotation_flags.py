@@ -9,7 +9,7 @@ import pytest
 from sqlalchemy import text
 
 from backend.models.enums import Role
-from backend.services.fit_agreement import ZERO_CONF_PX, fit_confidences
+from backend.services.display.fit_agreement import ZERO_CONF_PX, fit_confidences
 
 
 def _flags(env) -> list:
@@ -76,7 +76,7 @@ def test_no_hand_takes_the_sample_out_of_the_queue(env, h):
 
 
 def test_a_failed_fit_is_told_to_its_author_and_the_sample_goes_to_someone_else(env, h):
-    from backend.services import records
+    from workers.tasks import records
 
     ids = h.seed(env, frames=2, cameras=2)
     task = h.next_task(env)

@@ -10,7 +10,7 @@ from sqlalchemy import func, select
 from backend.models.capture import Project, Sample
 from backend.models.enums import Role
 from backend.models.jobs import Job
-from backend.services import preannotation
+from backend.services.rounds import preannotation
 from tests.support.live_stack import tiny_capture
 
 MISSING = "the hand landmark model file is missing: install it with scripts/fetch_models.sh"

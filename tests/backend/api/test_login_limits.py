@@ -6,8 +6,8 @@ from __future__ import annotations
 import pytest
 
 from backend.models.enums import Role
-from backend.services import users
-from backend.services.login_limits import LoginLimiter, LoginPolicy
+from backend.services.accounts import users
+from backend.services.accounts.login_limits import LoginLimiter, LoginPolicy
 
 PASSWORD = "correct horse battery"  # tests/backend/conftest.py
 WINDOW_S = 900.0

@@ -16,11 +16,11 @@ from backend.app import create_app
 from backend.models.capture import Project, Sample, Sequence
 from backend.models.fits import Fit
 from backend.models.jobs import Job
-from backend.services import preannotation
-from backend.services.detection_points import fitted_detections
-from backend.services.fit_agreement import fit_confidences
-from backend.services.jobs import InMemoryJobQueue
-from backend.services.view_geometry import view_cameras
+from backend.services.display.detection_points import fitted_detections
+from backend.services.display.fit_agreement import fit_confidences
+from backend.services.display.view_geometry import view_cameras
+from backend.services.jobs.jobs import InMemoryJobQueue
+from backend.services.rounds import preannotation
 from backend.settings import Settings
 from tests.support.detector_fake import FakeDetector
 from tests.support.live_stack import TEST_SETTINGS, USERS, prepare_database, tiny_capture

@@ -103,7 +103,7 @@ def test_anonymous_is_refused(sqlite_env, method, path):
 
 
 def test_bad_expired_and_revoked_tokens(sqlite_env):
-    from backend.services.security import create_token
+    from backend.services.accounts.security import create_token
 
     env = sqlite_env
     for token, message in [("garbage", "malformed"), ("1.0.99999999999.bad", "invalid"),

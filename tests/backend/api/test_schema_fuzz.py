@@ -22,7 +22,7 @@ from schemathesis import GenerationMode
 from schemathesis.core.parameters import ParameterLocation
 
 from backend.models.enums import Role
-from backend.services import scene_tickets
+from backend.services.display import scene_tickets
 
 EXAMPLES = int(os.environ.get("HANDLOOP_FUZZ_EXAMPLES", "12"))
 # Valid bodies the server must still refuse with 422 for what no schema can say: an import names a folder on

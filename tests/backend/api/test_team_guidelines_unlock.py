@@ -13,7 +13,7 @@ from PIL import Image
 from backend.db.base import utcnow
 from backend.models.enums import Role
 from backend.models.review import Decision
-from backend.services.login_limits import LoginLimiter, LoginPolicy
+from backend.services.accounts.login_limits import LoginLimiter, LoginPolicy
 
 PASSWORD = "correct horse battery"  # tests/backend/conftest.py
 

@@ -14,13 +14,14 @@ import pytest
 from sqlalchemy import text
 
 from backend.broker import outbox as dispatch
+from backend.broker import worker_processes
 from backend.broker.celery_queue import BatchingSender, CeleryJobQueue, task_for_job
 from backend.db.base import utcnow
 from backend.models.enums import JobKind, JobState, Role
 from backend.models.jobs import Job
-from backend.services import jobs, worker_processes
 from backend.services.errors import ServiceUnavailableError
-from backend.services.jobs import InMemoryJobQueue
+from backend.services.jobs import jobs
+from backend.services.jobs.jobs import InMemoryJobQueue
 from backend.settings import Settings
 
 
@@ -77,9 +78,9 @@ def test_an_attempt_records_its_start_and_a_finished_job_keeps_no_progress_messa
 
 @pytest.fixture
 def dead_process() -> str:
-    """The identity of a process of this machine that has exited (services.worker_processes)."""
+    """The identity of a process of this machine that has exited (backend.broker.worker_processes)."""
     child = subprocess.Popen([sys.executable, "-c", "import os, sys; "
-                              "from backend.services import worker_processes; print(worker_processes.current())"],
+                              "from backend.broker import worker_processes; print(worker_processes.current())"],
                              stdout=subprocess.PIPE, text=True)
     identity = child.communicate(timeout=60)[0].strip()
     assert identity != "None", "no process identity on this machine (no /proc)"

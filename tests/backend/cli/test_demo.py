@@ -25,7 +25,7 @@ def data_dir(tmp_path, monkeypatch):
 def test_demo_sets_up_everything_and_reuses_it(data_dir, monkeypatch):
     from sqlalchemy import create_engine, text
 
-    from backend.services import preannotation
+    from backend.services.rounds import preannotation
     from workers.capture import read_capture
 
     monkeypatch.setattr(preannotation, "quick_detector_problem", lambda: None)  # the detector installed
@@ -60,7 +60,7 @@ def test_demo_without_pre_annotation_queues_the_samples_for_annotation(data_dir,
     """--no-preannotate, or no detector installed (then the demo says why): the samples go to the annotators."""
     from sqlalchemy import create_engine, text
 
-    from backend.services import preannotation
+    from backend.services.rounds import preannotation
 
     missing = "the hand landmark model file is missing: install it with scripts/fetch_models.sh"
     monkeypatch.setattr(preannotation, "quick_detector_problem", lambda: None if args else missing)

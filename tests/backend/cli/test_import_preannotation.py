@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from backend.cli import job_progress
 from backend.cli.main import app
-from backend.services import preannotation
+from backend.services.rounds import preannotation
 from tests.support.live_stack import tiny_capture
 
 MISSING = "the hand landmark model file is missing: install it with scripts/fetch_models.sh"
@@ -112,7 +112,7 @@ def test_no_migrate_on_an_empty_data_folder_names_the_command_to_run(data_dir, c
 
 
 def test_wait_follows_the_job_until_the_worker_has_routed_the_samples(data_dir, capture, monkeypatch):
-    from backend.services.jobs import InMemoryJobQueue
+    from backend.services.jobs.jobs import InMemoryJobQueue
     from backend.settings import get_settings
     from tests.support.detector_fake import FakeDetector
     from workers.tasks import preannotate
@@ -145,7 +145,7 @@ def test_wait_follows_the_job_until_the_worker_has_routed_the_samples(data_dir, 
 def test_wait_exits_1_with_the_error_of_a_failed_job(data_dir, capture, monkeypatch):
     from backend.db.session import create_engine_from_url, make_session_factory
     from backend.models.enums import JobState
-    from backend.services import jobs
+    from backend.services.jobs import jobs
     from backend.settings import get_settings
 
     _detector(monkeypatch, None)

@@ -14,14 +14,14 @@ import pytest
 from sqlalchemy import text
 
 from backend.models.enums import Role
-from backend.services import records
-from backend.services.samples import views_of
-from backend.services.verification import HeuristicThresholds
-from tests.backend.services.test_export import export
+from backend.services.captures.samples import views_of
+from backend.services.review.verification import HeuristicThresholds
+from tests.backend.services.exports.test_export import export
 from tests.support.real_sized import FULL_WIDTH, upscaled_capture
 from workers.capture import load_ground_truth, read_capture
 from workers.export.freihand import read_freihand_set
 from workers.geometry.projection import undistort_pixels
+from workers.tasks import records
 
 WORKING_WIDTH = 640
 

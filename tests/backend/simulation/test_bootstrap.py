@@ -20,15 +20,17 @@ import pytest
 from sqlalchemy import text
 
 from backend.models.enums import JobState, Role
-from backend.services import jobs, records, review
-from backend.services.samples import views_of
-from backend.services.verification import HeuristicThresholds, ReviewPolicy
+from backend.services.captures.samples import views_of
+from backend.services.jobs import jobs
+from backend.services.review import review
+from backend.services.review.verification import HeuristicThresholds, ReviewPolicy
 from backend.simulation.annotator import AnnotatorConfig
 from backend.simulation.bootstrap import BootstrapConfig, BootstrapSimulation
 from backend.simulation.client import ApiClient
 from backend.simulation.report import write_plots
 from backend.simulation.reviewer import ReviewerConfig
 from backend.simulation.team import SimulationTimeoutError
+from workers.tasks import records
 
 
 @pytest.fixture(scope="module")
@@ -216,7 +218,7 @@ def _detector_sim(env, capture_dir, monkeypatch, *, rounds: int = 1, accept_prop
                   round0_rest: str = "annotate"):
     """The simulation with the detector on: the pre-annotation job runs in-process with the ground-truth fake.
     Round 0's unpicked samples go to the annotators unless `round0_rest` is "keep" (the simulation's default)."""
-    from backend.services import preannotation
+    from backend.services.rounds import preannotation
     from tests.support.detector_fake import FakeDetector
     from workers.tasks import preannotate
     from workers.tasks.context import build_context
@@ -289,7 +291,7 @@ def test_with_the_default_round_0_plan_d0_is_the_verified_detector_fits_alone(en
 def test_the_detector_run_is_refused_before_anything_is_imported_where_it_cannot_run(env_with, sqlite_url,
                                                                                    capture_dir, tmp_path,
                                                                                    monkeypatch):
-    from backend.services import preannotation
+    from backend.services.rounds import preannotation
 
     env = env_with(sqlite_url, tmp_path / "data")
     sim, admin = _detector_sim(env, capture_dir, monkeypatch)

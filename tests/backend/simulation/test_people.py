@@ -14,9 +14,8 @@ import pytest
 from sqlalchemy import text
 
 from backend.models.enums import Role
-from backend.services import records
-from backend.services.samples import views_of
-from backend.services.verification import HeuristicThresholds
+from backend.services.captures.samples import views_of
+from backend.services.review.verification import HeuristicThresholds
 from backend.simulation.annotator import AnnotatorConfig, SimulatedAnnotator, iou, noisy_mask
 from backend.simulation.client import ApiClient, ApiError
 from backend.simulation.costs import HumanLedger, UnitCosts
@@ -24,6 +23,7 @@ from backend.simulation.reviewer import ReviewerConfig, SimulatedReviewer
 from backend.simulation.team import Team
 from backend.simulation.truth import GroundTruthIndex
 from workers.capture import read_capture
+from workers.tasks import records
 
 
 @pytest.fixture(scope="module")
@@ -107,7 +107,7 @@ def test_annotator_clicks_the_truth_with_noise_skips_hidden_points_and_corrects_
     assert spent == pytest.approx(outcome.clicks * 2 + 2 * 12) == pytest.approx(outcome.seconds)
     assert ledger.hours(0) == pytest.approx(outcome.seconds / 3600)
     storage = env.client.app.state.storage
-    from backend.services.masks import decode_png
+    from backend.services.captures.masks import decode_png
 
     for key, camera in masks:
         corrected = decode_png(storage.get_bytes(key))

@@ -90,7 +90,7 @@ def test_simulate_refuses_bad_arguments(capture_dir, tmp_path):
 
 
 def test_the_detector_runs_are_refused_where_the_detector_cannot_run(capture_dir, tmp_path, monkeypatch):
-    from backend.services import preannotation
+    from backend.services.rounds import preannotation
 
     monkeypatch.setattr(preannotation, "detector_problem", lambda: "the hand landmark model file is missing")
     result = runner.invoke(app, ["simulate", "--capture", str(capture_dir), "--detector", "on",
@@ -289,7 +289,7 @@ def test_simulate_without_detector_defaults_to_the_installed_detector_and_says_w
                                                                                     monkeypatch, problem):
     """No --detector: on where the detector can run here, else off; the started stack's Settings build (the
     default once reached them as mvnet_detector=None, a validation error) and the output names the choice."""
-    from backend.services import preannotation
+    from backend.services.rounds import preannotation
     from backend.simulation import runner as sim_runner
 
     seen = {}

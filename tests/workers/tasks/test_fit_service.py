@@ -12,7 +12,7 @@ from backend.models.enums import JobState, SampleState
 from backend.models.fits import Fit
 from backend.models.jobs import Job
 from backend.models.labels import Click
-from backend.services import jobs
+from backend.services.jobs import jobs
 from tests.support.annotator_world import annotator_world
 from tests.support.live_stack import tiny_capture
 from workers.tasks.fits import run_fit_jobs

@@ -12,9 +12,9 @@ def test_a_preannotate_job_reaches_the_worker_and_ends_as_the_detector_allows(li
     from backend.models.capture import Project, Sample
     from backend.models.enums import JobKind
     from backend.models.fits import Fit
-    from backend.services import jobs
-    from backend.services.jobs import InMemoryJobQueue
-    from backend.services.preannotation import detector_problem
+    from backend.services.jobs import jobs
+    from backend.services.jobs.jobs import InMemoryJobQueue
+    from backend.services.rounds.preannotation import detector_problem
 
     stack = live_stack(frames=2, queue_for_annotation=False)
     factory = stack.session_factory()

@@ -13,9 +13,10 @@ from backend.models.capture import CameraCalibration, Project, Sample
 from backend.models.enums import JobKind, JobState, SampleState
 from backend.models.fits import Fit
 from backend.models.jobs import Job
-from backend.services import jobs, preannotation
 from backend.services.errors import ConflictError, InvalidInputError, NotFoundError, ServiceUnavailableError
-from backend.services.jobs import InMemoryJobQueue
+from backend.services.jobs import jobs
+from backend.services.jobs.jobs import InMemoryJobQueue
+from backend.services.rounds import preannotation
 from backend.services.transactions import run_after_commit
 from backend.settings import Settings
 from tests.support.detector_fake import FakeDetector
@@ -136,7 +137,7 @@ def test_annotators_see_each_views_chroma_key_cut_at_the_detector_fits_wrist(wor
     wrist (kind "model"), nearer the true hand mask than hand and forearm; the fits still read the chroma key."""
     from backend.models.enums import MaskKind
     from backend.models.labels import Mask
-    from backend.services.samples import views_of
+    from backend.services.captures.samples import views_of
     from backend.simulation.annotator import iou
     from workers.capture import load_ground_truth, read_capture
     from workers.tasks.detector_masks import NEAR_SILHOUETTE_PX, mask_key, near, record_hand_masks

@@ -7,13 +7,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from backend.services.records import iou_reference
-from backend.services.verification import HeuristicThresholds, heuristic_verdict
+from backend.services.review.verification import HeuristicThresholds, heuristic_verdict
 from tests.support.live_stack import tiny_capture
 from workers.capture import load_frame_masks, load_ground_truth, read_capture
 from workers.handmodel.builtin import build_builtin_hand
 from workers.rendering import model_mask
 from workers.tasks.inputs import prediction_reference_masks
+from workers.tasks.records import iou_reference
 
 
 @pytest.fixture(scope="module")

@@ -12,7 +12,7 @@ from sqlalchemy.engine import Engine
 
 from backend.models.enums import JobKind, JobState
 from backend.models.jobs import Job
-from backend.services import jobs
+from backend.services.jobs import jobs
 from tests.support.annotator_world import annotator_world
 from tests.support.live_stack import tiny_capture
 from workers.tasks.progress import ProgressReporter

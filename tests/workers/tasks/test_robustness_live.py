@@ -77,7 +77,7 @@ def _deliveries(stack) -> list[str]:
 
 
 # The heartbeat timeout (600 s) is far beyond the tests' waits: the heartbeat's age cannot decide here. A job is
-# taken over because its killed attempt's process is gone (services.worker_processes); before that, the
+# taken over because its killed attempt's process is gone (backend.broker.worker_processes); before that, the
 # redelivered task was acknowledged as a duplicate of a "live" attempt and the job stayed running for good.
 # The API's outbox, the other way back for a dead worker's job, is kept out of the way.
 KILL_RACE = {"job_heartbeat_timeout_s": 600, "outbox_poll_s": 3600, **SLOW_FIT}
@@ -133,8 +133,8 @@ def test_a_delivery_for_a_job_another_machine_runs_comes_back_until_that_attempt
 
     stack = live_stack(frames=1, worker=False, job_heartbeat_timeout_s=15, outbox_poll_s=3600)
     job_id = _submit_fit(stack)
-    # No process recorded: nothing a claimant here could look up (services.worker_processes; an identity from
-    # another machine reads the same, tests/backend/services/test_job_handoff.py).
+    # No process recorded: nothing a claimant here could look up (backend.broker.worker_processes; an identity from
+    # another machine reads the same, tests/backend/broker/test_job_handoff.py).
     elsewhere = {"state": "running", "attempts": 1, "worker": "gpu9:77"}
     beating, stopped = threading.Event(), threading.Event()
 

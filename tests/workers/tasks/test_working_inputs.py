@@ -19,8 +19,8 @@ from sqlalchemy import select
 
 from backend.models.capture import Project, View
 from backend.models.fits import Fit
-from backend.services import preannotation, records
-from backend.services.jobs import InMemoryJobQueue
+from backend.services.jobs.jobs import InMemoryJobQueue
+from backend.services.rounds import preannotation
 from backend.services.transactions import run_after_commit
 from backend.settings import Settings
 from tests.support.live_stack import TEST_SETTINGS, prepare_database, tiny_capture
@@ -31,7 +31,7 @@ from workers.detector.types import LiftedKeypoints, ViewKeypoints
 from workers.geometry.projection import project_points
 from workers.geometry.rig import default_rig
 from workers.geometry.triangulation import triangulate
-from workers.tasks import inference, preannotate
+from workers.tasks import inference, preannotate, records
 from workers.tasks.context import build_context
 from workers.tasks.inputs import load_frames, rig_of
 from workers.tasks.working_inputs import (

@@ -71,9 +71,9 @@ class UI:
                          offset_m: float = 0.0, iou: float = 0.9, mesh_offset_m: float | None = 0.0) -> int:
         """A fit with the ground-truth parameters (shifted by `offset_m` along x), as a worker records it: with
         the true mesh shifted by `mesh_offset_m` (None: no mesh stored, as fits before revision 0012)."""
-        from backend.services import records
-        from backend.services.samples import views_of
-        from backend.services.verification import HeuristicThresholds
+        from backend.services.captures.samples import views_of
+        from backend.services.review.verification import HeuristicThresholds
+        from workers.tasks import records
 
         _, gt = UI.ground_truth(capture, frame_index)
         shift = np.array([offset_m, 0.0, 0.0])

@@ -142,10 +142,10 @@ def _detector_fit_in_review(env, ui, capture, detection_of) -> dict:
     records it (no clicks), put in review; the reviewer's task."""
     from backend.models.capture import Sample
     from backend.models.enums import SampleState
-    from backend.services import records
-    from backend.services.samples import views_of
-    from backend.services.state_machine import transition
-    from backend.services.verification import HeuristicThresholds
+    from backend.services.captures.samples import views_of
+    from backend.services.captures.state_machine import transition
+    from backend.services.review.verification import HeuristicThresholds
+    from workers.tasks import records
 
     ui.import_capture(env, capture)
     task = env.client.post("/api/annotate/next", headers=env.headers(Role.annotator)).json()

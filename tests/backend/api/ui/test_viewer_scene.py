@@ -6,7 +6,7 @@ import msgspec
 import zstandard
 
 from backend.models.enums import Role
-from backend.services import scene_tickets
+from backend.services.display import scene_tickets
 
 
 def decode_recording(data: bytes) -> dict:

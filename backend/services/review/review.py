@@ -1,0 +1,70 @@
+"""Manual verification: building the reviewer queue by the paper's policy, and reviewer decisions."""
+
+from __future__ import annotations
+
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from backend.models.capture import Sample
+from backend.models.enums import DecisionKind, LeaseKind, SampleState, Stream
+from backend.models.fits import Fit
+from backend.models.review import Decision
+from backend.services import audit
+from backend.services.accounts.users import Actor
+from backend.services.captures.state_machine import transition
+from backend.services.errors import ConflictError
+from backend.services.leases import drafts, queues
+from backend.services.review.verification import Candidate, ReviewPolicy, select_for_review
+from backend.services.rounds import rounds
+
+
+def build_queue(session: Session, policy: ReviewPolicy, actor_id: int | None) -> list[int]:
+    """Move the samples the policy picks from 'fitted' (not accepted by the heuristic) to 'in_review'."""
+    rows = session.execute(
+        select(Sample).where(Sample.state == SampleState.fitted, Sample.current_fit_id.is_not(None))
+        .with_for_update(skip_locked=True)
+    ).scalars().all()
+    candidates = [Candidate(s.id, s.sequence_id, s.time_s, s.confidence, s.pose_distance or 0.0) for s in rows]
+    queued: dict[int, list[float]] = {}
+    queued_confidences: list[float | None] = []
+    for sequence_id, time_s, confidence in session.execute(
+        select(Sample.sequence_id, Sample.time_s, Sample.confidence).where(Sample.state == SampleState.in_review)
+    ):
+        queued.setdefault(sequence_id, []).append(time_s)
+        queued_confidences.append(confidence)
+    picked = select_for_review(candidates, policy, queued, queued_confidences)
+    by_id = {s.id: s for s in rows}
+    for sample_id in picked:
+        transition(session, by_id[sample_id], SampleState.in_review, actor_id, reason="review policy")
+    audit.record(session, actor_id, "review.build_queue", "round", rounds.open_round_id(session) or 0,
+                 candidates=len(candidates), queued=len(picked))
+    return picked
+
+
+def decide(session: Session, user: Actor, sample_id: int, decision: DecisionKind, reason: str,
+           lease_token: str | None) -> tuple[Decision, Sample, Stream | None]:
+    sample = queues.load_locked(session, sample_id)
+    queues.check_lease(sample, user, LeaseKind.review, lease_token)
+    if sample.current_fit_id is None:
+        raise ConflictError(f"sample {sample_id} has no fit to verify")
+    fit = session.get(Fit, sample.current_fit_id)
+    stream: Stream | None = None
+    round_ = rounds.open_round(session, user.id)
+    if decision is DecisionKind.accept:
+        transition(session, sample, SampleState.accepted, user.id, reason=reason or "verified")
+        # D^l: fits that used annotators' clicks; D^m: fits from predictions that a human verified.
+        stream = Stream.annotated if fit is not None and fit.inputs.get("submission_ids") else Stream.manual
+        rounds.add_member(session, round_, sample_id, sample.current_fit_id, stream)
+    elif decision is DecisionKind.reject:
+        transition(session, sample, SampleState.rejected, user.id, reason=reason)
+    else:
+        transition(session, sample, SampleState.needs_annotation, user.id, reason=reason)
+    queues.clear(sample)
+    drafts.delete_for_sample(session, sample_id, LeaseKind.review)
+    row = Decision(sample_id=sample_id, fit_id=sample.current_fit_id, round_id=round_.id, user_id=user.id,
+                   decision=decision, reason=reason)
+    session.add(row)
+    session.flush()
+    audit.record(session, user.id, "decision.create", "sample", sample_id, decision=decision.value,
+                 reason=reason, stream=stream.value if stream else None)
+    return row, sample, stream

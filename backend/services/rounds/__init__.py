@@ -1,0 +1,1 @@
+"""Bootstrap rounds (launch, cancel, membership) and pre-annotation (round 0 without clicks)."""

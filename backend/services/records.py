@@ -17,7 +17,7 @@ from backend.models.enums import DecisionKind, JobKind, JobState, MaskKind, Samp
 from backend.models.fits import Fit, Prediction
 from backend.models.labels import Mask
 from backend.models.review import Decision
-from backend.services import audit, fit_samples, jobs, queues, rounds
+from backend.services import audit, fit_samples, jobs, label_audits, queues, rounds
 from backend.services.errors import ConflictError, InvalidInputError
 from backend.services.masks import encode_png
 from backend.services.samples import views_of
@@ -137,6 +137,7 @@ def record_fit(session: Session, sample_id: int, *, params: Sequence[float], key
             session.add(Decision(sample_id=sample_id, fit_id=fit.id, round_id=round_.id, by_heuristic=True,
                                  decision=DecisionKind.accept, reason="heuristic: all criteria met"))
             rounds.add_member(session, round_, sample_id, fit.id, Stream.heuristic)
+            label_audits.schedule(session, round_, sample_id, fit.id, Stream.heuristic, None)
     elif inputs.get("submission_ids"):
         transition(session, sample, SampleState.in_review, None, reason="fitted from annotations")
     audit.record(session, None, "fit.create", "sample", sample_id, fit_id=fit.id, state=sample.state)

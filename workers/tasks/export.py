@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from backend.models.enums import JobState
-from backend.services import export, export_jobs, jobs
+from backend.services import export, export_jobs, jobs, label_audits
 from backend.services.errors import DomainError
 from workers.export.freihand import ExportError, ExportOptions, write_freihand
 from workers.export.hand_models import export_hand_models
@@ -29,6 +29,7 @@ def run_freihand_export_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
         payload = dict(job.payload or {})
         try:
             records = export.export_records(session, payload.get("up_to_round"), payload.get("project"))
+            quality = label_audits.summary(session)
         except DomainError as exc:
             jobs.finish(session, job_id, JobState.failed, error=exc.message[:2000])
             return {"job_id": job_id, "failed": exc.message}
@@ -52,7 +53,7 @@ def run_freihand_export_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
         with tempfile.TemporaryDirectory(dir=archive.parent, prefix=f"job-{job_id}-") as scratch:
             out = Path(scratch) / "freihand"
             summary = write_freihand(records, out, ctx.storage.get_bytes, arrays, options, progress=wrote,
-                                     other_side=left)
+                                     other_side=left, quality=quality)
             reporter(0.9, "packing the archive", force=True)
             _zip(out, archive)
     except (ExportError, DomainError) as exc:

@@ -1,0 +1,27 @@
+"""Label quality (issue 40): audit figures per round and stream, and the admin's quality settings."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import APIRouter
+
+from backend.api.deps import AdminUser, SessionDep
+from backend.schemas.quality import QualitySettingsIn, QualitySettingsPublic, QualitySummary
+from backend.services import label_audits
+
+router = APIRouter(prefix="/admin/quality", tags=["admin: label quality"])
+
+
+@router.get("", response_model=QualitySummary)
+def quality(session: SessionDep, _admin: AdminUser) -> dict[str, Any]:
+    """Per round and stream: labels audited blind, found wrong, the share and its Wilson 95 % interval."""
+    return label_audits.summary(session)
+
+
+@router.put("/settings", response_model=QualitySettingsPublic)
+def update_settings(body: QualitySettingsIn, session: SessionDep, admin: AdminUser) -> dict[str, Any]:
+    """Change the audit share (and its seed), the precision target or the audits it needs; the fields given."""
+    changes = {name: getattr(body, name) for name in body.model_fields_set}
+    config = label_audits.update_config(session, admin.id, changes)
+    return {name: getattr(config, name) for name in label_audits.FIELDS}

@@ -1,0 +1,65 @@
+"""Label quality (issue 40): blind audits of accepted labels and the admin's quality settings.
+
+Not the audit trail (models/audit.py, every change the server makes): a `LabelAudit` is a second look at one
+accepted label by a reviewer who is not told it was accepted, nor by whom (services/label_audits.py)."""
+
+from __future__ import annotations
+
+from datetime import datetime
+
+from sqlalchemy import CheckConstraint, ForeignKey, Index, String, Text
+from sqlalchemy.orm import Mapped, mapped_column
+
+from backend.db.base import Base, utcnow
+from backend.models.enums import Stream, enum_check
+
+AUDIT_STATES = ("pending", "done", "void")  # void: the label left the dataset before it was audited
+AUDIT_VERDICTS = ("correct", "wrong")
+
+
+class LabelAudit(Base):
+    """One audit of the label a stream accepted (its sample, fit, round and stream as accepted). `verdict`
+    'wrong' took the label out of the dataset (its round member deleted) with `reason`; the row keeps where it
+    was, so the round's audit figures still count it. The lease is the sample row's (lease_kind 'review')."""
+
+    __tablename__ = "label_audits"
+    __table_args__ = (
+        enum_check("stream", Stream),
+        CheckConstraint(f"state IN ({', '.join(repr(s) for s in AUDIT_STATES)})", name="state_valid"),
+        CheckConstraint(f"verdict IS NULL OR verdict IN ({', '.join(repr(v) for v in AUDIT_VERDICTS)})",
+                        name="verdict_valid"),
+        Index("ix_label_audits_state", "state", "id"),
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    sample_id: Mapped[int] = mapped_column(ForeignKey("samples.id", ondelete="CASCADE"), index=True)
+    fit_id: Mapped[int | None] = mapped_column(ForeignKey("fits.id", ondelete="SET NULL"))
+    round_id: Mapped[int | None] = mapped_column(ForeignKey("rounds.id", ondelete="SET NULL"), index=True)
+    stream: Mapped[str] = mapped_column(String(20))
+    accepted_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))  # None: heuristic
+    state: Mapped[str] = mapped_column(String(20), default="pending")
+    verdict: Mapped[str | None] = mapped_column(String(20))
+    auditor_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
+    decision_id: Mapped[int | None] = mapped_column(ForeignKey("decisions.id", ondelete="SET NULL"))
+    reason: Mapped[str] = mapped_column(Text, default="")
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+    decided_at: Mapped[datetime | None]
+
+
+class QualitySettings(Base):
+    """The admin's quality settings: one row (id 1), written on the first change; absent: the defaults."""
+
+    __tablename__ = "quality_settings"
+    __table_args__ = (
+        CheckConstraint("audit_share >= 0 AND audit_share <= 1", name="audit_share_range"),
+        CheckConstraint("precision_target IS NULL OR (precision_target > 0 AND precision_target < 1)",
+                        name="precision_target_range"),
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    audit_share: Mapped[float] = mapped_column(default=0.05)  # of each stream's accepts, in [0, 1]
+    audit_seed: Mapped[int] = mapped_column(default=0)  # which labels the share picks (a hash of it and the ids)
+    precision_target: Mapped[float | None] = mapped_column(default=None)  # most auto-accepts wrong, e.g. 0.02
+    min_audits_for_target: Mapped[int] = mapped_column(default=30)
+    updated_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
+    updated_at: Mapped[datetime] = mapped_column(default=utcnow, onupdate=utcnow)

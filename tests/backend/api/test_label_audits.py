@@ -1,0 +1,150 @@
+"""Blind audits of accepted labels (issue 40, services.label_audits): picked at accept, handed out blind through the
+reviewers' queue, the verdict beside the label, a wrong label out of the dataset, figures with Wilson intervals."""
+
+from __future__ import annotations
+
+import pytest
+from sqlalchemy import text
+
+from backend.models.enums import Role
+from backend.services.label_audits import QualityConfig, picked, unit_hash, wilson_interval
+
+GOOD = {"confidences": [0.9] * 21}
+
+
+def _share(env, share: float, **more) -> None:
+    response = env.client.put("/api/admin/quality/settings", json={"audit_share": share, **more},
+                              headers=env.headers(Role.admin))
+    assert response.status_code == 200, response.text
+    assert response.json()["audit_share"] == share
+
+
+def _heuristic_accepts(env, h, frames: int) -> list[int]:
+    ids = h.seed(env, frames=frames, cameras=2, state="fitting")
+    for sample_id in ids:
+        h.record_fit(env, sample_id, prediction=GOOD)
+    return ids
+
+
+def _quality(env) -> dict:
+    response = env.client.get("/api/admin/quality", headers=env.headers(Role.admin))
+    assert response.status_code == 200, response.text
+    return response.json()
+
+
+def test_heuristic_accept_is_audited_blind_and_a_wrong_label_leaves_the_dataset(env, h):
+    _share(env, 1.0)
+    ids = _heuristic_accepts(env, h, frames=2)
+    assert h.count(env, "label_audits") == 2 and h.count(env, "round_members") == 2
+    first = env.client.post("/api/review/next", headers=env.headers(Role.reviewer))
+    assert first.status_code == 200, first.text
+    task = first.json()
+    # Blind: shown as any review task, with no heuristic verdict (it would say 'passed').
+    assert task["sample_id"] in ids and task["state"] == "in_review" and task["fit"]["heuristic"] is None
+    overlay = env.client.get(f"/api/review/samples/{task['sample_id']}/overlay?mesh=false",
+                             headers=env.headers(Role.reviewer))
+    assert overlay.status_code == 200, overlay.text
+    assert overlay.json()["fit"]["heuristic"] is None
+    wrong = env.client.post(f"/api/review/samples/{task['sample_id']}/decision",
+                            json={"decision": "reject", "reason": "thumb on the index finger",
+                                  "lease_token": task["lease_token"]}, headers=env.headers(Role.reviewer))
+    assert wrong.status_code == 201, wrong.text
+    assert wrong.json()["state"] == "rejected" and wrong.json()["stream"] is None
+    second = h.next_task(env, Role.reviewer, "review")
+    right = env.client.post(f"/api/review/samples/{second['sample_id']}/decision", json={"decision": "accept"},
+                            headers=env.headers(Role.reviewer))
+    assert right.status_code == 201 and right.json()["state"] == "accepted"
+    assert right.json()["stream"] == "manual"  # what a reviewer's accept of a fit from predictions says
+    assert env.client.post("/api/review/next", headers=env.headers(Role.reviewer)).status_code == 204
+    with env.session() as s:
+        members = s.execute(text("SELECT sample_id FROM round_members")).scalars().all()
+        audits = dict(s.execute(text("SELECT sample_id, verdict FROM label_audits")).all())
+        reason = s.execute(text("SELECT reason FROM label_audits WHERE verdict = 'wrong'")).scalar_one()
+    assert members == [second["sample_id"]]  # the wrong label is out of the dataset
+    assert audits == {task["sample_id"]: "wrong", second["sample_id"]: "correct"}
+    assert reason == "thumb on the index finger"
+    stats = env.client.get("/api/admin/rounds/statistics", headers=env.headers(Role.admin)).json()
+    assert stats["rounds"][0]["added"]["heuristic"] == 1 and stats["rounds"][0]["dataset_size_after"] == 1
+    dataset = env.client.get("/api/admin/exports/dataset", headers=env.headers(Role.admin))
+    assert [m["sample_id"] for m in dataset.json()["samples"]] == [second["sample_id"]]
+    figures = _quality(env)
+    heuristic = figures["streams"]["heuristic"]
+    assert (heuristic["audited"], heuristic["wrong"], heuristic["error_rate"]) == (2, 1, 0.5)
+    low, high = heuristic["error_rate_ci95"]
+    assert low == pytest.approx(0.0945, abs=1e-3) and high == pytest.approx(0.9055, abs=1e-3)
+    assert figures["rounds"] == [{"round": 0, "stream": "heuristic", **heuristic}]
+
+
+def test_sent_back_by_an_audit_goes_to_the_annotators(env, h):
+    _share(env, 1.0)
+    ids = _heuristic_accepts(env, h, frames=1)
+    task = h.next_task(env, Role.reviewer, "review")
+    response = env.client.post(f"/api/review/samples/{ids[0]}/decision",
+                               json={"decision": "annotate", "reason": "wrist too far out"},
+                               headers=env.headers(Role.reviewer))
+    assert response.status_code == 201 and response.json()["state"] == "needs_annotation"
+    assert task["sample_id"] == ids[0]
+    assert h.next_task(env)["sample_id"] == ids[0] and h.count(env, "round_members") == 0
+
+
+def test_a_reviewer_never_audits_their_own_accept(env, h):
+    _share(env, 1.0)
+    ids = h.seed(env, frames=1, cameras=1, state="fitting")
+    h.record_fit(env, ids[0], from_clicks=True)
+    h.next_task(env, Role.reviewer, "review")
+    accepted = env.client.post(f"/api/review/samples/{ids[0]}/decision", json={"decision": "accept"},
+                               headers=env.headers(Role.reviewer))
+    assert accepted.status_code == 201 and accepted.json()["stream"] == "annotated"
+    assert h.count(env, "label_audits") == 1
+    assert env.client.post("/api/review/next", headers=env.headers(Role.reviewer)).status_code == 204
+    other = h.next_task(env, Role.admin, "review")  # an admin reviews too: another person
+    assert other["sample_id"] == ids[0] and other["state"] == "in_review"
+    refused = env.client.post(f"/api/review/samples/{ids[0]}/decision", json={"decision": "accept"},
+                              headers=env.headers(Role.reviewer))
+    assert refused.status_code in (403, 409)  # the admin holds it
+    done = env.client.post(f"/api/review/samples/{ids[0]}/decision", json={"decision": "accept"},
+                           headers=env.headers(Role.admin))
+    assert done.status_code == 201 and done.json()["stream"] == "annotated"
+    assert _quality(env)["streams"]["annotated"]["audited"] == 1 and h.count(env, "round_members") == 1
+
+
+def test_no_audits_at_share_zero_and_the_share_is_a_setting(env, h):
+    _share(env, 0.0)
+    _heuristic_accepts(env, h, frames=2)
+    assert h.count(env, "label_audits") == 0
+    assert env.client.post("/api/review/next", headers=env.headers(Role.reviewer)).status_code == 204
+    assert _quality(env)["settings"]["audit_share"] == 0.0
+
+
+@pytest.mark.parametrize("body", [{"audit_share": 1.5}, {"audit_share": -0.1}, {"precision_target": 0},
+                                  {"precision_target": 1.0}, {"min_audits_for_target": 0}, {"share": 0.1}])
+def test_settings_out_of_range_are_refused(sqlite_env, body):
+    response = sqlite_env.client.put("/api/admin/quality/settings", json=body, headers=sqlite_env.headers(Role.admin))
+    assert response.status_code == 422, response.text
+    assert sqlite_env.client.get("/api/admin/quality", headers=sqlite_env.headers(Role.admin)).json()[
+        "settings"]["audit_share"] == 0.05
+
+
+def test_quality_is_for_admins(sqlite_env):
+    for role in (Role.annotator, Role.reviewer):
+        assert sqlite_env.client.get("/api/admin/quality", headers=sqlite_env.headers(role)).status_code == 403
+        assert sqlite_env.client.put("/api/admin/quality/settings", json={"audit_share": 0.5},
+                                     headers=sqlite_env.headers(role)).status_code == 403
+
+
+def test_wilson_interval_against_known_values():
+    assert wilson_interval(0, 0) is None
+    low, high = wilson_interval(0, 10)
+    assert low == 0.0 and high == pytest.approx(0.2775, abs=1e-4)
+    low, high = wilson_interval(2, 50)
+    assert low == pytest.approx(0.01104, abs=1e-4) and high == pytest.approx(0.13462, abs=1e-4)
+    with pytest.raises(ValueError, match="wrong <= n"):
+        wilson_interval(3, 2)
+
+
+def test_the_share_picks_about_that_share_and_repeats():
+    config = QualityConfig(audit_share=0.05, audit_seed=7)
+    chosen = [picked(config, i, i + 1) for i in range(20000)]
+    assert abs(sum(chosen) / len(chosen) - 0.05) < 0.005
+    assert chosen == [picked(config, i, i + 1) for i in range(20000)]
+    assert unit_hash(1, "x") != unit_hash(2, "x")

@@ -327,3 +327,15 @@ def summary(session: Session) -> dict[str, Any]:
     return {"settings": {k: getattr(config, k) for k in FIELDS}, "rounds": per_round, "streams": streams,
             "method": "each accepted label is audited with probability audit_share; a reviewer judges it blind; "
                       "wrong = rejected or sent back; interval: Wilson score, 95 %"}
+
+
+def list_audits(session: Session) -> list[dict[str, Any]]:
+    """Every audit with its label (sample, fit with its parameters, round index, stream), verdict and reason: what a
+    client that knows the truth (the simulation) compares with, including the labels audits took out."""
+    rows = session.execute(select(LabelAudit, Round.index, Fit.params)
+                           .join(Round, Round.id == LabelAudit.round_id, isouter=True)
+                           .join(Fit, Fit.id == LabelAudit.fit_id, isouter=True).order_by(LabelAudit.id)).all()
+    return [{"id": a.id, "sample_id": a.sample_id, "round": index, "stream": a.stream, "state": a.state,
+             "verdict": a.verdict, "reason": a.reason, "by_heuristic": a.accepted_by_id is None and a.stream ==
+             Stream.heuristic.value, "fit": None if a.fit_id is None else {"id": a.fit_id, "params": params}}
+            for a, index, params in rows]

@@ -142,3 +142,13 @@ class ApiClient:
 
     def predictions(self, round_index: int | None = None) -> dict[str, Any]:
         return self.get_json("/api/admin/exports/predictions", round_index=round_index)
+
+    def set_quality(self, **settings: Any) -> dict[str, Any]:
+        """Change the label-quality settings (audit_share, audit_seed, precision_target, min_audits_for_target)."""
+        return self.request("PUT", "/api/admin/quality/settings", json=settings).json()
+
+    def quality(self) -> dict[str, Any]:
+        return self.get_json("/api/admin/quality")
+
+    def label_audits(self) -> list[dict[str, Any]]:
+        return self.get_json("/api/admin/quality/audits")["audits"]

@@ -1,7 +1,8 @@
 """label quality: blind audits of accepted labels and the quality settings
 
 Issue 40: `label_audits` (one row per audit of an accepted label: its sample, fit, round and stream, the verdict
-and who gave it) and `quality_settings` (the audit share, its seed, the precision target; one row).
+and who gave it) and `quality_settings` (the audit share, its seed, the precision target; one row); `rounds.heuristic_thresholds`
+(the thresholds chosen for the round and why).
 
 Revision ID: 0012_quality
 Revises: 0011_guidelines
@@ -57,6 +58,8 @@ def upgrade() -> None:
         batch_op.create_index('ix_label_audits_state', ['state', 'id'], unique=False)
         batch_op.create_index(batch_op.f('ix_label_audits_sample_id'), ['sample_id'], unique=False)
         batch_op.create_index(batch_op.f('ix_label_audits_round_id'), ['round_id'], unique=False)
+    with op.batch_alter_table('rounds', schema=None) as batch_op:
+        batch_op.add_column(sa.Column('heuristic_thresholds', sa.JSON(), nullable=True))
     op.create_table('quality_settings',
     sa.Column('id', sa.Integer(), nullable=False),
     sa.Column('audit_share', sa.Double(), nullable=False),
@@ -76,6 +79,8 @@ def upgrade() -> None:
 
 def downgrade() -> None:
     op.drop_table('quality_settings')
+    with op.batch_alter_table('rounds', schema=None) as batch_op:
+        batch_op.drop_column('heuristic_thresholds')
     with op.batch_alter_table('label_audits', schema=None) as batch_op:
         batch_op.drop_index(batch_op.f('ix_label_audits_round_id'))
         batch_op.drop_index(batch_op.f('ix_label_audits_sample_id'))

@@ -26,11 +26,10 @@ from sqlalchemy.exc import DataError, IntegrityError
 from backend.models.capture import Sample
 from backend.models.enums import JobState, SampleState
 from backend.models.jobs import Job
-from backend.services import jobs, records
+from backend.services import jobs, precision_target, records
 from backend.services.errors import DomainError
 from backend.services.jobs import JobStillRunningError
 from backend.services.masks import encode_png
-from backend.services.verification import HeuristicThresholds
 from backend.settings import Settings
 from workers.capture.schema import CaptureError
 from workers.fitting.config import FitConfig, source_weights
@@ -261,8 +260,8 @@ def _record_all(ctx: WorkerContext, fitted: list[tuple[FitInput, Any]], config: 
             "iterations_schedule": [config.global_iterations, config.full_iterations]})
         rows.append((fi, result, ious, diagnostics))
     unstorable: list[tuple[FitInput, str]] = []
-    thresholds = HeuristicThresholds.from_settings(ctx.settings)
     with ctx.session_factory.begin() as session:
+        thresholds = precision_target.thresholds_in_force(session, ctx.settings)  # the round's (issue 40)
         for fi, result, ious, diagnostics in rows:
             try:
                 with session.begin_nested():

@@ -8,15 +8,16 @@ from fastapi import APIRouter
 
 from backend.api.deps import AdminUser, SessionDep
 from backend.schemas.quality import QualitySettingsIn, QualitySettingsPublic, QualitySummary
-from backend.services import label_audits
+from backend.services import label_audits, precision_target
 
 router = APIRouter(prefix="/admin/quality", tags=["admin: label quality"])
 
 
 @router.get("", response_model=QualitySummary)
 def quality(session: SessionDep, _admin: AdminUser) -> dict[str, Any]:
-    """Per round and stream: labels audited blind, found wrong, the share and its Wilson 95 % interval."""
-    return label_audits.summary(session)
+    """Per round and stream: labels audited blind, found wrong, the share and its Wilson 95 % interval; the
+    heuristic's thresholds the newest round chose and why."""
+    return {**label_audits.summary(session), "thresholds": precision_target.current(session)}
 
 
 @router.put("/settings", response_model=QualitySettingsPublic)
@@ -25,3 +26,10 @@ def update_settings(body: QualitySettingsIn, session: SessionDep, admin: AdminUs
     changes = {name: getattr(body, name) for name in body.model_fields_set}
     config = label_audits.update_config(session, admin.id, changes)
     return {name: getattr(config, name) for name in label_audits.FIELDS}
+
+
+@router.get("/audits")
+def audits(session: SessionDep, _admin: AdminUser) -> dict[str, Any]:
+    """Every audit with its label (sample, fit and its parameters, round, stream), verdict and reason."""
+    rows = label_audits.list_audits(session)
+    return {"count": len(rows), "audits": rows}

@@ -148,3 +148,24 @@ def test_the_share_picks_about_that_share_and_repeats():
     assert abs(sum(chosen) / len(chosen) - 0.05) < 0.005
     assert chosen == [picked(config, i, i + 1) for i in range(20000)]
     assert unit_hash(1, "x") != unit_hash(2, "x")
+
+
+def test_a_round_launch_chooses_the_thresholds_and_the_workers_apply_them(env, h):
+    from backend.services import precision_target
+    from backend.services.precision_target import scaled
+    from backend.services.verification import HeuristicThresholds
+
+    _share(env, 1.0, precision_target=0.02, min_audits_for_target=5)
+    _heuristic_accepts(env, h, frames=2)
+    launched = env.client.post("/api/admin/rounds", json={"note": "r1"}, headers=env.headers(Role.admin))
+    assert launched.status_code == 201, launched.text
+    thresholds = _quality(env)["thresholds"]
+    assert thresholds["round"] == 1 and thresholds["chosen_by"] == "paper"
+    assert "until 5 labels are audited: 0 audited so far" in thresholds["explanation"]
+    with env.session() as s, s.begin():
+        assert precision_target.thresholds_in_force(s, env.settings) == HeuristicThresholds.from_settings(env.settings)
+        s.execute(text("UPDATE rounds SET heuristic_thresholds = :t WHERE state = 'running'"),
+                  {"t": __import__("json").dumps(precision_target.Choice(
+                      scaled(HeuristicThresholds(), 1.5), 1.5, "target", "test", 0, 0, None).to_json())})
+    with env.session() as s:
+        assert precision_target.thresholds_in_force(s, env.settings) == scaled(HeuristicThresholds(), 1.5)

@@ -54,6 +54,7 @@ class QualitySettings(Base):
         CheckConstraint("audit_share >= 0 AND audit_share <= 1", name="audit_share_range"),
         CheckConstraint("precision_target IS NULL OR (precision_target > 0 AND precision_target < 1)",
                         name="precision_target_range"),
+        CheckConstraint("auditor_error_rate >= 0 AND auditor_error_rate < 0.5", name="auditor_error_rate_range"),
     )
 
     id: Mapped[int] = mapped_column(primary_key=True)
@@ -61,5 +62,6 @@ class QualitySettings(Base):
     audit_seed: Mapped[int] = mapped_column(default=0)  # which labels the share picks (a hash of it and the ids)
     precision_target: Mapped[float | None] = mapped_column(default=None)  # most auto-accepts wrong, e.g. 0.02
     min_audits_for_target: Mapped[int] = mapped_column(default=30)
+    auditor_error_rate: Mapped[float] = mapped_column(default=0.0)  # an auditor's verdict wrong, in [0, 0.5)
     updated_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
     updated_at: Mapped[datetime] = mapped_column(default=utcnow, onupdate=utcnow)

@@ -24,12 +24,17 @@ class QualitySettingsIn(Strict):
                                        description="Audited heuristic labels needed before the thresholds are "
                                                    "chosen from them.")
 
+    auditor_error_rate: float = Field(default=None, ge=0, lt=0.5, allow_inf_nan=False,  # type: ignore[assignment]
+                                      description="How often an auditor's verdict is itself wrong, 0..0.5 (from "
+                                                  "gold samples): the corrected figures undo it.")
+
 
 class QualitySettingsPublic(Public):
     audit_share: float
     audit_seed: int
     precision_target: float | None
     min_audits_for_target: int
+    auditor_error_rate: float
 
 
 class AuditFigure(Public):
@@ -38,6 +43,8 @@ class AuditFigure(Public):
     pending: int = Field(description="Audits not yet decided.")
     error_rate: float | None = Field(description="wrong / audited; null before the first audit.")
     error_rate_ci95: list[float] | None = Field(description="Wilson 95 % interval of error_rate, [low, high].")
+    error_rate_corrected: float | None = Field(description="The share wrong after the auditors' own error rate.")
+    error_rate_corrected_ci95: list[float] | None = Field(description="error_rate_ci95, corrected likewise.")
 
 
 class RoundAuditFigure(AuditFigure):

@@ -54,12 +54,15 @@ class QualityConfig:
         precision_target: at most this share of auto-accepted (D^h) labels wrong, in (0, 1); None: the paper's
             fixed thresholds (services.precision_target).
         min_audits_for_target: audited heuristic labels needed before thresholds are chosen from them.
+        auditor_error_rate: how often an auditor's verdict is itself wrong (either way), in [0, 0.5): the figures'
+            `error_rate_corrected` undo it (a 2 % auditor error alone doubles a 2 % error rate: docs/evaluation.md).
     """
 
     audit_share: float = 0.05
     audit_seed: int = 0
     precision_target: float | None = None
     min_audits_for_target: int = 30
+    auditor_error_rate: float = 0.0
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.audit_share) and 0 <= self.audit_share <= 1):
@@ -69,11 +72,13 @@ class QualityConfig:
             raise InvalidInputError(f"precision_target must be in (0, 1) or null, not {self.precision_target}")
         if not 1 <= self.min_audits_for_target <= 1_000_000:
             raise InvalidInputError(f"min_audits_for_target must be in 1..1000000, not {self.min_audits_for_target}")
+        if not (math.isfinite(self.auditor_error_rate) and 0 <= self.auditor_error_rate < 0.5):
+            raise InvalidInputError(f"auditor_error_rate must be in [0, 0.5), not {self.auditor_error_rate}")
         if not 0 <= self.audit_seed < 2**31:
             raise InvalidInputError(f"audit_seed must be in 0..2147483647, not {self.audit_seed}")
 
 
-FIELDS = ("audit_share", "audit_seed", "precision_target", "min_audits_for_target")
+FIELDS = ("audit_share", "audit_seed", "precision_target", "min_audits_for_target", "auditor_error_rate")
 
 
 def read_config(session: Session) -> QualityConfig:
@@ -292,12 +297,25 @@ def wilson_interval(wrong: int, n: int, z: float = Z_95) -> tuple[float, float] 
     return max(0.0, centre - half), min(1.0, centre + half)
 
 
-def figure(audited: int, wrong: int, pending: int = 0) -> dict[str, Any]:
-    """One cell of the figures: audited, wrong, their share and its Wilson 95 % interval (shares in [0, 1])."""
+def corrected(share: float, auditor_error_rate: float) -> float:
+    """The share of labels wrong, from the share the auditors called wrong when each verdict flips with probability
+    `auditor_error_rate` e: called = p (1 - e) + (1 - p) e, so p = (called - e) / (1 - 2 e), clipped to [0, 1]."""
+    if not 0 <= auditor_error_rate < 0.5:
+        raise ValueError(f"auditor_error_rate must be in [0, 0.5), not {auditor_error_rate}")
+    return min(1.0, max(0.0, (share - auditor_error_rate) / (1 - 2 * auditor_error_rate)))
+
+
+def figure(audited: int, wrong: int, pending: int = 0, auditor_error_rate: float = 0.0) -> dict[str, Any]:
+    """One cell of the figures: audited, called wrong, that share and its Wilson 95 % interval, and both corrected
+    for the auditors' own error rate (`corrected`; the same without one). Shares in [0, 1]."""
     interval = wilson_interval(wrong, audited)
+    e = auditor_error_rate
     return {"audited": audited, "wrong": wrong, "pending": pending,
             "error_rate": wrong / audited if audited else None,
-            "error_rate_ci95": None if interval is None else [round(interval[0], 6), round(interval[1], 6)]}
+            "error_rate_ci95": None if interval is None else [round(interval[0], 6), round(interval[1], 6)],
+            "error_rate_corrected": corrected(wrong / audited, e) if audited else None,
+            "error_rate_corrected_ci95": None if interval is None else [round(corrected(interval[0], e), 6),
+                                                                         round(corrected(interval[1], e), 6)]}
 
 
 def summary(session: Session) -> dict[str, Any]:
@@ -316,17 +334,19 @@ def summary(session: Session) -> dict[str, Any]:
         else:
             cell[0] += int(n)
             cell[1] += int(n) if verdict == "wrong" else 0
-    per_round = [{"round": index, "stream": stream, **figure(*cell)}
+    config = read_config(session)
+    e = config.auditor_error_rate
+    per_round = [{"round": index, "stream": stream, **figure(*cell, auditor_error_rate=e)}
                  for (index, stream), cell in sorted(cells.items(), key=lambda kv: (kv[0][0] is None, kv[0][0] or 0,
                                                                                     kv[0][1]))]
     streams = {}
     for stream in Stream:
         total = [sum(c[i] for (_, s), c in cells.items() if s == stream.value) for i in range(3)]
-        streams[stream.value] = figure(*total)
-    config = read_config(session)
+        streams[stream.value] = figure(*total, auditor_error_rate=e)
     return {"settings": {k: getattr(config, k) for k in FIELDS}, "rounds": per_round, "streams": streams,
             "method": "each accepted label is audited with probability audit_share; a reviewer judges it blind; "
-                      "wrong = rejected or sent back; interval: Wilson score, 95 %"}
+                      "wrong = rejected or sent back; interval: Wilson score, 95 %; corrected: for the auditors' own "
+                      "error rate (auditor_error_rate)"}
 
 
 def list_audits(session: Session) -> list[dict[str, Any]]:

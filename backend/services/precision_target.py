@@ -116,7 +116,8 @@ class Choice:
         return {**asdict(self), "thresholds": asdict(self.thresholds)}
 
 
-def choose(items: list[Evidence], paper: HeuristicThresholds, target: float | None, min_audits: int) -> Choice:
+def choose(items: list[Evidence], paper: HeuristicThresholds, target: float | None, min_audits: int,
+           judge_error_rate: float = 0.0) -> Choice:
     """The loosest scale of the paper's thresholds whose accepted evidence (at least `min_audits` labels) has a
     Wilson 95 % upper bound of its wrong share at most `target`; the paper's thresholds without a target, with fewer
     audited heuristic labels than `min_audits`, or when no scale qualifies (the explanation says which)."""
@@ -125,7 +126,7 @@ def choose(items: list[Evidence], paper: HeuristicThresholds, target: float | No
         chosen = [e for e in items if passes(e.metrics, scaled(paper, scale))]
         wrong = sum(e.wrong for e in chosen)
         interval = label_audits.wilson_interval(wrong, len(chosen))
-        return len(chosen), wrong, None if interval is None else interval[1]
+        return len(chosen), wrong, None if interval is None else label_audits.corrected(interval[1], judge_error_rate)
 
     n1, k1, u1 = at(1.0)
     if target is None:
@@ -156,7 +157,8 @@ def choose(items: list[Evidence], paper: HeuristicThresholds, target: float | No
 def choose_for_round(session: Session, round_: Round, paper: HeuristicThresholds) -> Choice:
     """Choose the thresholds for `round_` (at its launch) and store them on it, with the explanation."""
     config = label_audits.read_config(session)
-    choice = choose(evidence(session), paper, config.precision_target, config.min_audits_for_target)
+    choice = choose(evidence(session), paper, config.precision_target, config.min_audits_for_target,
+                    config.auditor_error_rate)
     round_.heuristic_thresholds = choice.to_json()
     return choice
 

@@ -225,8 +225,10 @@ class BootstrapSimulation:
             if not self.detector_on:
                 log.info("detector off: %s", status["reason"])
         # The server's quality settings as the run's (its default share would audit 5 % of every run).
+        # The auditors' error rate is the simulated reviewers' own (gold samples would measure it on a real team).
         self.admin.set_quality(audit_share=self.config.audit_share, audit_seed=self.config.audit_seed,
-                               precision_target=self.config.precision_target)
+                               precision_target=self.config.precision_target,
+                               auditor_error_rate=min(self.config.reviewer.error_rate, 0.49))
         imported = self.admin.import_capture(str(capture_dir), project, queue_for_annotation=False)
         self.project_id = int(imported["project_id"])
         samples = self.admin.sample_index(project=project)["samples"]
@@ -421,7 +423,8 @@ class BootstrapSimulation:
         }
 
     def label_quality(self, members: list[dict]) -> dict[str, Any]:
-        """Per stream, the server's audit estimate of the share of accepted labels that are wrong beside the true
+        """Per stream, the server's audit estimate (corrected for the auditors' error rate; `_raw`: as called) of the
+        share of accepted labels that are wrong beside the true
         share (a label is wrong when its fit's mean vertex error exceeds `auto_accept_max_mm`): over every label the
         stream accepted (those in the dataset and those audits took out), over the audited ones alone, and over the
         dataset as it is now; whether the interval holds the true share, and whether the precision target (the
@@ -443,10 +446,12 @@ class BootstrapSimulation:
             removed = {a["fit"]["id"] for a in audits if a["stream"] == stream and a["verdict"] == "wrong"}
             true_rate = wrong_share(present | removed)
             estimate = estimates.get(stream) or {}
-            ci = estimate.get("error_rate_ci95")
+            ci = estimate.get("error_rate_corrected_ci95")  # for the auditors' error rate (the reviewers')
             out[stream] = {
                 "labels": len(present | removed), "audited": estimate.get("audited", 0),
-                "audit_error_rate": estimate.get("error_rate"), "audit_error_rate_ci95": ci,
+                "audit_error_rate": estimate.get("error_rate_corrected"), "audit_error_rate_ci95": ci,
+                "audit_error_rate_raw": estimate.get("error_rate"),
+                "audit_error_rate_raw_ci95": estimate.get("error_rate_ci95"),
                 "true_error_rate": true_rate, "true_error_rate_audited": wrong_share(audited),
                 "true_error_rate_after_audits": wrong_share(present),
                 "ci_holds_true": None if ci is None or true_rate is None else bool(ci[0] <= true_rate <= ci[1]),

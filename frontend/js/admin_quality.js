@@ -20,13 +20,16 @@ const STREAM_LABEL = { heuristic: "Dʰ heuristic", manual: "Dᵐ verified", anno
 const pct = (x) => (x === null || x === undefined ? "–" : `${fmt(x * 100, 1)} %`);
 const interval = (ci) => (ci ? `${fmt(ci[0] * 100, 1)}–${fmt(ci[1] * 100, 1)} %` : "–");
 
+// The share wrong and its interval corrected for the auditors' own error rate (the same without one); the share as
+// the auditors called it in the cell's title.
 function figureCells(f) {
   return [h("td", { class: "num audited" }, String(f.audited)), h("td", { class: "num wrong" }, String(f.wrong)),
-    h("td", { class: "num rate" }, pct(f.error_rate)), h("td", { class: "num ci" }, interval(f.error_rate_ci95)),
+    h("td", { class: "num rate", title: `as called: ${pct(f.error_rate)}` }, pct(f.error_rate_corrected)),
+    h("td", { class: "num ci", title: `as called: ${interval(f.error_rate_ci95)}` }, interval(f.error_rate_corrected_ci95)),
     h("td", { class: "num pending" }, String(f.pending))];
 }
 
-const HEAD = ["audited", "wrong", "share wrong", "95 % interval (Wilson)", "pending"];
+const HEAD = ["audited", "called wrong", "share wrong", "95 % interval (Wilson)", "pending"];
 
 export class QualitySection {
   constructor(section, api) {
@@ -42,11 +45,14 @@ export class QualitySection {
     const target = h("input", { type: "number", min: "0.1", max: "50", step: "0.1", class: "precision-target",
       value: s.precision_target === null ? "" : String(s.precision_target * 100),
       placeholder: "off", title: "at most this percent of auto-accepted labels wrong; empty: the paper's thresholds" });
+    const judge = h("input", { type: "number", min: "0", max: "49", step: "0.5", class: "auditor-error",
+      value: String(s.auditor_error_rate * 100), title: "how often an auditor's verdict is itself wrong, percent" });
     const save = async (e) => {
       e.preventDefault();
       try {
         await this.api.put("/api/admin/quality/settings", { audit_share: Number(share.value) / 100,
-          precision_target: target.value === "" ? null : Number(target.value) / 100 });
+          precision_target: target.value === "" ? null : Number(target.value) / 100,
+          auditor_error_rate: Number(judge.value) / 100 });
         toast("quality settings saved", "ok");
         await this.refresh();
       } catch (error) {
@@ -57,9 +63,11 @@ export class QualitySection {
     fill(this.section, h("h2", {}, "Label quality"),
       h("p", { class: "muted" }, "A random share of every stream's accepted labels goes back to a reviewer blind: the " +
         "task looks like any other (not said to be accepted, nor by whom). A label the audit finds wrong leaves the " +
-        "dataset (exports, the round's figures) with the reviewer's reason. Share wrong with its Wilson 95 % interval."),
+        "dataset (exports, the round's figures) with the reviewer's reason. Share wrong with its Wilson 95 % interval, " +
+        "corrected for the auditors' own error rate (hover: as called)."),
       h("form", { class: "inline-form quality-form", onsubmit: save },
         h("label", {}, "audit share (%) ", share), h("label", {}, " at most wrong of Dʰ (%) ", target),
+        h("label", {}, " auditors' error (%) ", judge),
         h("button", { type: "submit" }, "Save")),
       h("table", { class: "table quality-streams" },
         h("thead", {}, h("tr", {}, h("th", {}, "stream (all rounds)"), ...HEAD.map((c) => h("th", { class: "num" }, c)))),

@@ -119,10 +119,20 @@ def test_no_audits_at_share_zero_and_the_share_is_a_setting(env, h):
 @pytest.mark.parametrize("body", [{"audit_share": 1.5}, {"audit_share": -0.1}, {"precision_target": 0},
                                   {"precision_target": 1.0}, {"min_audits_for_target": 0}, {"share": 0.1}])
 def test_settings_out_of_range_are_refused(sqlite_env, body):
+    before = sqlite_env.client.get("/api/admin/quality", headers=sqlite_env.headers(Role.admin)).json()["settings"]
     response = sqlite_env.client.put("/api/admin/quality/settings", json=body, headers=sqlite_env.headers(Role.admin))
     assert response.status_code == 422, response.text
     assert sqlite_env.client.get("/api/admin/quality", headers=sqlite_env.headers(Role.admin)).json()[
-        "settings"]["audit_share"] == 0.05
+        "settings"] == before
+
+
+def test_the_product_audits_five_percent_until_the_admin_changes_it(sqlite_env):
+    from backend.services.label_audits import read_config
+
+    with sqlite_env.session() as s, s.begin():
+        s.execute(text("DELETE FROM quality_settings"))  # the test fixtures turn audits off; a new install has none
+    with sqlite_env.session() as s:
+        assert read_config(s) == QualityConfig() and QualityConfig().audit_share == 0.05
 
 
 def test_quality_is_for_admins(sqlite_env):

@@ -15,6 +15,7 @@ from backend.models.enums import Stream, enum_check
 
 AUDIT_STATES = ("pending", "done", "void")  # void: the label left the dataset before it was audited
 AUDIT_VERDICTS = ("correct", "wrong")
+AUDIT_KINDS = ("audit", "gold")  # gold: a gold label slipped into one reviewer's queue (`auditor_id` set at once)
 
 
 class LabelAudit(Base):
@@ -28,6 +29,7 @@ class LabelAudit(Base):
         CheckConstraint(f"state IN ({', '.join(repr(s) for s in AUDIT_STATES)})", name="state_valid"),
         CheckConstraint(f"verdict IS NULL OR verdict IN ({', '.join(repr(v) for v in AUDIT_VERDICTS)})",
                         name="verdict_valid"),
+        CheckConstraint(f"kind IN ({', '.join(repr(k) for k in AUDIT_KINDS)})", name="kind_valid"),
         Index("ix_label_audits_state", "state", "id"),
     )
 
@@ -36,6 +38,7 @@ class LabelAudit(Base):
     fit_id: Mapped[int | None] = mapped_column(ForeignKey("fits.id", ondelete="SET NULL"))
     round_id: Mapped[int | None] = mapped_column(ForeignKey("rounds.id", ondelete="SET NULL"), index=True)
     stream: Mapped[str] = mapped_column(String(20))
+    kind: Mapped[str] = mapped_column(String(10), default="audit", server_default="audit")
     accepted_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))  # None: heuristic
     state: Mapped[str] = mapped_column(String(20), default="pending")
     verdict: Mapped[str | None] = mapped_column(String(20))
@@ -55,6 +58,7 @@ class QualitySettings(Base):
         CheckConstraint("precision_target IS NULL OR (precision_target > 0 AND precision_target < 1)",
                         name="precision_target_range"),
         CheckConstraint("auditor_error_rate >= 0 AND auditor_error_rate < 0.5", name="auditor_error_rate_range"),
+        CheckConstraint("gold_share >= 0 AND gold_share <= 1", name="gold_share_range"),
     )
 
     id: Mapped[int] = mapped_column(primary_key=True)
@@ -63,5 +67,20 @@ class QualitySettings(Base):
     precision_target: Mapped[float | None] = mapped_column(default=None)  # most auto-accepts wrong, e.g. 0.02
     min_audits_for_target: Mapped[int] = mapped_column(default=30)
     auditor_error_rate: Mapped[float] = mapped_column(default=0.0)  # an auditor's verdict wrong, in [0, 0.5)
+    gold_share: Mapped[float] = mapped_column(default=0.0)  # of a reviewer's tasks, gold labels (in [0, 1])
     updated_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
     updated_at: Mapped[datetime] = mapped_column(default=utcnow, onupdate=utcnow)
+
+
+class GoldLabel(Base):
+    """An accepted label an admin marked gold (known right): slipped unmarked into reviewers' queues, each
+    reviewer's agreement with it measured (services.label_audits; a `LabelAudit` of kind 'gold' per look)."""
+
+    __tablename__ = "gold_labels"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    sample_id: Mapped[int] = mapped_column(ForeignKey("samples.id", ondelete="CASCADE"), unique=True)
+    fit_id: Mapped[int | None] = mapped_column(ForeignKey("fits.id", ondelete="SET NULL"))
+    stream: Mapped[str] = mapped_column(String(20))
+    marked_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)

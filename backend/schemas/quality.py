@@ -6,7 +6,7 @@ from typing import Any
 
 from pydantic import Field
 
-from backend.schemas.base import Public, Strict
+from backend.schemas.base import Id, Public, Strict
 
 
 class QualitySettingsIn(Strict):
@@ -28,6 +28,9 @@ class QualitySettingsIn(Strict):
                                       description="How often an auditor's verdict is itself wrong, 0..0.5 (from "
                                                   "gold samples): the corrected figures undo it.")
 
+    gold_share: float = Field(default=None, ge=0, le=1, allow_inf_nan=False,  # type: ignore[assignment]
+                              description="Share of a reviewer's tasks that are gold labels, 0..1.")
+
 
 class QualitySettingsPublic(Public):
     audit_share: float
@@ -35,6 +38,25 @@ class QualitySettingsPublic(Public):
     precision_target: float | None
     min_audits_for_target: int
     auditor_error_rate: float
+    gold_share: float
+
+
+class GoldMark(Strict):
+    sample_id: Id = Field(description="An accepted sample: its label becomes gold (known right).")
+
+
+class GoldPublic(Public):
+    sample_id: int
+    fit_id: int | None
+    stream: str
+
+
+class GoldAgreement(Public):
+    user_id: int
+    gold_judged: int
+    gold_agreed: int = Field(description="Gold labels the reviewer accepted (a gold label is known right).")
+    agreement: float | None
+    agreement_ci95: list[float] | None = Field(description="Wilson 95 % interval of agreement.")
 
 
 class AuditFigure(Public):
@@ -56,6 +78,7 @@ class QualitySummary(Public):
     settings: QualitySettingsPublic
     rounds: list[RoundAuditFigure]
     streams: dict[str, AuditFigure]
+    gold: list[GoldAgreement] = Field(description="Per reviewer, agreement with gold.")
     method: str
     thresholds: dict[str, Any] | None = Field(default=None, description="The heuristic thresholds in use and why "
                                                                          "(services.precision_target).")

@@ -33,10 +33,10 @@ from backend.db.base import utcnow
 from backend.models.capture import Sample
 from backend.models.enums import DecisionKind, LeaseKind, RoundState, SampleState, Stream
 from backend.models.fits import Fit
-from backend.models.label_audit import LabelAudit, QualitySettings
+from backend.models.label_audit import GoldLabel, LabelAudit, QualitySettings
 from backend.models.review import Decision, Round, RoundMember
 from backend.services import audit, drafts, queues
-from backend.services.errors import ConflictError, InvalidInputError
+from backend.services.errors import ConflictError, InvalidInputError, NotFoundError
 from backend.services.state_machine import transition
 from backend.services.users import Actor
 
@@ -56,6 +56,7 @@ class QualityConfig:
         min_audits_for_target: audited heuristic labels needed before thresholds are chosen from them.
         auditor_error_rate: how often an auditor's verdict is itself wrong (either way), in [0, 0.5): the figures'
             `error_rate_corrected` undo it (a 2 % auditor error alone doubles a 2 % error rate: docs/evaluation.md).
+        gold_share: share of a reviewer's tasks that are gold labels (`GoldLabel`) they have not judged yet, [0, 1].
     """
 
     audit_share: float = 0.05
@@ -63,6 +64,7 @@ class QualityConfig:
     precision_target: float | None = None
     min_audits_for_target: int = 30
     auditor_error_rate: float = 0.0
+    gold_share: float = 0.0
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.audit_share) and 0 <= self.audit_share <= 1):
@@ -74,11 +76,13 @@ class QualityConfig:
             raise InvalidInputError(f"min_audits_for_target must be in 1..1000000, not {self.min_audits_for_target}")
         if not (math.isfinite(self.auditor_error_rate) and 0 <= self.auditor_error_rate < 0.5):
             raise InvalidInputError(f"auditor_error_rate must be in [0, 0.5), not {self.auditor_error_rate}")
+        if not (math.isfinite(self.gold_share) and 0 <= self.gold_share <= 1):
+            raise InvalidInputError(f"gold_share must be in [0, 1], not {self.gold_share}")
         if not 0 <= self.audit_seed < 2**31:
             raise InvalidInputError(f"audit_seed must be in 0..2147483647, not {self.audit_seed}")
 
 
-FIELDS = ("audit_share", "audit_seed", "precision_target", "min_audits_for_target", "auditor_error_rate")
+FIELDS = ("audit_share", "audit_seed", "precision_target", "min_audits_for_target", "auditor_error_rate", "gold_share")
 
 
 def read_config(session: Session) -> QualityConfig:
@@ -143,10 +147,12 @@ def _pending_of(sample_id_col):
         .exists()
 
 
-def open_audit(session: Session, sample_id: int) -> LabelAudit | None:
-    """The sample's pending audit, if any."""
-    return session.execute(select(LabelAudit).where(LabelAudit.sample_id == sample_id, LabelAudit.state == "pending")
-                           .order_by(LabelAudit.id).limit(1)).scalar_one_or_none()
+def open_audit(session: Session, sample_id: int, user_id: int | None = None) -> LabelAudit | None:
+    """The sample's pending audit (with `user_id`: an audit, or that reviewer's gold look), if any."""
+    query = select(LabelAudit).where(LabelAudit.sample_id == sample_id, LabelAudit.state == "pending")
+    if user_id is not None:
+        query = query.where(or_(LabelAudit.kind == "audit", LabelAudit.auditor_id == user_id))
+    return session.execute(query.order_by(LabelAudit.id).limit(1)).scalar_one_or_none()
 
 
 def _lease(sample: Sample, expires: datetime) -> queues.Lease:
@@ -171,7 +177,7 @@ def _own_audit(session: Session, user: Actor, now: datetime, expires: datetime,
 def _free_audit(session: Session, user: Actor, now: datetime, exclude_sample_id: int | None) -> LabelAudit | None:
     """The oldest pending audit a reviewer may take: its sample free, not a label this reviewer accepted."""
     query = (select(LabelAudit).join(Sample, Sample.id == LabelAudit.sample_id)
-             .where(LabelAudit.state == "pending", Sample.state == SampleState.accepted,
+             .where(LabelAudit.state == "pending", LabelAudit.kind == "audit", Sample.state == SampleState.accepted,
                     or_(LabelAudit.accepted_by_id.is_(None), LabelAudit.accepted_by_id != user.id),
                     or_(Sample.lease_expires_at.is_(None), Sample.lease_expires_at <= now))
              .order_by(LabelAudit.id).limit(1).with_for_update(skip_locked=True, of=Sample))
@@ -189,6 +195,70 @@ def _take(session: Session, user: Actor, row: LabelAudit, now: datetime, expires
     sample.lease_expires_at = expires
     audit.record(session, user.id, action, "sample", sample.id, kind=LeaseKind.review.value)
     return _lease(sample, expires)
+
+
+def _gold_due(session: Session, user: Actor, config: QualityConfig, now: datetime,
+              exclude_sample_id: int | None) -> LabelAudit | None:
+    """A gold look for this reviewer, when the coin (seed, reviewer, their looks so far) says so: a gold label they
+    have not judged, its sample free and not accepted by them; the pending row, already theirs."""
+    if config.gold_share <= 0:
+        return None
+    looks = session.execute(select(func.count()).select_from(Decision).where(Decision.user_id == user.id)).scalar_one()
+    if unit_hash(config.audit_seed, "gold", user.id, looks) >= config.gold_share:
+        return None
+    judged = select(LabelAudit.id).where(LabelAudit.kind == "gold", LabelAudit.auditor_id == user.id,
+                                         LabelAudit.sample_id == GoldLabel.sample_id,
+                                         LabelAudit.fit_id == GoldLabel.fit_id).exists()
+    own_accept = select(Decision.id).where(Decision.sample_id == GoldLabel.sample_id,
+                                           Decision.fit_id == GoldLabel.fit_id, Decision.user_id == user.id).exists()
+    query = (select(GoldLabel).join(Sample, Sample.id == GoldLabel.sample_id)
+             .where(Sample.state == SampleState.accepted, Sample.current_fit_id == GoldLabel.fit_id, ~judged,
+                    ~own_accept, or_(Sample.lease_expires_at.is_(None), Sample.lease_expires_at <= now))
+             .order_by(GoldLabel.id).limit(1).with_for_update(skip_locked=True, of=Sample))
+    if exclude_sample_id is not None:
+        query = query.where(GoldLabel.sample_id != exclude_sample_id)
+    gold = session.execute(query).scalar_one_or_none()
+    if gold is None:
+        return None
+    row = LabelAudit(sample_id=gold.sample_id, fit_id=gold.fit_id, round_id=None, stream=gold.stream, kind="gold",
+                     accepted_by_id=None, auditor_id=user.id, state="pending", reason="")
+    session.add(row)
+    session.flush()
+    return row
+
+
+def mark_gold(session: Session, actor_id: int, sample_id: int) -> GoldLabel:
+    """Mark the accepted label of `sample_id` gold (NotFoundError for a sample not in the dataset; marking it again
+    changes nothing)."""
+    member = session.execute(select(RoundMember).where(RoundMember.sample_id == sample_id)).scalar_one_or_none()
+    if member is None or member.fit_id is None:
+        raise NotFoundError(f"sample {sample_id} has no accepted label to mark gold; accept it first")
+    gold = session.execute(select(GoldLabel).where(GoldLabel.sample_id == sample_id)).scalar_one_or_none()
+    if gold is None:
+        gold = GoldLabel(sample_id=sample_id, fit_id=member.fit_id, stream=member.stream, marked_by_id=actor_id)
+        session.add(gold)
+        session.flush()
+        audit.record(session, actor_id, "gold.mark", "sample", sample_id, fit_id=member.fit_id)
+    return gold
+
+
+def gold_agreement(session: Session) -> list[dict[str, Any]]:
+    """Per reviewer: gold labels judged, agreed with (accepted), the share and its Wilson 95 % interval."""
+    from_rows = session.execute(select(LabelAudit.auditor_id, LabelAudit.verdict, func.count())
+                                .where(LabelAudit.kind == "gold", LabelAudit.state == "done")
+                                .group_by(LabelAudit.auditor_id, LabelAudit.verdict)).all()
+    per: dict[int, list[int]] = {}
+    for user_id, verdict, n in from_rows:
+        cell = per.setdefault(int(user_id), [0, 0])
+        cell[0] += int(n)
+        cell[1] += int(n) if verdict == "correct" else 0
+    out = []
+    for user_id, (judged, agreed) in sorted(per.items()):
+        interval = wilson_interval(agreed, judged)
+        out.append({"user_id": user_id, "gold_judged": judged, "gold_agreed": agreed,
+                    "agreement": agreed / judged if judged else None,
+                    "agreement_ci95": None if interval is None else [round(interval[0], 6), round(interval[1], 6)]})
+    return out
 
 
 def _held_regular(session: Session, user: Actor, now: datetime, exclude_sample_id: int | None) -> int:
@@ -218,9 +288,12 @@ def next_review(session: Session, user: Actor, lease_seconds: int, regular: Call
     if held >= MAX_HELD:
         return None, False
     action = "lease.acquire" if ahead_of is None else "lease.prefetch"
+    config = read_config(session)
+    gold = _gold_due(session, user, config, now, ahead_of)
+    if gold is not None:
+        return _take(session, user, gold, now, expires, action), True
     candidate = _free_audit(session, user, now, ahead_of)
     if candidate is not None:
-        config = read_config(session)
         waiting = queues.queue_length(session, LeaseKind.review, now)
         if waiting == 0 or unit_hash(config.audit_seed, "serve", candidate.id) < 0.5:
             return _take(session, user, candidate, now, expires, action), True
@@ -246,7 +319,7 @@ def decide(session: Session, user: Actor, sample: Sample, decision: DecisionKind
     """The reviewer's decision on an audit they hold (services.review.decide hands it here for an accepted
     sample): the verdict beside the label; a wrong label leaves the dataset. Returns what a review returns: the
     decision row, the sample and the stream a regular accept would report (so the page cannot tell)."""
-    row = open_audit(session, sample.id)
+    row = open_audit(session, sample.id, user.id)
     if row is None:
         raise ConflictError(f"sample {sample.id} is 'accepted', not in the review queue")
     if row.accepted_by_id is not None and row.accepted_by_id == user.id:
@@ -258,9 +331,12 @@ def decide(session: Session, user: Actor, sample: Sample, decision: DecisionKind
     row.decided_at = now
     row.state = "done"
     row.reason = reason
-    if decision is DecisionKind.accept:
+    if row.kind == "gold":  # a gold label is known right: the verdict is the reviewer's agreement, nothing moves
+        row.verdict = "correct" if decision is DecisionKind.accept else "wrong"
+        stream: Stream | None = shown_stream if decision is DecisionKind.accept else None
+    elif decision is DecisionKind.accept:
         row.verdict = "correct"
-        stream: Stream | None = shown_stream
+        stream = shown_stream
     else:
         row.verdict = "wrong"
         stream = None
@@ -324,7 +400,7 @@ def summary(session: Session) -> dict[str, Any]:
     rows = session.execute(
         select(Round.index, LabelAudit.stream, LabelAudit.state, LabelAudit.verdict, func.count())
         .join(Round, Round.id == LabelAudit.round_id, isouter=True)
-        .where(LabelAudit.state != "void")
+        .where(LabelAudit.state != "void", LabelAudit.kind == "audit")
         .group_by(Round.index, LabelAudit.stream, LabelAudit.state, LabelAudit.verdict)).all()
     cells: dict[tuple[int | None, str], list[int]] = {}
     for index, stream, state, verdict, n in rows:
@@ -344,6 +420,7 @@ def summary(session: Session) -> dict[str, Any]:
         total = [sum(c[i] for (_, s), c in cells.items() if s == stream.value) for i in range(3)]
         streams[stream.value] = figure(*total, auditor_error_rate=e)
     return {"settings": {k: getattr(config, k) for k in FIELDS}, "rounds": per_round, "streams": streams,
+            "gold": gold_agreement(session),
             "method": "each accepted label is audited with probability audit_share; a reviewer judges it blind; "
                       "wrong = rejected or sent back; interval: Wilson score, 95 %; corrected: for the auditors' own "
                       "error rate (auditor_error_rate)"}

@@ -52,11 +52,24 @@ export class QualitySection {
       try {
         await this.api.put("/api/admin/quality/settings", { audit_share: Number(share.value) / 100,
           precision_target: target.value === "" ? null : Number(target.value) / 100,
-          auditor_error_rate: Number(judge.value) / 100 });
+          auditor_error_rate: Number(judge.value) / 100, gold_share: Number(goldShare.value) / 100 });
         toast("quality settings saved", "ok");
         await this.refresh();
       } catch (error) {
         toast(`not saved: ${error.message}`, "error", 8000);
+      }
+    };
+    const goldShare = h("input", { type: "number", min: "0", max: "100", step: "0.5", class: "gold-share",
+      value: String(s.gold_share * 100), title: "share of a reviewer's tasks that are gold labels, percent" });
+    const goldSample = h("input", { type: "number", min: "1", step: "1", class: "gold-sample", placeholder: "sample id" });
+    const markGold = async (e) => {
+      e.preventDefault();
+      try {
+        const g = await this.api.post("/api/admin/quality/gold", { sample_id: Number(goldSample.value) });
+        toast(`sample ${g.sample_id}'s label (${g.stream}) is gold`, "ok");
+        goldSample.value = "";
+      } catch (error) {
+        toast(`not marked: ${error.message}`, "error", 8000);
       }
     };
     const t = q.thresholds;
@@ -67,7 +80,7 @@ export class QualitySection {
         "corrected for the auditors' own error rate (hover: as called)."),
       h("form", { class: "inline-form quality-form", onsubmit: save },
         h("label", {}, "audit share (%) ", share), h("label", {}, " at most wrong of Dʰ (%) ", target),
-        h("label", {}, " auditors' error (%) ", judge),
+        h("label", {}, " auditors' error (%) ", judge), h("label", {}, " gold in reviews (%) ", goldShare),
         h("button", { type: "submit" }, "Save")),
       h("table", { class: "table quality-streams" },
         h("thead", {}, h("tr", {}, h("th", {}, "stream (all rounds)"), ...HEAD.map((c) => h("th", { class: "num" }, c)))),
@@ -78,6 +91,15 @@ export class QualitySection {
         h("tbody", {}, q.rounds.map((f) => h("tr", { dataset: { round: String(f.round), stream: f.stream } },
           h("td", {}, f.round === null ? "–" : `D${f.round}`), h("td", {}, STREAM_LABEL[f.stream] || f.stream),
           ...figureCells(f))))) : h("p", { class: "muted" }, "No audits yet."),
+      h("h3", {}, "Gold labels: each reviewer's agreement"),
+      h("form", { class: "inline-form gold-form", onsubmit: markGold }, "Mark an accepted label gold (known right): ",
+        goldSample, h("button", { type: "submit" }, "Mark gold")),
+      q.gold.length ? h("table", { class: "table quality-gold" },
+        h("thead", {}, h("tr", {}, ["reviewer", "gold judged", "agreed", "agreement", "95 % interval"].map((c) => h("th", {}, c)))),
+        h("tbody", {}, q.gold.map((g) => h("tr", { dataset: { user: String(g.user_id) } },
+          h("td", {}, `user ${g.user_id}`), h("td", { class: "num" }, String(g.gold_judged)),
+          h("td", { class: "num" }, String(g.gold_agreed)), h("td", { class: "num" }, pct(g.agreement)),
+          h("td", { class: "num" }, interval(g.agreement_ci95)))))) : h("p", { class: "muted" }, "No gold judged yet."),
       t ? h("div", { class: "callout thresholds" }, h("strong", {}, "Heuristic thresholds: "), t.explanation) : null);
     this.section.dataset.ready = "quality";
   }

@@ -2,7 +2,7 @@
 
 Issue 40: `label_audits` (one row per audit of an accepted label: its sample, fit, round and stream, the verdict
 and who gave it) and `quality_settings` (the audit share, its seed, the precision target; one row); `rounds.heuristic_thresholds`
-(the thresholds chosen for the round and why).
+(the thresholds chosen for the round and why); `gold_labels` (accepted labels an admin marked gold).
 
 Revision ID: 0012_quality
 Revises: 0011_guidelines
@@ -29,6 +29,7 @@ def upgrade() -> None:
     sa.Column('fit_id', sa.Integer(), nullable=True),
     sa.Column('round_id', sa.Integer(), nullable=True),
     sa.Column('stream', sa.String(length=20), nullable=False),
+    sa.Column('kind', sa.String(length=10), server_default='audit', nullable=False),
     sa.Column('accepted_by_id', sa.Integer(), nullable=True),
     sa.Column('state', sa.String(length=20), nullable=False),
     sa.Column('verdict', sa.String(length=20), nullable=True),
@@ -41,6 +42,7 @@ def upgrade() -> None:
     sa.CheckConstraint("state IN ('pending', 'done', 'void')", name=op.f('ck_label_audits_state_valid')),
     sa.CheckConstraint("verdict IS NULL OR verdict IN ('correct', 'wrong')",
                        name=op.f('ck_label_audits_verdict_valid')),
+    sa.CheckConstraint("kind IN ('audit', 'gold')", name=op.f('ck_label_audits_kind_valid')),
     sa.ForeignKeyConstraint(['sample_id'], ['samples.id'], name=op.f('fk_label_audits_sample_id_samples'),
                             ondelete='CASCADE'),
     sa.ForeignKeyConstraint(['fit_id'], ['fits.id'], name=op.f('fk_label_audits_fit_id_fits'), ondelete='SET NULL'),
@@ -67,6 +69,7 @@ def upgrade() -> None:
     sa.Column('precision_target', sa.Double(), nullable=True),
     sa.Column('min_audits_for_target', sa.Integer(), nullable=False),
     sa.Column('auditor_error_rate', sa.Double(), nullable=False),
+    sa.Column('gold_share', sa.Double(), nullable=False),
     sa.Column('updated_by_id', sa.Integer(), nullable=True),
     sa.Column('updated_at', sa.DateTime(timezone=True), nullable=False),
     sa.CheckConstraint('audit_share >= 0 AND audit_share <= 1', name=op.f('ck_quality_settings_audit_share_range')),
@@ -74,13 +77,30 @@ def upgrade() -> None:
                        name=op.f('ck_quality_settings_precision_target_range')),
     sa.CheckConstraint('auditor_error_rate >= 0 AND auditor_error_rate < 0.5',
                        name=op.f('ck_quality_settings_auditor_error_rate_range')),
+    sa.CheckConstraint('gold_share >= 0 AND gold_share <= 1', name=op.f('ck_quality_settings_gold_share_range')),
     sa.ForeignKeyConstraint(['updated_by_id'], ['users.id'], name=op.f('fk_quality_settings_updated_by_id_users'),
                             ondelete='SET NULL'),
     sa.PrimaryKeyConstraint('id', name=op.f('pk_quality_settings'))
     )
+    op.create_table('gold_labels',
+    sa.Column('id', sa.Integer(), nullable=False),
+    sa.Column('sample_id', sa.Integer(), nullable=False),
+    sa.Column('fit_id', sa.Integer(), nullable=True),
+    sa.Column('stream', sa.String(length=20), nullable=False),
+    sa.Column('marked_by_id', sa.Integer(), nullable=True),
+    sa.Column('created_at', sa.DateTime(timezone=True), nullable=False),
+    sa.ForeignKeyConstraint(['sample_id'], ['samples.id'], name=op.f('fk_gold_labels_sample_id_samples'),
+                            ondelete='CASCADE'),
+    sa.ForeignKeyConstraint(['fit_id'], ['fits.id'], name=op.f('fk_gold_labels_fit_id_fits'), ondelete='SET NULL'),
+    sa.ForeignKeyConstraint(['marked_by_id'], ['users.id'], name=op.f('fk_gold_labels_marked_by_id_users'),
+                            ondelete='SET NULL'),
+    sa.PrimaryKeyConstraint('id', name=op.f('pk_gold_labels')),
+    sa.UniqueConstraint('sample_id', name=op.f('uq_gold_labels_sample_id'))
+    )
 
 
 def downgrade() -> None:
+    op.drop_table('gold_labels')
     op.drop_table('quality_settings')
     with op.batch_alter_table('rounds', schema=None) as batch_op:
         batch_op.drop_column('heuristic_thresholds')

@@ -45,7 +45,7 @@ def _seed_users(url: str) -> None:
                          {"e": email, "r": role.value, "h": hashed})
         # Blind audits off (the product audits 5 % of accepts): a test opts in (tests/backend/api/test_label_audits.py).
         conn.execute(text("INSERT INTO quality_settings (id, audit_share, audit_seed, min_audits_for_target, "
-                          "auditor_error_rate, updated_at) VALUES (1, 0, 0, 30, 0, CURRENT_TIMESTAMP)"))
+                          "auditor_error_rate, gold_share, updated_at) VALUES (1, 0, 0, 30, 0, 0, CURRENT_TIMESTAMP)"))
     engine.dispose()
 
 

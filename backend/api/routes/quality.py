@@ -7,7 +7,7 @@ from typing import Any
 from fastapi import APIRouter
 
 from backend.api.deps import AdminUser, SessionDep
-from backend.schemas.quality import QualitySettingsIn, QualitySettingsPublic, QualitySummary
+from backend.schemas.quality import GoldMark, GoldPublic, QualitySettingsIn, QualitySettingsPublic, QualitySummary
 from backend.services import label_audits, precision_target
 
 router = APIRouter(prefix="/admin/quality", tags=["admin: label quality"])
@@ -33,3 +33,11 @@ def audits(session: SessionDep, _admin: AdminUser) -> dict[str, Any]:
     """Every audit with its label (sample, fit and its parameters, round, stream), verdict and reason."""
     rows = label_audits.list_audits(session)
     return {"count": len(rows), "audits": rows}
+
+
+@router.post("/gold", response_model=GoldPublic, status_code=201)
+def mark_gold(body: GoldMark, session: SessionDep, admin: AdminUser) -> dict[str, Any]:
+    """Mark an accepted label gold (known right): slipped unmarked into reviewers' queues (setting gold_share), each
+    reviewer's agreement with it shown per person. 404 for a sample with no accepted label."""
+    gold = label_audits.mark_gold(session, admin.id, body.sample_id)
+    return {"sample_id": gold.sample_id, "fit_id": gold.fit_id, "stream": gold.stream}

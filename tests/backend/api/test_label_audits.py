@@ -204,3 +204,37 @@ def test_the_interval_holds_the_true_share_in_at_least_nine_of_ten(p, auditor_er
     # 5 % of 2,000 labels (~100 audits); with a 2 % auditor error the raw interval holds a 2 % true share in only
     # about 6 of 10 runs (docs/evaluation.md); corrected, in more than 9 of 10.
     assert _coverage(p, auditor_error, 0.05, 2000, range(500, 600)) >= 0.9
+
+
+def test_gold_labels_are_slipped_in_blind_and_measure_each_reviewers_agreement(env, h):
+    _share(env, 0.0, gold_share=1.0)
+    ids = h.seed(env, frames=2, cameras=1, state="fitting")
+    for sample_id in ids:
+        h.record_fit(env, sample_id, from_clicks=True)
+    for sample_id in ids:  # the reviewer accepts both
+        h.next_task(env, Role.reviewer, "review")
+        assert env.client.post(f"/api/review/samples/{sample_id}/decision", json={"decision": "accept"},
+                               headers=env.headers(Role.reviewer)).status_code == 201
+    missing = env.client.post("/api/admin/quality/gold", json={"sample_id": 999}, headers=env.headers(Role.admin))
+    assert missing.status_code == 404 and "no accepted label" in missing.json()["detail"]
+    for sample_id in ids:
+        marked = env.client.post("/api/admin/quality/gold", json={"sample_id": sample_id},
+                                 headers=env.headers(Role.admin))
+        assert marked.status_code == 201 and marked.json()["stream"] == "annotated", marked.text
+    # Nobody is shown a gold label they accepted themselves.
+    assert env.client.post("/api/review/next", headers=env.headers(Role.reviewer)).status_code == 204
+    seen = []
+    for decision in ({"decision": "accept"}, {"decision": "reject", "reason": "looks off"}):
+        task = h.next_task(env, Role.admin, "review")
+        assert task["state"] == "in_review" and task["fit"]["heuristic"] is None
+        seen.append(task["sample_id"])
+        response = env.client.post(f"/api/review/samples/{task['sample_id']}/decision", json=decision,
+                                   headers=env.headers(Role.admin))
+        assert response.status_code == 201, response.text
+        assert response.json()["state"] == "accepted"  # a gold label is known right: nothing moves
+    assert sorted(seen) == ids
+    assert env.client.post("/api/review/next", headers=env.headers(Role.admin)).status_code == 204  # each once
+    gold = _quality(env)["gold"]
+    assert [(g["user_id"], g["gold_judged"], g["gold_agreed"], g["agreement"]) for g in gold] == [
+        (env.user_ids[Role.admin], 2, 1, 0.5)]
+    assert h.count(env, "round_members") == 2 and _quality(env)["streams"]["annotated"]["audited"] == 0

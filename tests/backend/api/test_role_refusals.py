@@ -73,6 +73,7 @@ ROUTES = [
     ("GET", "/api/admin/quality", Role.admin),
     ("PUT", "/api/admin/quality/settings", Role.admin),
     ("GET", "/api/admin/quality/audits", Role.admin),
+    ("POST", "/api/admin/quality/gold", Role.admin),
 ]
 # The 3D scene takes a scene ticket instead of a bearer token (tests/backend/api/ui/test_viewer_scene.py).
 OPEN = {("GET", "/api/health"), ("POST", "/api/auth/token"), ("GET", "/api/viewer/samples/{x}/scene")}

@@ -153,20 +153,23 @@ def _simulate(capture: Path, work: Path, plan: dict[str, Any], detector: bool,
     return simulate(capture, work, plan, detector=detector,
                     annotator=AnnotatorConfig(accept_proposals_within_px=accept_proposals_px, seed=people_seed),
                     reviewer=reviewer, audit_share=quality["audit_share"], audit_seed=quality["seed"],
-                    precision_target=quality["precision_target"])
+                    precision_target=quality["precision_target"], gold_labels=quality["gold_labels"],
+                    gold_share=quality["gold_share"])
 
 
 def simulate(capture: Path, work: Path, plan: dict[str, Any], *, detector: bool, annotator: AnnotatorConfig,
              reviewer: ReviewerConfig | None = None, label: str | None = None, leave: bool = True,
-             audit_share: float = 0.0, audit_seed: int = 0, precision_target: float | None = None) -> dict[str, Any]:
+             audit_share: float = 0.0, audit_seed: int = 0, precision_target: float | None = None,
+             gold_labels: int = 0, gold_share: float = 0.0) -> dict[str, Any]:
     """One bootstrap simulation of `plan` (see `plan_for`) on the capture, in `work`, with these simulated people;
     the summary (`BootstrapSimulation.summary`, with a `stopped` where a round could not start or finish). `label`
     and `leave`: the progress bar's, over rounds. `audit_share` > 0: the server audits that share of each stream's
     accepts blind (two reviewers then, since nobody audits their own accepts); the summary's `label_quality`."""
     config = BootstrapConfig(rounds=plan["rounds"], detector=detector, round0_rest=plan["round0_rest"],
                              annotator=annotator, reviewer=reviewer or ReviewerConfig(),
-                             reviewers=2 if audit_share > 0 else 1, audit_share=audit_share, audit_seed=audit_seed,
-                             precision_target=precision_target)
+                             reviewers=2 if audit_share > 0 or gold_share > 0 else 1, audit_share=audit_share,
+                             audit_seed=audit_seed, precision_target=precision_target, gold_labels=gold_labels,
+                             gold_share=gold_share)
     label = label or f"bootstrap, detector {'on' if detector else 'off'}"
     with tqdm(total=plan["rounds"] + 1, unit="round", desc=label, file=sys.stderr, leave=leave) as bar:
         def on_round(report) -> None:
@@ -246,7 +249,7 @@ def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = 
         frames: int | None = None, train_steps: int | None = None,
         handsegnet_steps: int | None = None, seed: int = SEED, audit_share: float = DEFAULT_AUDIT_SHARE,
         precision_target: float | None = None, reviewer_error_rate: float | None = None,
-        reviewer_accept_below_mm: float | None = None) -> dict[str, Any]:
+        reviewer_accept_below_mm: float | None = None, gold_labels: int = 0, gold_share: float = 0.0) -> dict[str, Any]:
     """One run (`detector` "on" or "off") or both on the same capture and seed ("both"); None: both where the
     detector can run, else off. The record's top level is the run with the detector when it ran, else without.
     `width` (view width, pixels), `frames` (per sequence), `rounds` and `initial_every` (D_0's plan: every k-th
@@ -257,14 +260,18 @@ def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = 
     HandSegNet alone, in place of `train_steps` (HandSegNet's training compared with MVNet's held fixed).
     `seed`: the capture's and the simulated people's (and the audits' pick); `audit_share`, `precision_target`: the
     server's quality settings (issue 40; the record's `label_quality` per stream); `reviewer_error_rate` and
-    `reviewer_accept_below_mm`: the simulated reviewers' (default 2 %, 8 mm)."""
+    `reviewer_accept_below_mm`: the simulated reviewers' (default 2 %, 8 mm); `gold_labels`, `gold_share`: labels
+    marked gold after D_0 and their share of the reviewers' tasks (`label_quality["gold"]`: agreement vs given)."""
     if not 0 <= audit_share <= 1:
         raise ValueError(f"audit_share must be in [0, 1], not {audit_share}")
     if precision_target is not None and not 0 < precision_target < 1:
         raise ValueError(f"precision_target must be in (0, 1), not {precision_target}")
     if not 0 <= seed < 2**31:
         raise ValueError(f"seed must be in 0..2147483647, not {seed}")
+    if not 0 <= gold_share <= 1 or not 0 <= gold_labels <= 10_000:
+        raise ValueError(f"gold_share must be in [0, 1] and gold_labels in 0..10000, not {gold_share}, {gold_labels}")
     quality = {"audit_share": audit_share, "precision_target": precision_target, "seed": seed,
+               "gold_labels": gold_labels, "gold_share": gold_share,
                "error_rate": reviewer_error_rate, "accept_below_mm": reviewer_accept_below_mm}
 
     started = time.perf_counter()

@@ -152,3 +152,6 @@ class ApiClient:
 
     def label_audits(self) -> list[dict[str, Any]]:
         return self.get_json("/api/admin/quality/audits")["audits"]
+
+    def mark_gold(self, sample_id: int) -> dict[str, Any]:
+        return self.request("POST", "/api/admin/quality/gold", json={"sample_id": sample_id}, expect=(201,)).json()

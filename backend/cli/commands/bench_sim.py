@@ -47,6 +47,10 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         reviewer_accept_below_mm: float | None = typer.Option(
             None, "--reviewer-accept-below-mm", help="Simulated reviewers accept a fit under this true mean vertex "
             "error (default 8 mm)."),
+        gold_labels: int = typer.Option(0, "--gold-labels", min=0, max=10_000, help="After D_0 the admin marks this "
+                                        "many truly right accepted labels gold (default 0)."),
+        gold_share: float = typer.Option(0.0, "--gold-share", min=0.0, max=1.0, help="Share of the reviewers' tasks "
+                                         "that are gold labels (default 0)."),
     ) -> None:
         """200-frame synthetic capture, cpu-small networks, 4 rounds through the real server and workers:
         minutes, accepted labels' vertex error, auto-accept precision, labels per human hour; with the
@@ -64,7 +68,8 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
                          frames=frames, train_steps=train_steps,
                          handsegnet_steps=handsegnet_steps, seed=seed, audit_share=audit_share,
                          precision_target=precision_target, reviewer_error_rate=reviewer_error_rate,
-                         reviewer_accept_below_mm=reviewer_accept_below_mm)
+                         reviewer_accept_below_mm=reviewer_accept_below_mm, gold_labels=gold_labels,
+                         gold_share=gold_share)
         except ValueError as exc:
             typer.echo(f"error: {exc}", err=True)
             raise typer.Exit(code=2) from exc
@@ -81,6 +86,8 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
             for r in record["rounds"]:
                 typer.echo(f"D_{r['index']}: {r['dataset_size']} samples, {r['human_hours']:.2f} h")
             for stream, q in (record.get("label_quality") or {}).items():
+                if stream == "gold":
+                    continue
                 typer.echo(f"{stream}: audited {q['audited']}, audit error {q['audit_error_rate']} "
                            f"{q['audit_error_rate_ci95']}, true {q['true_error_rate']} over {q['labels']} labels")
             typer.echo(f"minutes {record['minutes']:.1f}  accepted {record['accepted_vertex_mm']} mm  "

@@ -198,14 +198,17 @@ def _take(session: Session, user: Actor, row: LabelAudit, now: datetime, expires
 
 
 def _gold_due(session: Session, user: Actor, config: QualityConfig, now: datetime,
-              exclude_sample_id: int | None) -> LabelAudit | None:
-    """A gold look for this reviewer, when the coin (seed, reviewer, their looks so far) says so: a gold label they
-    have not judged, its sample free and not accepted by them; the pending row, already theirs."""
+              exclude_sample_id: int | None, *, always: bool = False) -> LabelAudit | None:
+    """A gold look for this reviewer, when the coin (seed, reviewer, their looks so far) says so or `always` (their
+    queue is empty otherwise): a gold label they have not judged (nor accepted, nor audited), its sample free; the
+    pending row, already theirs. None with gold_share 0."""
     if config.gold_share <= 0:
         return None
-    looks = session.execute(select(func.count()).select_from(Decision).where(Decision.user_id == user.id)).scalar_one()
-    if unit_hash(config.audit_seed, "gold", user.id, looks) >= config.gold_share:
-        return None
+    if not always:
+        looks = session.execute(select(func.count()).select_from(Decision)
+                                .where(Decision.user_id == user.id)).scalar_one()
+        if unit_hash(config.audit_seed, "gold", user.id, looks) >= config.gold_share:
+            return None
     judged = select(LabelAudit.id).where(LabelAudit.kind == "gold", LabelAudit.auditor_id == user.id,
                                          LabelAudit.sample_id == GoldLabel.sample_id,
                                          LabelAudit.fit_id == GoldLabel.fit_id).exists()
@@ -300,6 +303,10 @@ def next_review(session: Session, user: Actor, lease_seconds: int, regular: Call
     lease = regular()
     if lease is None and candidate is not None:
         return _take(session, user, candidate, now, expires, action), True
+    if lease is None:  # nothing else waits: a gold label this reviewer has not judged, whatever the coin says
+        gold = _gold_due(session, user, config, now, ahead_of, always=True)
+        if gold is not None:
+            return _take(session, user, gold, now, expires, action), True
     return lease, False
 
 

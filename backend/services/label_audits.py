@@ -245,6 +245,12 @@ def mark_gold(session: Session, actor_id: int, sample_id: int) -> GoldLabel:
     return gold
 
 
+def gold_decision_ids(session: Session) -> set[int]:
+    """The decisions that were looks at gold labels (not judgements of anyone's work)."""
+    return set(session.execute(select(LabelAudit.decision_id).where(LabelAudit.kind == "gold",
+                                                                   LabelAudit.decision_id.is_not(None))).scalars())
+
+
 def gold_agreement(session: Session) -> list[dict[str, Any]]:
     """Per reviewer: gold labels judged, agreed with (accepted), the share and its Wilson 95 % interval."""
     from_rows = session.execute(select(LabelAudit.auditor_id, LabelAudit.verdict, func.count())

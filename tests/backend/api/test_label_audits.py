@@ -238,3 +238,7 @@ def test_gold_labels_are_slipped_in_blind_and_measure_each_reviewers_agreement(e
     assert [(g["user_id"], g["gold_judged"], g["gold_agreed"], g["agreement"]) for g in gold] == [
         (env.user_ids[Role.admin], 2, 1, 0.5)]
     assert h.count(env, "round_members") == 2 and _quality(env)["streams"]["annotated"]["audited"] == 0
+    team = {p["user_id"]: p for p in env.client.get("/api/admin/team/statistics",
+                                                     headers=env.headers(Role.admin)).json()}
+    assert (team[env.user_ids[Role.admin]]["gold_judged"], team[env.user_ids[Role.admin]]["gold_agreement"]) == (2, 0.5)
+    assert team[env.user_ids[Role.reviewer]]["overturned"] == 0  # a gold look judges the looker, not the accepter

@@ -41,3 +41,9 @@ def test_an_audit_looks_like_any_review_task(live_stack, tab):
         figures = http.get("/api/admin/quality").json()["streams"]["annotated"]
     assert [(a["sample_id"], a["verdict"]) for a in audits] == [(task["sample_id"], "correct")]
     assert figures["audited"] == 1 and figures["wrong"] == 0
+    # The admin page's label-quality section shows the audit per stream.
+    page.goto(stack.base_url + "/#/admin")
+    page.wait_for_selector("#quality[data-ready=quality]", state="attached", timeout=60_000)
+    assert page.inner_text(".quality-streams tr[data-stream=annotated] td.audited") == "1"
+    assert page.inner_text(".quality-streams tr[data-stream=annotated] td.rate") == "0.0 %"
+    assert page.locator(".quality-rounds tr[data-round='0'][data-stream=annotated]").count() == 1

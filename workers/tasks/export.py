@@ -53,7 +53,7 @@ def run_freihand_export_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
         with tempfile.TemporaryDirectory(dir=archive.parent, prefix=f"job-{job_id}-") as scratch:
             out = Path(scratch) / "freihand"
             summary = write_freihand(records, out, ctx.storage.get_bytes, arrays, options, progress=wrote,
-                                     other_side=left, quality=quality)
+                                     other_side=left, label_quality=quality)
             reporter(0.9, "packing the archive", force=True)
             _zip(out, archive)
     except (ExportError, DomainError) as exc:

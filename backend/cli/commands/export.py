@@ -71,7 +71,7 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         try:
             with tqdm(total=len(records), unit="sample", desc="exporting", file=sys.stderr) as bar:
                 summary = write_freihand(records, out, storage.get_bytes, arrays, options, progress=bar.update,
-                                         other_side=left, quality=quality)
+                                         other_side=left, label_quality=quality)
         except (ExportError, DomainError) as exc:
             fail(getattr(exc, "message", None) or str(exc))
         result = {"out": str(summary.out_dir), "hand_model": summary.hand_model, "is_mano": summary.is_mano,

@@ -148,7 +148,7 @@ def test_the_manifest_carries_the_audit_figures(capture, tmp_path):
     quality = {"streams": {"heuristic": {"audited": 20, "wrong": 1, "error_rate": 0.05,
                                          "error_rate_ci95": [0.0089, 0.2361]}}, "rounds": []}
     write_freihand(records_of(capture)[:1], tmp_path / "q", read_file, load_hand_model(None),
-                   ExportOptions(mesh_formats=()), quality=quality)
+                   ExportOptions(mesh_formats=()), label_quality=quality)
     assert json.loads((tmp_path / "q" / "handloop_export.json").read_text())["quality"] == quality
     write_freihand(records_of(capture)[:1], tmp_path / "none", read_file, load_hand_model(None),
                    ExportOptions(mesh_formats=()))

@@ -20,6 +20,7 @@ from backend.api.routes import (
     overlays,
     preannotation,
     prefetch,
+    quality,
     reliability,
     review,
     rounds,
@@ -33,5 +34,5 @@ api_router = APIRouter(prefix="/api")
 # pre-annotates, then the routes the browser UI needs (prefetch, overlays, 3D scenes, activity timing, dashboard).
 for module in (health, auth, users, annotate, review, files, rounds, jobs, exports, imports, annotation_set,
                preannotation, prefetch, overlays, viewer, activity, dashboard, reliability, calibration,
-               team, guidelines):
+               team, guidelines, quality):
     api_router.include_router(module.router)

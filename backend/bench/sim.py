@@ -41,6 +41,7 @@ QUICK = {"sequences": 3, "frames": 8, "width": 128, "rounds": 1, "initial_every"
          "settings": {"nets_config": "tiny", "round_handsegnet_budget_s": 5.0, "round_mvnet_budget_s": 8.0,
                       "fit_global_iterations": 15, "fit_full_iterations": 30, "round_min_training_samples": 1}}
 SEED = 2026
+DEFAULT_AUDIT_SHARE = 0.05  # the server's default (services.review.label_audits.QualityConfig)
 # `train_steps`: each network trains exactly that many steps a round, under budgets it cannot reach first (and below
 # the training task's 3 h limit): such runs repeat exactly, time-budgeted ones do not (docs/benchmarks.md).
 MAX_TRAIN_STEPS = 1_000_000
@@ -144,18 +145,31 @@ def synthetic_capture(root: Path, sequences: int, frames: int, width: int, seed:
 
 
 def _simulate(capture: Path, work: Path, plan: dict[str, Any], detector: bool,
-              accept_proposals_px: float | None) -> dict[str, Any]:
+              accept_proposals_px: float | None, quality: dict[str, Any]) -> dict[str, Any]:
+    # The people's streams: as before (0) on the default seed, else the run's seed (as bench sim-matrix seeds them).
+    people_seed = 0 if quality["seed"] == SEED else quality["seed"]
+    given = {k: quality[k] for k in ("error_rate", "accept_below_mm") if quality.get(k) is not None}
+    reviewer = ReviewerConfig(**given, seed=people_seed)
     return simulate(capture, work, plan, detector=detector,
-                    annotator=AnnotatorConfig(accept_proposals_within_px=accept_proposals_px))
+                    annotator=AnnotatorConfig(accept_proposals_within_px=accept_proposals_px, seed=people_seed),
+                    reviewer=reviewer, audit_share=quality["audit_share"], audit_seed=quality["seed"],
+                    precision_target=quality["precision_target"], gold_labels=quality["gold_labels"],
+                    gold_share=quality["gold_share"])
 
 
 def simulate(capture: Path, work: Path, plan: dict[str, Any], *, detector: bool, annotator: AnnotatorConfig,
-             reviewer: ReviewerConfig | None = None, label: str | None = None, leave: bool = True) -> dict[str, Any]:
+             reviewer: ReviewerConfig | None = None, label: str | None = None, leave: bool = True,
+             audit_share: float = 0.0, audit_seed: int = 0, precision_target: float | None = None,
+             gold_labels: int = 0, gold_share: float = 0.0) -> dict[str, Any]:
     """One bootstrap simulation of `plan` (see `plan_for`) on the capture, in `work`, with these simulated people;
     the summary (`BootstrapSimulation.summary`, with a `stopped` where a round could not start or finish). `label`
-    and `leave`: the progress bar's, over rounds."""
+    and `leave`: the progress bar's, over rounds. `audit_share` > 0: the server audits that share of each stream's
+    accepts blind (two reviewers then, since nobody audits their own accepts); the summary's `label_quality`."""
     config = BootstrapConfig(rounds=plan["rounds"], detector=detector, round0_rest=plan["round0_rest"],
-                             annotator=annotator, reviewer=reviewer or ReviewerConfig())
+                             annotator=annotator, reviewer=reviewer or ReviewerConfig(),
+                             reviewers=2 if audit_share > 0 or gold_share > 0 else 1, audit_share=audit_share,
+                             audit_seed=audit_seed, precision_target=precision_target, gold_labels=gold_labels,
+                             gold_share=gold_share)
     label = label or f"bootstrap, detector {'on' if detector else 'off'}"
     with tqdm(total=plan["rounds"] + 1, unit="round", desc=label, file=sys.stderr, leave=leave) as bar:
         def on_round(report) -> None:
@@ -233,7 +247,9 @@ def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = 
         detector: str | None = None, accept_proposals_px: float | None = None, width: int | None = None,
         rounds: int | None = None, initial_every: int | None = None, round0_rest: str = DEFAULT_REST,
         frames: int | None = None, train_steps: int | None = None,
-        handsegnet_steps: int | None = None) -> dict[str, Any]:
+        handsegnet_steps: int | None = None, seed: int = SEED, audit_share: float = DEFAULT_AUDIT_SHARE,
+        precision_target: float | None = None, reviewer_error_rate: float | None = None,
+        reviewer_accept_below_mm: float | None = None, gold_labels: int = 0, gold_share: float = 0.0) -> dict[str, Any]:
     """One run (`detector` "on" or "off") or both on the same capture and seed ("both"); None: both where the
     detector can run, else off. The record's top level is the run with the detector when it ran, else without.
     `width` (view width, pixels), `frames` (per sequence), `rounds` and `initial_every` (D_0's plan: every k-th
@@ -241,7 +257,22 @@ def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = 
     pre-annotation does with the initial set's samples the review policy does not pick ("keep", the issue's and
     the paper's treatment, or "annotate": see BootstrapConfig); `train_steps` trains each network that many steps
     a round instead of for the time budgets (repeatable runs, to compare variants); `handsegnet_steps` does so for
-    HandSegNet alone, in place of `train_steps` (HandSegNet's training compared with MVNet's held fixed)."""
+    HandSegNet alone, in place of `train_steps` (HandSegNet's training compared with MVNet's held fixed).
+    `seed`: the capture's and the simulated people's (and the audits' pick); `audit_share`, `precision_target`: the
+    server's quality settings (issue 40; the record's `label_quality` per stream); `reviewer_error_rate` and
+    `reviewer_accept_below_mm`: the simulated reviewers' (default 2 %, 8 mm); `gold_labels`, `gold_share`: labels
+    marked gold after D_0 and their share of the reviewers' tasks (`label_quality["gold"]`: agreement vs given)."""
+    if not 0 <= audit_share <= 1:
+        raise ValueError(f"audit_share must be in [0, 1], not {audit_share}")
+    if precision_target is not None and not 0 < precision_target < 1:
+        raise ValueError(f"precision_target must be in (0, 1), not {precision_target}")
+    if not 0 <= seed < 2**31:
+        raise ValueError(f"seed must be in 0..2147483647, not {seed}")
+    if not 0 <= gold_share <= 1 or not 0 <= gold_labels <= 10_000:
+        raise ValueError(f"gold_share must be in [0, 1] and gold_labels in 0..10000, not {gold_share}, {gold_labels}")
+    quality = {"audit_share": audit_share, "precision_target": precision_target, "seed": seed,
+               "gold_labels": gold_labels, "gold_share": gold_share,
+               "error_rate": reviewer_error_rate, "accept_below_mm": reviewer_accept_below_mm}
 
     started = time.perf_counter()
     plan = plan_for(quick=quick, width=width, frames=frames, rounds=rounds, initial_every=initial_every,
@@ -253,13 +284,13 @@ def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = 
     if mode in ("on", "both") and why_not is not None:
         raise ValueError(f"--detector {mode} needs the pretrained detector: {why_not}")
     capture = synthetic_capture(get_settings().data_dir.resolve() / "bench", plan["sequences"], plan["frames"],
-                                plan["width"])
+                                plan["width"], seed)
     work = Path(work_dir) if work_dir else Path(tempfile.mkdtemp(prefix="handloop-bench-sim-"))
     load_before = os.getloadavg()
     runs: dict[str, dict[str, Any]] = {}
     for name in (("off", "on") if mode == "both" else (mode,)):
         runs[name] = _simulate(capture, work / f"detector-{name}", plan, detector=name == "on",
-                               accept_proposals_px=accept_proposals_px)
+                               accept_proposals_px=accept_proposals_px, quality=quality)
     load_after = os.getloadavg()
     summary = runs.get("on") or runs["off"]
     met = {
@@ -280,7 +311,8 @@ def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = 
         result["detector_targets_met"] = _detector_met(runs["on"])
         result["detector_target_values"] = detector_values(runs["on"])
     settings = {"plan": {k: v for k, v in plan.items() if k != "settings"}, "stack_settings": plan["settings"],
-                "capture": str(capture), "seed": SEED, "detector": mode, "accept_proposals_px": accept_proposals_px}
+                "capture": str(capture), "seed": seed, "quality": quality, "detector": mode,
+                "accept_proposals_px": accept_proposals_px}
     if emit_json:
         return emit("sim", result, settings, started)
     return result

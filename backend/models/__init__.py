@@ -21,13 +21,14 @@ from backend.models.fits import Fit, Prediction
 from backend.models.flags import AnnotationFlag
 from backend.models.guidelines import Guidelines
 from backend.models.jobs import Job
+from backend.models.label_audit import GoldLabel, LabelAudit, QualitySettings
 from backend.models.labels import Click, Mask, Submission
 from backend.models.review import Decision, Round, RoundMember
 from backend.models.users import User
 
 __all__ = [
     "AnnotationFlag", "AuditEvent", "CameraCalibration", "Click", "Decision", "DecisionKind", "Draft", "Fit",
-    "FlagKind", "Guidelines", "Job", "JobKind", "JobState", "LeaseKind", "Mask", "MaskKind", "Prediction", "Project",
-    "Role", "Round", "RoundMember", "RoundState", "Sample", "SampleState", "Sequence", "Split", "Stream", "Subject",
-    "Submission", "User", "View", "Visibility",
+    "FlagKind", "GoldLabel", "Guidelines", "Job", "JobKind", "JobState", "LabelAudit", "LeaseKind", "Mask", "MaskKind",
+    "Prediction", "Project", "QualitySettings", "Role", "Round", "RoundMember", "RoundState", "Sample",
+    "SampleState", "Sequence", "Split", "Stream", "Subject", "Submission", "User", "View", "Visibility",
 ]  # fmt: skip

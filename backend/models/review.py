@@ -46,6 +46,8 @@ class Round(Base):
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
     finished_at: Mapped[datetime | None]
     failure: Mapped[str | None] = mapped_column(Text)  # why its job failed (state 'failed')
+    # The heuristic's thresholds chosen at launch and why (review.precision_target, issue 40); None: the paper's.
+    heuristic_thresholds: Mapped[dict[str, Any] | None] = mapped_column(default=None)
 
 
 class RoundMember(Base):

@@ -24,3 +24,5 @@ class PersonStatistics(Public):
     decisions: int = Field(description="Review decisions they made.")
     seconds_per_decision: float | None = Field(description="From the review page's activity logs.")
     overturned: int = Field(description="Their decisions someone else later decided differently on the same fit.")
+    gold_judged: int = Field(default=0, description="Gold labels slipped into their review queue and decided.")
+    gold_agreement: float | None = Field(default=None, description="Share of those they accepted (gold is right).")

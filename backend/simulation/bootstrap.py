@@ -56,6 +56,12 @@ class BootstrapConfig:
         project: name of the project the capture is imported as.
         detector: round 0 pre-annotated by the pretrained detector (the server must have its model files);
             None: when the server can run it.
+        audit_share: share of each stream's accepts the server audits blind (review.label_audits; 0: none), with
+            `audit_seed`; `precision_target`: the server's "at most this share of auto-accepts wrong" (None: off).
+            The run's `label_quality` compares the audits' estimates with the truth (`label_quality`).
+        gold_labels, gold_share: after D_0, the admin marks up to this many accepted labels gold (truly right: under
+            half the reviewers' accept limit), slipped into the reviewers' queues at `gold_share`; their agreement is
+            compared with what they were given (1 - their error rate).
         round0_rest: with the detector, what happens to the initial set's samples the review policy does not
             pick: "keep" (they stay for round 1's MVNet, as the paper leaves the unpicked samples of every round
             and the issue routes round 0: only fits sent back are annotated) or "annotate" (annotators click
@@ -74,6 +80,11 @@ class BootstrapConfig:
     project: str = "sim"
     detector: bool | None = False
     round0_rest: str = DEFAULT_REST
+    audit_share: float = 0.0
+    audit_seed: int = 0
+    precision_target: float | None = None
+    gold_labels: int = 0
+    gold_share: float = 0.0
 
     def __post_init__(self) -> None:
         if self.round0_rest not in RESTS:
@@ -82,6 +93,12 @@ class BootstrapConfig:
             raise ValueError(f"rounds must be in 0..50, not {self.rounds}")
         if not (1 <= self.annotators <= 100 and 1 <= self.reviewers <= 100):
             raise ValueError("annotators and reviewers must each be in 1..100")
+        if not (0 <= self.audit_share <= 1 and 0 <= self.gold_share <= 1):
+            raise ValueError(f"audit_share and gold_share must be in [0, 1], not {self.audit_share}, {self.gold_share}")
+        if not 0 <= self.gold_labels <= 10_000:
+            raise ValueError(f"gold_labels must be in 0..10000, not {self.gold_labels}")
+        if self.precision_target is not None and not 0 < self.precision_target < 1:
+            raise ValueError(f"precision_target must be in (0, 1) or None, not {self.precision_target}")
         if not self.round_timeout_s > 0 or not self.poll_s > 0:
             raise ValueError("round_timeout_s and poll_s must be positive")
 
@@ -176,6 +193,7 @@ class BootstrapSimulation:
         self.on_round = on_round
         self.truth: GroundTruthIndex | None = None
         self.initial_set: list[int] = []
+        self.gold: list[int] = []
         self.project_id: int | None = None
         self.detector_on = bool(config.detector)  # settled by `prepare` when config.detector is None
         self.preannotation: dict[str, Any] | None = None
@@ -214,6 +232,12 @@ class BootstrapSimulation:
             self.detector_on = bool(status["available"])
             if not self.detector_on:
                 log.info("detector off: %s", status["reason"])
+        # The server's quality settings as the run's (its default share would audit 5 % of every run).
+        # The auditors' error rate is the simulated reviewers' own (gold samples would measure it on a real team).
+        self.admin.set_quality(audit_share=self.config.audit_share, audit_seed=self.config.audit_seed,
+                               precision_target=self.config.precision_target,
+                               auditor_error_rate=min(self.config.reviewer.error_rate, 0.49),
+                               gold_share=self.config.gold_share)
         imported = self.admin.import_capture(str(capture_dir), project, queue_for_annotation=False)
         self.project_id = int(imported["project_id"])
         samples = self.admin.sample_index(project=project)["samples"]
@@ -281,6 +305,8 @@ class BootstrapSimulation:
                 self._report_stopped_round(reports, index, job_info, round_started)
                 break
             reports.append(self._report(index, job_info, round_started, work))
+            if index == 0 and self.config.gold_labels:
+                self.mark_gold(self.config.gold_labels)
             self._announce(reports[-1])
         if stopped:
             log.error("stopped in round %d: %s", stopped["round"], stopped["reason"])
@@ -398,8 +424,65 @@ class BootstrapSimulation:
             "stopped": stopped,
             "detector": self.detector_on,
             "d0_verified_share": reports[0].verified_share if reports else None,
+            "label_quality": self.label_quality(members),
             "config": {"rounds": self.config.rounds, "annotators": self.config.annotators,
                        "reviewers": self.config.reviewers, "annotator": asdict(self.config.annotator),
                        "reviewer": asdict(self.config.reviewer), "costs": asdict(self.config.costs),
-                       "auto_accept_max_mm": self.config.auto_accept_max_mm, "detector": self.detector_on},
+                       "auto_accept_max_mm": self.config.auto_accept_max_mm, "detector": self.detector_on,
+                       "audit_share": self.config.audit_share, "audit_seed": self.config.audit_seed,
+                       "precision_target": self.config.precision_target, "gold_labels": self.config.gold_labels,
+                       "gold_share": self.config.gold_share},
         }
+
+    def mark_gold(self, count: int) -> list[int]:
+        """Mark up to `count` accepted labels gold, the truly right ones (under half the reviewers' accept limit)."""
+        members = self.admin.dataset()["samples"]
+        self._fit_errors(members)
+        limit = self.config.reviewer.accept_below_mm / 2
+        right = [m["sample_id"] for m in members if m["fit"] and self._errors.get(m["fit"]["id"], (1e9,))[0] < limit]
+        for sample_id in right[:count]:
+            self.admin.mark_gold(sample_id)
+        self.gold = right[:count]
+        return self.gold
+
+    def label_quality(self, members: list[dict]) -> dict[str, Any]:
+        """Per stream, the server's audit estimate (corrected for the auditors' error rate; `_raw`: as called) of the
+        share of accepted labels that are wrong beside the true
+        share (a label is wrong when its fit's mean vertex error exceeds `auto_accept_max_mm`): over every label the
+        stream accepted (those in the dataset and those audits took out), over the audited ones alone, and over the
+        dataset as it is now; whether the interval holds the true share, and whether the precision target (the
+        run's, else the issue's 2 %) is met on the true labels."""
+        audits = [a for a in self.admin.label_audits() if a["sample_id"] in self.truth and a["fit"]]
+        estimates = self.admin.quality()["streams"]
+        self._fit_errors([{"sample_id": a["sample_id"], "fit": a["fit"]} for a in audits])
+        limit = self.config.auto_accept_max_mm
+        target = self.config.precision_target if self.config.precision_target is not None else 0.02
+
+        def wrong_share(fit_ids: set[int]) -> float | None:
+            known = [self._errors[f][0] > limit for f in fit_ids if f in self._errors]
+            return float(np.mean(known)) if known else None
+
+        out: dict[str, Any] = {}
+        for stream in STREAMS:
+            present = {m["fit"]["id"] for m in members if m["stream"] == stream and m["fit"]}
+            audited = {a["fit"]["id"] for a in audits if a["stream"] == stream and a["state"] == "done"}
+            removed = {a["fit"]["id"] for a in audits if a["stream"] == stream and a["verdict"] == "wrong"}
+            true_rate = wrong_share(present | removed)
+            estimate = estimates.get(stream) or {}
+            ci = estimate.get("error_rate_corrected_ci95")  # for the auditors' error rate (the reviewers')
+            out[stream] = {
+                "labels": len(present | removed), "audited": estimate.get("audited", 0),
+                "audit_error_rate": estimate.get("error_rate_corrected"), "audit_error_rate_ci95": ci,
+                "audit_error_rate_raw": estimate.get("error_rate"),
+                "audit_error_rate_raw_ci95": estimate.get("error_rate_ci95"),
+                "true_error_rate": true_rate, "true_error_rate_audited": wrong_share(audited),
+                "true_error_rate_after_audits": wrong_share(present),
+                "ci_holds_true": None if ci is None or true_rate is None else bool(ci[0] <= true_rate <= ci[1]),
+                "precision_target": target,
+                "target_met_true": None if true_rate is None else bool(true_rate <= target),
+                "wrong_above_mm": limit}
+        given = 1 - self.config.reviewer.error_rate
+        out["gold"] = [{**g, "given_agreement": given, "ci_holds_given": None if g["agreement_ci95"] is None
+                        else bool(g["agreement_ci95"][0] <= given <= g["agreement_ci95"][1])}
+                       for g in self.admin.quality()["gold"]]
+        return out

@@ -142,3 +142,16 @@ class ApiClient:
 
     def predictions(self, round_index: int | None = None) -> dict[str, Any]:
         return self.get_json("/api/admin/exports/predictions", round_index=round_index)
+
+    def set_quality(self, **settings: Any) -> dict[str, Any]:
+        """Change the label-quality settings (audit_share, audit_seed, precision_target, min_audits_for_target)."""
+        return self.request("PUT", "/api/admin/quality/settings", json=settings).json()
+
+    def quality(self) -> dict[str, Any]:
+        return self.get_json("/api/admin/quality")
+
+    def label_audits(self) -> list[dict[str, Any]]:
+        return self.get_json("/api/admin/quality/audits")["audits"]
+
+    def mark_gold(self, sample_id: int) -> dict[str, Any]:
+        return self.request("POST", "/api/admin/quality/gold", json={"sample_id": sample_id}, expect=(201,)).json()

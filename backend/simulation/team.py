@@ -93,14 +93,19 @@ class Team:
         return done
 
     def review_all(self, round_index: int, work: TeamWork) -> int:
-        done, turn = 0, 0
-        while True:
+        """Reviewers take tasks in turn until none of them gets one (an audit is never handed to the reviewer who
+        accepted the label, so one may find nothing while another still can)."""
+        done, turn, idle = 0, 0, 0
+        while idle < len(self.reviewers):
             outcome = self.reviewers[turn % len(self.reviewers)].review_next(round_index, self.annotation_attempts)
             turn += 1
             if outcome is None:
-                return done
+                idle += 1
+                continue
+            idle = 0
             work.reviews.append(outcome)
             done += 1
+        return done
 
     def work_until_done(self, round_index: int, wait: Callable[[], None], *, max_passes: int = 20,
                         annotation_limit: int | None = None) -> TeamWork:

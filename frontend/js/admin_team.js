@@ -18,6 +18,7 @@ export function withTeam(mount) {
 const COLUMNS = [
   ["person", ""], ["role", ""], ["samples", "num"], ["points placed", "num"], ["proposals taken", "num"],
   ["s / sample", "num"], ["accept rate", "num"], ["decisions", "num"], ["s / decision", "num"], ["overturned", "num"],
+  ["gold agreement", "num"], // issue 40: gold labels slipped into their reviews (admin_quality.js)
   ["login", ""],
 ];
 
@@ -42,6 +43,7 @@ export class TeamSection {
         h("td", { class: "num decisions" }, String(p.decisions)),
         h("td", { class: "num per-decision" }, fmt(p.seconds_per_decision, 1)),
         h("td", { class: "num overturned" }, String(p.overturned)),
+        h("td", { class: "num gold" }, p.gold_judged ? `${Math.round(p.gold_agreement * 100)} % of ${p.gold_judged}` : "–"),
         h("td", { class: "lock" }, lock ? [h("span", { class: "badge warn" }, `locked ${lock.retry_after_s} s`), " ",
           h("button", { class: "small unlock", onclick: () => this.unlock(p) }, "Unlock")] : "ok"));
     });

@@ -6,16 +6,17 @@ import { h, toast, fill } from "./dom.js";
 const RANK = { annotator: 0, reviewer: 1, admin: 2 };
 // The annotate and review pages with the guidelines' panel (guidelines.js); the admin page (admin.js) with the
 // sections kept in their own modules added to it: team (statistics, unlock), FreiHAND export, guidelines' editor,
-// calibration check.
+// calibration check, label quality.
 const withGuidelines = (load) => () => Promise.all([load(), import("./guidelines.js")]).then(([m, g]) => g.withGuidelines(m));
 const PAGES = {
   annotate: { label: "Annotate", role: "annotator",
     load: withGuidelines(() => import("./annotate.js").then((m) => m.mountAnnotate)) },
   review: { label: "Review", role: "reviewer", load: withGuidelines(() => import("./review.js").then((m) => m.mountReview)) },
   admin: { label: "Admin", role: "admin", load: () => Promise.all([import("./admin.js"), import("./admin_team.js"),
-    import("./admin_freihand.js"), import("./guidelines.js"), import("./calibration_check.js")])
-    .then(([admin, team, freihand, guide, check]) => check.withCalibrationCheck(
-      guide.withGuidelinesEditor(freihand.withFreihandExport(team.withTeam(admin.mountAdmin))))) },
+    import("./admin_freihand.js"), import("./guidelines.js"), import("./calibration_check.js"),
+    import("./admin_quality.js")])
+    .then(([admin, team, freihand, guide, check, quality]) => quality.withQuality(check.withCalibrationCheck(
+      guide.withGuidelinesEditor(freihand.withFreihandExport(team.withTeam(admin.mountAdmin)))))) },
 };
 const HOME = { annotator: "annotate", reviewer: "review", admin: "admin" };
 

@@ -44,6 +44,9 @@ def _seed_users(url: str) -> None:
             conn.execute(text("INSERT INTO users (email, full_name, role, hashed_password, is_active, token_version,"
                               " created_at) VALUES (:e, '', :r, :h, true, 0, CURRENT_TIMESTAMP)"),
                          {"e": email, "r": role.value, "h": hashed})
+        # Blind audits off (the product audits 5 % of accepts): a test opts in (tests/backend/api/test_label_audits.py).
+        conn.execute(text("INSERT INTO quality_settings (id, audit_share, audit_seed, min_audits_for_target, "
+                          "auditor_error_rate, gold_share, updated_at) VALUES (1, 0, 0, 30, 0, 0, CURRENT_TIMESTAMP)"))
     engine.dispose()
 
 

@@ -67,6 +67,7 @@ def test_team_statistics_unlock_and_the_freihand_export_from_the_page(live_stack
     assert any(n.endswith("_xyz.json") for n in names), sorted(names)[:20]
     exported = {e["sample_id"] for s in manifest["sets"].values() for e in s["samples"]}
     assert exported == set(accepted), manifest["sets"].keys()
+    assert manifest["quality"]["streams"]["annotated"]["audited"] == 0  # the audits' figures (issue 40; audits off)
     # The finished export is listed with its download too (after a reload, or for another admin).
     page.wait_for_selector(f'#freihand-export tr[data-export-job="{job_id}"] button.download', timeout=10_000)
 

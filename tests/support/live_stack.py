@@ -180,6 +180,7 @@ def prepare_database(settings: Settings, capture_dir: Path, *, queue_for_annotat
     from backend.db.migrate import upgrade
     from backend.db.session import create_engine_from_url, make_session_factory
     from backend.models.enums import Role
+    from backend.models.label_audit import QualitySettings
     from backend.services.accounts.users import create_user
     from backend.services.captures.importer import import_capture
     from backend.services.captures.storage import LocalDiskStorage
@@ -193,6 +194,8 @@ def prepare_database(settings: Settings, capture_dir: Path, *, queue_for_annotat
                                     queue_for_annotation=queue_for_annotation)
             for user in USERS.values():
                 create_user(session, user.email, user.password, Role(user.role), user.role)
+            # Blind audits off (the product audits 5 % of accepts): a test opts in (test_review_audit_blind.py).
+            session.add(QualitySettings(id=1, audit_share=0.0))
     finally:
         engine.dispose()
     return result.project_id

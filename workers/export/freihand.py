@@ -200,7 +200,8 @@ def _dump(path: Path, value: Any) -> None:
 def write_freihand(samples: Sequence[SampleRecord], out_dir: Path, read_bytes: Callable[[str], bytes],
                    arrays: HandModelArrays, options: ExportOptions | None = None,
                    progress: Callable[[int], None] | None = None, *,
-                   other_side: HandModelArrays | None = None) -> ExportSummary:
+                   other_side: HandModelArrays | None = None,
+                   label_quality: dict[str, Any] | None = None) -> ExportSummary:
     """Write `samples` in FreiHAND's layout to `out_dir`.
 
     Args:
@@ -212,6 +213,8 @@ def write_freihand(samples: Sequence[SampleRecord], out_dir: Path, read_bytes: C
         other_side: the other side's hand model, needed when samples of that side are exported (a left hand's
             fit poses the left model). FreiHAND's label files have no side: each sample's is in the
             manifest (handloop_export.json, sets.<set>.samples[i].side).
+        label_quality: the labels' audit figures (services.review.label_audits.summary: per round and stream, audited,
+            found wrong, the share and its Wilson 95 % interval), written as the manifest's "quality".
     Everything is written into a temporary sibling folder that replaces `out_dir` at the end: a failed
     export leaves nothing behind.
     """
@@ -315,6 +318,8 @@ def write_freihand(samples: Sequence[SampleRecord], out_dir: Path, read_bytes: C
             "image_versions": ["original"] + [f"cut_and_paste_{v}" for v in range(1, options.composites + 1)],
             "sets": {s: {"count": len(index[s]), "images": images[s], "samples": index[s]} for s in index},
         }
+        if label_quality is not None:
+            manifest["quality"] = label_quality
         _dump(tmp / MANIFEST, manifest)
         (tmp / "README.txt").write_text(
             "FreiHAND-layout export written by handloop (see docs/evaluation.md in the handloop repository).\n"

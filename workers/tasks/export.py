@@ -14,6 +14,7 @@ from backend.models.enums import JobState
 from backend.services.errors import DomainError
 from backend.services.exports import export, export_jobs
 from backend.services.jobs import jobs
+from backend.services.review import label_audits
 from workers.export.freihand import ExportError, ExportOptions, write_freihand
 from workers.export.hand_models import export_hand_models
 from workers.tasks.context import WorkerContext
@@ -30,6 +31,7 @@ def run_freihand_export_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
         payload = dict(job.payload or {})
         try:
             records = export.export_records(session, payload.get("up_to_round"), payload.get("project"))
+            quality = label_audits.summary(session)
         except DomainError as exc:
             jobs.finish(session, job_id, JobState.failed, error=exc.message[:2000])
             return {"job_id": job_id, "failed": exc.message}
@@ -53,7 +55,7 @@ def run_freihand_export_job(ctx: WorkerContext, job_id: int) -> dict[str, Any]:
         with tempfile.TemporaryDirectory(dir=archive.parent, prefix=f"job-{job_id}-") as scratch:
             out = Path(scratch) / "freihand"
             summary = write_freihand(records, out, ctx.storage.get_bytes, arrays, options, progress=wrote,
-                                     other_side=left)
+                                     other_side=left, label_quality=quality)
             reporter(0.9, "packing the archive", force=True)
             _zip(out, archive)
     except (ExportError, DomainError) as exc:

@@ -30,7 +30,7 @@ from backend.services.captures.masks import encode_png
 from backend.services.errors import DomainError
 from backend.services.jobs import jobs
 from backend.services.jobs.jobs import JobStillRunningError
-from backend.services.review.verification import HeuristicThresholds
+from backend.services.review import precision_target
 from backend.settings import Settings
 from workers.capture.schema import CaptureError
 from workers.fitting.config import FitConfig, source_weights
@@ -262,8 +262,8 @@ def _record_all(ctx: WorkerContext, fitted: list[tuple[FitInput, Any]], config: 
             "iterations_schedule": [config.global_iterations, config.full_iterations]})
         rows.append((fi, result, ious, diagnostics))
     unstorable: list[tuple[FitInput, str]] = []
-    thresholds = HeuristicThresholds.from_settings(ctx.settings)
     with ctx.session_factory.begin() as session:
+        thresholds = precision_target.thresholds_in_force(session, ctx.settings)  # the round's (issue 40)
         for fi, result, ious, diagnostics in rows:
             try:
                 with session.begin_nested():

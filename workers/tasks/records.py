@@ -25,6 +25,7 @@ from backend.services.captures.storage import Storage
 from backend.services.errors import ConflictError, InvalidInputError
 from backend.services.jobs import fit_samples, jobs
 from backend.services.leases import queues
+from backend.services.review import label_audits
 from backend.services.review.verification import HeuristicThresholds, heuristic_verdict
 from backend.services.rounds import rounds
 from workers.handmodel.params import NUM_PARAMS, HandParams
@@ -147,6 +148,7 @@ def record_fit(session: Session, sample_id: int, *, params: Sequence[float], key
             session.add(Decision(sample_id=sample_id, fit_id=fit.id, round_id=round_.id, by_heuristic=True,
                                  decision=DecisionKind.accept, reason="heuristic: all criteria met"))
             rounds.add_member(session, round_, sample_id, fit.id, Stream.heuristic)
+            label_audits.schedule(session, round_, sample_id, fit.id, Stream.heuristic, None)
     elif inputs.get("submission_ids"):
         transition(session, sample, SampleState.in_review, None, reason="fitted from annotations")
     audit.record(session, None, "fit.create", "sample", sample_id, fit_id=fit.id, state=sample.state)

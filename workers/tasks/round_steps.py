@@ -29,8 +29,8 @@ from backend.models.fits import Fit, Prediction
 from backend.models.jobs import Job
 from backend.models.review import Round, RoundMember
 from backend.services.jobs import jobs
-from backend.services.review import review
-from backend.services.review.verification import HeuristicThresholds, ReviewPolicy, heuristic_verdict
+from backend.services.review import precision_target, review
+from backend.services.review.verification import ReviewPolicy, heuristic_verdict
 from workers.tasks import round_progress
 from workers.tasks.context import WorkerContext
 from workers.tasks.inference import PREDICTABLE
@@ -186,8 +186,8 @@ def run_heuristic(ctx: WorkerContext, round_job_id: int) -> dict[str, Any] | Non
     """The paper's heuristic over the round's fits from predictions: applies it to any fit not evaluated yet
     (record_fit evaluates each new one) and summarises: fits, evaluated, accepted (D^h), most common failures;
     the same per sequence kind in "by_kind" ("green_screen": chroma-keyed sequences, "cluttered": the others)."""
-    thresholds = HeuristicThresholds.from_settings(ctx.settings)
     with ctx.session_factory.begin() as session:
+        thresholds = precision_target.thresholds_in_force(session, ctx.settings)  # the round's (issue 40)
         job = session.get(Job, round_job_id)
         if job is None or JobState(job.state) in jobs.FINAL_STATES:
             return None

@@ -10,7 +10,7 @@ from backend.schemas.base import Id
 from backend.schemas.drafts import ReviewDraftIn
 from backend.schemas.tasks import DecisionCreate, DecisionPublic, TaskPublic
 from backend.services.leases import queues
-from backend.services.review import review
+from backend.services.review import label_audits, review
 
 router = APIRouter(prefix="/review", tags=["reviewer queue"])
 router.include_router(lease_routes(LeaseKind.review, ReviewerUser, ReviewDraftIn, "decision and reason"))
@@ -18,8 +18,11 @@ router.include_router(lease_routes(LeaseKind.review, ReviewerUser, ReviewDraftIn
 
 @router.post("/next", response_model=TaskPublic, responses={204: {"description": "The queue is empty."}})
 def next_task(session: SessionDep, settings: SettingsDep, user: ReviewerUser) -> TaskPublic | Response:
-    """Lease the most confident sample awaiting verification, with its fit."""
-    lease = queues.acquire(session, user, LeaseKind.review, settings.lease_seconds)
+    """Lease the most confident sample awaiting verification, with its fit (blind audits of accepted labels
+    interleaved, shown as any task: services.review.label_audits)."""
+    lease, _ = label_audits.next_review(
+        session, user, settings.lease_seconds,
+        lambda: queues.acquire(session, user, LeaseKind.review, settings.lease_seconds))
     if lease is None:
         return Response(status_code=204)
     return task_of(session, lease, with_fit=True)

@@ -6,8 +6,8 @@ from backend.api.deps import AdminUser, JobQueueDep, SessionDep, SettingsDep
 from backend.models.review import Round
 from backend.schemas.admin import ReviewQueueBuilt, RoundCreate, RoundLaunched, RoundPublic, Statistics
 from backend.schemas.base import Id
-from backend.services.review import review
-from backend.services.review.verification import ReviewPolicy
+from backend.services.review import precision_target, review
+from backend.services.review.verification import HeuristicThresholds, ReviewPolicy
 from backend.services.rounds import rounds
 
 router = APIRouter(prefix="/admin/rounds", tags=["admin: rounds"])
@@ -25,6 +25,8 @@ def launch_round(body: RoundCreate, session: SessionDep, settings: SettingsDep, 
     written) while fewer labels are accepted than a round trains on (HANDLOOP_ROUND_MIN_TRAINING_SAMPLES)."""
     round_, job = rounds.launch(session, queue, admin.id, body.mvnet_version, body.handsegnet_version, body.note,
                                 settings.round_min_training_samples)
+    # The heuristic's thresholds for the round: the paper's, or chosen to meet the precision target (issue 40).
+    precision_target.choose_for_round(session, round_, HeuristicThresholds.from_settings(settings))
     return RoundLaunched(round=RoundPublic.model_validate(round_), job_id=job.id)
 
 

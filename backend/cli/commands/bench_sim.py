@@ -35,6 +35,22 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         handsegnet_steps: int | None = typer.Option(
             None, "--handsegnet-steps", min=1, help="HandSegNet alone trains this many steps a round, in place of "
             "--train-steps (with it: MVNet's steps held while HandSegNet's vary)."),
+        seed: int = typer.Option(2026, "--seed", min=0, help="The capture's, the simulated people's and the audits' "
+                                 "seed (default 2026)."),
+        audit_share: float = typer.Option(0.05, "--audit-share", min=0.0, max=1.0, help="Share of each stream's "
+                                          "accepts the server audits blind (issue 40; default 0.05, 0: none)."),
+        precision_target: float | None = typer.Option(
+            None, "--precision-target", help="The server's 'at most this share of auto-accepted labels wrong' "
+            "(e.g. 0.02); checked on the true labels (label_quality); default: off, checked against 0.02."),
+        reviewer_error_rate: float | None = typer.Option(None, "--reviewer-error-rate", min=0.0, max=1.0,
+                                                         help="Simulated reviewers' decision error (default 0.02)."),
+        reviewer_accept_below_mm: float | None = typer.Option(
+            None, "--reviewer-accept-below-mm", help="Simulated reviewers accept a fit under this true mean vertex "
+            "error (default 8 mm)."),
+        gold_labels: int = typer.Option(0, "--gold-labels", min=0, max=10_000, help="After D_0 the admin marks this "
+                                        "many truly right accepted labels gold (default 0)."),
+        gold_share: float = typer.Option(0.0, "--gold-share", min=0.0, max=1.0, help="Share of the reviewers' tasks "
+                                         "that are gold labels (default 0)."),
     ) -> None:
         """200-frame synthetic capture, cpu-small networks, 4 rounds through the real server and workers:
         minutes, accepted labels' vertex error, auto-accept precision, labels per human hour; with the
@@ -50,7 +66,10 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
             record = run(quick=quick, emit_json=json_out, detector=detector, accept_proposals_px=accept_proposals_px,
                          width=width, rounds=rounds, initial_every=initial_every, round0_rest=round0_rest,
                          frames=frames, train_steps=train_steps,
-                         handsegnet_steps=handsegnet_steps)
+                         handsegnet_steps=handsegnet_steps, seed=seed, audit_share=audit_share,
+                         precision_target=precision_target, reviewer_error_rate=reviewer_error_rate,
+                         reviewer_accept_below_mm=reviewer_accept_below_mm, gold_labels=gold_labels,
+                         gold_share=gold_share)
         except ValueError as exc:
             typer.echo(f"error: {exc}", err=True)
             raise typer.Exit(code=2) from exc
@@ -66,6 +85,11 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
                         typer.echo(f"  {by_kind_line(r)}")
             for r in record["rounds"]:
                 typer.echo(f"D_{r['index']}: {r['dataset_size']} samples, {r['human_hours']:.2f} h")
+            for stream, q in (record.get("label_quality") or {}).items():
+                if stream == "gold":
+                    continue
+                typer.echo(f"{stream}: audited {q['audited']}, audit error {q['audit_error_rate']} "
+                           f"{q['audit_error_rate_ci95']}, true {q['true_error_rate']} over {q['labels']} labels")
             typer.echo(f"minutes {record['minutes']:.1f}  accepted {record['accepted_vertex_mm']} mm  "
                        f"auto-accept precision {record['auto_accept_precision']}  "
                        f"labels/h {record['labels_per_human_hour']}")

@@ -34,6 +34,7 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         from backend.services.captures.storage import LocalDiskStorage
         from backend.services.errors import DomainError
         from backend.services.exports.export import export_records
+        from backend.services.review.label_audits import summary as quality_summary
         from backend.settings import get_settings
         from workers.export.freihand import ExportError, ExportOptions, hand_model_notice, write_freihand
         from workers.export.hand_models import export_hand_models
@@ -55,6 +56,7 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         try:
             with make_session_factory(engine)() as session:
                 records = export_records(session, up_to_round, project)
+                quality = quality_summary(session)
         except DomainError as exc:
             fail(exc.message)
         finally:
@@ -69,7 +71,7 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         try:
             with tqdm(total=len(records), unit="sample", desc="exporting", file=sys.stderr) as bar:
                 summary = write_freihand(records, out, storage.get_bytes, arrays, options, progress=bar.update,
-                                         other_side=left)
+                                         other_side=left, label_quality=quality)
         except (ExportError, DomainError) as exc:
             fail(getattr(exc, "message", None) or str(exc))
         result = {"out": str(summary.out_dir), "hand_model": summary.hand_model, "is_mano": summary.is_mano,

@@ -8,7 +8,8 @@
                                +-- no hand (annotator) --> rejected
                                                               +-- refit (new predictions)
 
-No skipping: nothing reaches `accepted` without a fit, and only reviewers (or the heuristic) accept.
+No skipping: nothing reaches `accepted` without a fit, and only reviewers (or the heuristic) accept; an accepted
+sample leaves `accepted` only by an audit that finds its label wrong (-> rejected or needs_annotation).
 """
 
 from __future__ import annotations
@@ -27,7 +28,8 @@ TRANSITIONS: dict[S, frozenset[S]] = {
     S.fitting: frozenset({S.fitted, S.needs_annotation}),
     S.fitted: frozenset({S.in_review, S.accepted, S.fitting, S.needs_annotation}),
     S.in_review: frozenset({S.accepted, S.rejected, S.needs_annotation, S.fitted}),
-    S.accepted: frozenset(),
+    # Only a blind audit that finds the label wrong takes it out again (services.review.label_audits, issue 40).
+    S.accepted: frozenset({S.rejected, S.needs_annotation}),
     S.rejected: frozenset(),
 }
 

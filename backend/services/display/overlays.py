@@ -310,7 +310,8 @@ def review_overlay(session: Session, user: Actor, sample_id: int, *, secret_key:
                        "label": hand_model_label(fit.model_file), "side": fit_side(fit.diagnostics)},
         "fit": {"keypoints_m": keypoints.round(6).tolist(), "source": "annotations" if submission_ids else
                 DETECTOR_SOURCE if (fit.inputs or {}).get("source") == DETECTOR_SOURCE else "prediction",
-                "heuristic": fit.heuristic, "pose_distance": round(float(fit.pose_distance), 4),
+                "heuristic": None,  # blind: an audited heuristic accept would show 'passed' (review.label_audits)
+                "pose_distance": round(float(fit.pose_distance), 4),
                 "mean_iou": round(float(np.mean(list(ious.values()))), 4) if ious else None,
                 "mean_residual_px": round(float(np.mean(all_res)), 2) if all_res else None,
                 "max_residual_px": round(float(np.max(all_res)), 2) if all_res else None,

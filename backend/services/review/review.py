@@ -14,6 +14,7 @@ from backend.services.accounts.users import Actor
 from backend.services.captures.state_machine import transition
 from backend.services.errors import ConflictError
 from backend.services.leases import drafts, queues
+from backend.services.review import label_audits
 from backend.services.review.verification import Candidate, ReviewPolicy, select_for_review
 from backend.services.rounds import rounds
 
@@ -50,11 +51,14 @@ def decide(session: Session, user: Actor, sample_id: int, decision: DecisionKind
     fit = session.get(Fit, sample.current_fit_id)
     stream: Stream | None = None
     round_ = rounds.open_round(session, user.id)
+    if sample.state == SampleState.accepted:  # a blind audit of an accepted label (issue 40)
+        return label_audits.decide(session, user, sample, decision, reason, round_)
     if decision is DecisionKind.accept:
         transition(session, sample, SampleState.accepted, user.id, reason=reason or "verified")
         # D^l: fits that used annotators' clicks; D^m: fits from predictions that a human verified.
         stream = Stream.annotated if fit is not None and fit.inputs.get("submission_ids") else Stream.manual
         rounds.add_member(session, round_, sample_id, sample.current_fit_id, stream)
+        label_audits.schedule(session, round_, sample_id, sample.current_fit_id, stream, user.id)
     elif decision is DecisionKind.reject:
         transition(session, sample, SampleState.rejected, user.id, reason=reason)
     else:

@@ -11,7 +11,9 @@ Annotators, from their submissions:
 Reviewers, from their decisions (the heuristic's are nobody's):
 - `decisions`, and `seconds_per_decision` from the review page's activity logs (None without a log);
 - `overturned`: their decisions on a fit that someone else later decided differently on (the same fit of the
-  same sample: a "needs annotation" followed by a new fit is the workflow, not an overturn).
+  same sample: a "needs annotation" followed by a new fit is the workflow, not an overturn); a blind audit that
+  finds an accept wrong overturns it, a look at a gold label does not (services.review.label_audits);
+- `gold_judged`, `gold_agreement`: gold labels slipped into their queue, and the share they accepted (issue 40).
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from backend.models.enums import DecisionKind, Visibility
 from backend.models.labels import Click, Submission
 from backend.models.review import Decision
 from backend.models.users import User
+from backend.services.review import label_audits
 from backend.services.statistics.activity import ACTION as ACTIVITY
 
 
@@ -37,7 +40,7 @@ def team_statistics(session: Session) -> list[dict[str, Any]]:
     rows = {u.id: {"user_id": u.id, "email": u.email, "full_name": u.full_name, "role": u.role, "samples": 0,
                    "submissions": 0, "points_placed": 0, "proposals_accepted": 0, "seconds_per_sample": None,
                    "decided": 0, "accepted": 0, "accept_rate": None, "decisions": 0, "seconds_per_decision": None,
-                   "overturned": 0} for u in users}
+                   "overturned": 0, "gold_judged": 0, "gold_agreement": None} for u in users}
     submissions = session.execute(select(Submission.id, Submission.user_id, Submission.sample_id,
                                          Submission.time_spent_s, Submission.created_at)).all()
     seconds: dict[int, float] = defaultdict(float)
@@ -72,9 +75,11 @@ def team_statistics(session: Session) -> list[dict[str, Any]]:
         if verdict is not None:
             rows[s.user_id]["decided"] += 1
             rows[s.user_id]["accepted"] += verdict.decision == DecisionKind.accept
+    gold_looks = label_audits.gold_decision_ids(session)  # a gold label is known right: no one is overturned by it
     for list_ in by_sample.values():
         for i, d in enumerate(list_):
-            later = next((e for e in list_[i + 1:] if e.fit_id == d.fit_id and e.user_id != d.user_id), None)
+            later = next((e for e in list_[i + 1:] if e.fit_id == d.fit_id and e.user_id != d.user_id
+                          and e.id not in gold_looks), None)
             if d.fit_id is not None and later is not None and later.decision != d.decision:
                 rows[d.user_id]["overturned"] += 1
     review_seconds: dict[int, list[float]] = defaultdict(list)
@@ -85,6 +90,10 @@ def team_statistics(session: Session) -> list[dict[str, Any]]:
             review_seconds[actor_id].append(float(spent))
     for user_id, spent in review_seconds.items():
         rows[user_id]["seconds_per_decision"] = round(sum(spent) / len(spent), 1)
+    for person in label_audits.gold_agreement(session):
+        if person["user_id"] in rows:
+            rows[person["user_id"]]["gold_judged"] = person["gold_judged"]
+            rows[person["user_id"]]["gold_agreement"] = person["agreement"]
     for row in rows.values():
         if row["decided"]:
             row["accept_rate"] = round(row["accepted"] / row["decided"], 3)

@@ -69,6 +69,11 @@ ROUTES = [
     ("PUT", "/api/admin/guidelines", Role.admin),
     ("POST", "/api/admin/guidelines/images", Role.admin),
     ("DELETE", "/api/admin/guidelines/images/1", Role.admin),
+    # Issue 40: label quality (audit figures, settings, the audits with their labels).
+    ("GET", "/api/admin/quality", Role.admin),
+    ("PUT", "/api/admin/quality/settings", Role.admin),
+    ("GET", "/api/admin/quality/audits", Role.admin),
+    ("POST", "/api/admin/quality/gold", Role.admin),
 ]
 # The 3D scene takes a scene ticket instead of a bearer token (tests/backend/api/ui/test_viewer_scene.py).
 OPEN = {("GET", "/api/health"), ("POST", "/api/auth/token"), ("GET", "/api/viewer/samples/{x}/scene")}

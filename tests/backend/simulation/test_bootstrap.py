@@ -363,3 +363,40 @@ def test_a_run_that_ends_early_for_any_reason_says_where_in_stopped(env_with, sq
     sim.run_round = stuck_round
     summary = sim.run(capture_dir, initial_every=3)
     assert summary["stopped"]["round"] == 1 and summary["stopped"]["reason"].endswith("still running after 3600 s")
+
+
+def test_audits_estimate_each_streams_true_error_and_gold_the_reviewers_agreement(env_with, sqlite_url, capture_dir,
+                                                                                 tmp_path):
+    # Issue 40: every accept audited by another reviewer (error-free, judging at the truth's 10 mm): the heuristic's
+    # wrong accepts (15 mm off with their predictions, which it cannot see) are found and leave the dataset; the
+    # estimate is the true share; two truly right labels marked gold after D_0 are agreed with.
+    env = env_with(sqlite_url, tmp_path / "data", review_min_time_gap_s=0.0, review_min_pose_distance=0.0)
+    admin = ApiClient(env.client, token_of(env, Role.admin))
+    # Three reviewers: a gold label goes to one who has not judged it (one accepted it, another audited it).
+    config = BootstrapConfig(rounds=1, annotators=2, reviewers=3,
+                             annotator=AnnotatorConfig(click_sigma_px=1.0, max_mask_corrections=1, seed=3),
+                             reviewer=ReviewerConfig(accept_below_mm=10.0, error_rate=0.0),
+                             audit_share=1.0, audit_seed=5, gold_labels=2, gold_share=1.0)
+    sim = BootstrapSimulation(env.client, admin, config)
+    workers = FakeWorkers(env, sim)
+    sim.wait_for_workers = workers.fit_submissions
+    sim.run_round = workers.round
+    summary = sim.run(capture_dir, initial_every=3)
+    assert summary["bookkeeping_ok"] and summary["failure"] is None
+    quality = summary["label_quality"]
+    heuristic = quality["heuristic"]
+    assert heuristic["labels"] == heuristic["audited"] > 0
+    assert 0 < heuristic["true_error_rate"] == pytest.approx(heuristic["audit_error_rate"])
+    assert heuristic["ci_holds_true"] and heuristic["true_error_rate_after_audits"] == 0.0
+    assert heuristic["target_met_true"] is False and heuristic["precision_target"] == 0.02
+    assert quality["annotated"]["audited"] == quality["annotated"]["labels"] and quality["annotated"][
+        "true_error_rate"] == 0.0
+    assert len(sim.gold) == 2 and quality["gold"]
+    for person in quality["gold"]:
+        assert person["agreement"] == 1.0 and person["given_agreement"] == 1.0 and person["ci_holds_given"]
+    with env.session() as s:
+        auto = set(s.execute(text("SELECT sample_id FROM round_members WHERE stream = 'heuristic'")).scalars())
+    wrong = {sid for sid, shift in workers.shifted.items() if shift > 0.010}
+    assert wrong and not auto & wrong  # the audits took every wrong auto-accept out (sent back: clicked, refitted)
+    assert summary["accepted_vertex_mm"] < 10.0
+    json.dumps(summary)

@@ -141,3 +141,16 @@ def test_left_hands_are_posed_with_the_left_model_and_named_in_the_manifest(tmp_
     data = read_freihand_set(tmp_path / "c", "training")
     back, _ = mesh_from_freihand(left, np.asarray(data.mano[0]).reshape(-1), data.K[0])
     np.testing.assert_allclose(back, data.xyz[0], atol=1e-6)  # FreiHAND's parameters pose the left model back
+
+
+def test_the_manifest_carries_the_audit_figures(capture, tmp_path):
+    import json
+
+    quality = {"streams": {"heuristic": {"audited": 20, "wrong": 1, "error_rate": 0.05,
+                                         "error_rate_ci95": [0.0089, 0.2361]}}, "rounds": []}
+    write_freihand(records_of(capture)[:1], tmp_path / "q", read_file, load_hand_model(None),
+                   ExportOptions(mesh_formats=()), label_quality=quality)
+    assert json.loads((tmp_path / "q" / "handloop_export.json").read_text())["quality"] == quality
+    write_freihand(records_of(capture)[:1], tmp_path / "none", read_file, load_hand_model(None),
+                   ExportOptions(mesh_formats=()))
+    assert "quality" not in json.loads((tmp_path / "none" / "handloop_export.json").read_text())

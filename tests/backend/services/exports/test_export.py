@@ -102,6 +102,7 @@ def test_export_then_read_back_gives_the_same_labels(sqlite_env, capture_dir, tm
         assert (out / name).is_file(), name
     assert "not MANO" in (out / "README.txt").read_text()
     manifest = json.loads((out / "handloop_export.json").read_text())
+    assert set(manifest["quality"]["streams"]) == {"heuristic", "manual", "annotated"}  # the audits' figures (issue 40)
     assert manifest["hand_model"]["is_mano"] is False and "HANDLOOP_MANO_PATH" in manifest["hand_model"]["notice"]
 
     arrays = load_hand_model(None)

@@ -1,0 +1,106 @@
+// Label quality on the admin page (issue 40): blind audits of accepted labels per round and stream (GET
+// /api/admin/quality: audited, found wrong, the share and its Wilson 95 % interval, pending), the audit share and
+// the precision target as settings (PUT /api/admin/quality/settings), and the heuristic's thresholds in use with
+// why they were chosen. Kept out of admin.js: `withQuality` adds this section to the admin page.
+import { fmt, h, toast, fill } from "./dom.js";
+
+export function withQuality(mount) {
+  return async (root, ctx) => {
+    const page = await mount(root, ctx);
+    const section = h("section", { class: "card wide", id: "quality" });
+    (root.querySelector(".admin-page") || root).append(section);
+    const quality = new QualitySection(section, ctx.api);
+    quality.refresh().catch((error) => fill(section, h("h2", {}, "Label quality"),
+      h("p", { class: "error" }, `label quality: ${error.message}`)));
+    return page;
+  };
+}
+
+const STREAM_LABEL = { heuristic: "Dʰ heuristic", manual: "Dᵐ verified", annotated: "Dˡ annotated" };
+const pct = (x) => (x === null || x === undefined ? "–" : `${fmt(x * 100, 1)} %`);
+const interval = (ci) => (ci ? `${fmt(ci[0] * 100, 1)}–${fmt(ci[1] * 100, 1)} %` : "–");
+
+// The share wrong and its interval corrected for the auditors' own error rate (the same without one); the share as
+// the auditors called it in the cell's title.
+function figureCells(f) {
+  return [h("td", { class: "num audited" }, String(f.audited)), h("td", { class: "num wrong" }, String(f.wrong)),
+    h("td", { class: "num rate", title: `as called: ${pct(f.error_rate)}` }, pct(f.error_rate_corrected)),
+    h("td", { class: "num ci", title: `as called: ${interval(f.error_rate_ci95)}` }, interval(f.error_rate_corrected_ci95)),
+    h("td", { class: "num pending" }, String(f.pending))];
+}
+
+const HEAD = ["audited", "called wrong", "share wrong", "95 % interval (Wilson)", "pending"];
+
+export class QualitySection {
+  constructor(section, api) {
+    this.section = section;
+    this.api = api;
+  }
+
+  async refresh() {
+    const q = await this.api.get("/api/admin/quality");
+    const s = q.settings;
+    const share = h("input", { type: "number", min: "0", max: "100", step: "0.5", value: String(s.audit_share * 100),
+      class: "audit-share", title: "share of each stream's accepted labels audited blind, percent" });
+    const target = h("input", { type: "number", min: "0.1", max: "50", step: "0.1", class: "precision-target",
+      value: s.precision_target === null ? "" : String(s.precision_target * 100),
+      placeholder: "off", title: "at most this percent of auto-accepted labels wrong; empty: the paper's thresholds" });
+    const judge = h("input", { type: "number", min: "0", max: "49", step: "0.5", class: "auditor-error",
+      value: String(s.auditor_error_rate * 100), title: "how often an auditor's verdict is itself wrong, percent" });
+    const save = async (e) => {
+      e.preventDefault();
+      try {
+        await this.api.put("/api/admin/quality/settings", { audit_share: Number(share.value) / 100,
+          precision_target: target.value === "" ? null : Number(target.value) / 100,
+          auditor_error_rate: Number(judge.value) / 100, gold_share: Number(goldShare.value) / 100 });
+        toast("quality settings saved", "ok");
+        await this.refresh();
+      } catch (error) {
+        toast(`not saved: ${error.message}`, "error", 8000);
+      }
+    };
+    const goldShare = h("input", { type: "number", min: "0", max: "100", step: "0.5", class: "gold-share",
+      value: String(s.gold_share * 100), title: "share of a reviewer's tasks that are gold labels, percent" });
+    const goldSample = h("input", { type: "number", min: "1", step: "1", class: "gold-sample", placeholder: "sample id" });
+    const markGold = async (e) => {
+      e.preventDefault();
+      try {
+        const g = await this.api.post("/api/admin/quality/gold", { sample_id: Number(goldSample.value) });
+        toast(`sample ${g.sample_id}'s label (${g.stream}) is gold`, "ok");
+        goldSample.value = "";
+      } catch (error) {
+        toast(`not marked: ${error.message}`, "error", 8000);
+      }
+    };
+    const t = q.thresholds;
+    fill(this.section, h("h2", {}, "Label quality"),
+      h("p", { class: "muted" }, "A random share of every stream's accepted labels goes back to a reviewer blind: the " +
+        "task looks like any other (not said to be accepted, nor by whom). A label the audit finds wrong leaves the " +
+        "dataset (exports, the round's figures) with the reviewer's reason. Share wrong with its Wilson 95 % interval, " +
+        "corrected for the auditors' own error rate (hover: as called)."),
+      h("form", { class: "inline-form quality-form", onsubmit: save },
+        h("label", {}, "audit share (%) ", share), h("label", {}, " at most wrong of Dʰ (%) ", target),
+        h("label", {}, " auditors' error (%) ", judge), h("label", {}, " gold in reviews (%) ", goldShare),
+        h("button", { type: "submit" }, "Save")),
+      h("table", { class: "table quality-streams" },
+        h("thead", {}, h("tr", {}, h("th", {}, "stream (all rounds)"), ...HEAD.map((c) => h("th", { class: "num" }, c)))),
+        h("tbody", {}, Object.entries(q.streams).map(([stream, f]) => h("tr", { dataset: { stream } },
+          h("td", {}, STREAM_LABEL[stream] || stream), ...figureCells(f))))),
+      q.rounds.length ? h("table", { class: "table quality-rounds" },
+        h("thead", {}, h("tr", {}, h("th", {}, "round"), h("th", {}, "stream"), ...HEAD.map((c) => h("th", { class: "num" }, c)))),
+        h("tbody", {}, q.rounds.map((f) => h("tr", { dataset: { round: String(f.round), stream: f.stream } },
+          h("td", {}, f.round === null ? "–" : `D${f.round}`), h("td", {}, STREAM_LABEL[f.stream] || f.stream),
+          ...figureCells(f))))) : h("p", { class: "muted" }, "No audits yet."),
+      h("h3", {}, "Gold labels: each reviewer's agreement"),
+      h("form", { class: "inline-form gold-form", onsubmit: markGold }, "Mark an accepted label gold (known right): ",
+        goldSample, h("button", { type: "submit" }, "Mark gold")),
+      q.gold.length ? h("table", { class: "table quality-gold" },
+        h("thead", {}, h("tr", {}, ["reviewer", "gold judged", "agreed", "agreement", "95 % interval"].map((c) => h("th", {}, c)))),
+        h("tbody", {}, q.gold.map((g) => h("tr", { dataset: { user: String(g.user_id) } },
+          h("td", {}, `user ${g.user_id}`), h("td", { class: "num" }, String(g.gold_judged)),
+          h("td", { class: "num" }, String(g.gold_agreed)), h("td", { class: "num" }, pct(g.agreement)),
+          h("td", { class: "num" }, interval(g.agreement_ci95)))))) : h("p", { class: "muted" }, "No gold judged yet."),
+      t ? h("div", { class: "callout thresholds" }, h("strong", {}, "Heuristic thresholds: "), t.explanation) : null);
+    this.section.dataset.ready = "quality";
+  }
+}

@@ -13,6 +13,7 @@ import { LeaseKeeper } from "./lease.js";
 import { MaskLayer, MaskOverlay, StrokeRecorder, unionRect } from "./mask.js";
 import { ActionTimer } from "./timing.js";
 import { Viewport } from "./viewport.js";
+import { paths } from "./api.js";
 
 const HIT_PX = 12; // how close (screen px) a press must be to grab a point
 const LOUPE_R = 56; // the magnifier's radius, screen px
@@ -150,7 +151,7 @@ class AnnotatePage {
     const t0 = performance.now();
     this.leases.hold(task);
     const loads = task.views.map((view) => loadView(this.api, view));
-    const proposals = this.api.get(`/api/annotate/samples/${task.sample_id}/proposals`);
+    const proposals = this.api.get(paths.proposals(task.sample_id));
     const draft = this.drafts.load(task.sample_id);
     const ready = eager ? await Promise.all(loads) : [await loads[0]];
     const views = task.views.map((view, i) => ({ ...view, image: null, maskImage: null, ...(ready[i] || {}) }));
@@ -174,7 +175,7 @@ class AnnotatePage {
       else prepared = null;
     }
     if (!prepared) {
-      const task = await this.api.post("/api/annotate/next");
+      const task = await this.api.post(paths.next("annotate"));
       if (!task) return this.showEmpty();
       prepared = await this.prepare(task, { eager: false });
     }
@@ -185,7 +186,7 @@ class AnnotatePage {
   prefetch() {
     const current = this.task.sample_id;
     this.preparing = (async () => {
-      const task = await this.api.post("/api/annotate/prefetch", { current_sample_id: current });
+      const task = await this.api.post(paths.prefetch("annotate"), { current_sample_id: current });
       if (!task) return null;
       const prepared = await this.prepare(task);
       if (this.task && this.task.sample_id === current) this.prepared = prepared;
@@ -1059,7 +1060,7 @@ class AnnotatePage {
     const task = this.task;
     try {
       let result;
-      const url = `/api/annotate/samples/${task.sample_id}/skip`;
+      const url = paths.skip(task.sample_id);
       const body = { kind, reason: reason.trim(), lease_token: task.lease_token };
       try {
         result = await this.api.post(url, body);
@@ -1084,7 +1085,7 @@ class AnnotatePage {
   watchFit(submissionId, tries = 24) {
     clearTimeout(this.fitWatch);
     const look = async () => {
-      const failures = await this.api.get("/api/annotate/fit-failures").catch(() => null);
+      const failures = await this.api.get(paths.fitFailures()).catch(() => null);
       if (failures) {
         const fresh = failures.filter((f) => !this.failedFits.some((g) => g.submission_id === f.submission_id));
         const mine = failures.find((f) => f.submission_id === submissionId);
@@ -1156,7 +1157,7 @@ class AnnotatePage {
     this.submitting = true;
     this.renderSide();
     try {
-      const url = `/api/annotate/samples/${task.sample_id}/submissions`;
+      const url = paths.submissions(task.sample_id);
       let result;
       try {
         result = await this.api.post(url, body);
@@ -1172,7 +1173,7 @@ class AnnotatePage {
         context: "annotate", sample_id: task.sample_id, submission_id: result.submission_id,
         time_spent_s: body.time_spent_s, actions: this.timer.actions.slice(0, 20000),
       };
-      this.api.post("/api/activity", log).catch((error) => toast(`time log not saved: ${error.message}`, "warn"));
+      this.api.post(paths.activity(), log).catch((error) => toast(`time log not saved: ${error.message}`, "warn"));
       this.lastSubmission = { sample_id: task.sample_id, fit_job_id: result.fit_job_id, clicks: body.clicks.length,
         masks: masks.length, submission: result.id };
       this.watchFit(result.id);

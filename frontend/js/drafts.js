@@ -8,6 +8,7 @@
 // the server's revision is still that one, it is restored and saved. It is dropped once saved, when the
 // server holds a newer draft, after a day, or when the sample moved on (its draft deleted or the lease not
 // ours: the page is told, onkept).
+import { paths } from "./api.js";
 
 // Saves still travelling when a page unmounts (Back, a route change): the next page waits for them before
 // it reads the draft, so it never restores an older one.
@@ -92,7 +93,7 @@ export class DraftSaver {
   }
 
   url(sampleId = this.sampleId) {
-    return `/api/${this.queue}/samples/${sampleId}/draft`;
+    return paths.draft(this.queue, sampleId);
   }
 
   // The sample now on screen; changes from here on are saved as its draft.

@@ -10,6 +10,7 @@ import { LeaseKeeper } from "./lease.js";
 import { contourEdges, decodeMesh, projectVertices } from "./mesh.js";
 import { ActionTimer } from "./timing.js";
 import { Viewport } from "./viewport.js";
+import { paths } from "./api.js";
 
 const QUICK_REASONS = {
   reject: ["hand model badly misaligned", "wrong global pose (flipped or mirrored)", "fingers tangled or implausible",
@@ -140,7 +141,7 @@ class ReviewPage {
   async prepare(task) {
     this.leases.hold(task);
     const [overlay, views, draft] = await Promise.all([
-      this.api.get(`/api/review/samples/${task.sample_id}/overlay`),
+      this.api.get(paths.overlay(task.sample_id)),
       loadViews(this.api, task, { masks: false }),
       this.drafts.load(task.sample_id),
     ]);
@@ -161,7 +162,7 @@ class ReviewPage {
     if (!prepared && this.preparing) prepared = await this.preparing.catch(() => null);
     this.prepared = null;
     if (!prepared) {
-      const task = await this.api.post("/api/review/next");
+      const task = await this.api.post(paths.next("review"));
       if (!task) return this.showEmpty();
       prepared = await this.prepare(task);
     }
@@ -172,7 +173,7 @@ class ReviewPage {
   prefetch() {
     const current = this.current.task.sample_id;
     this.preparing = (async () => {
-      const task = await this.api.post("/api/review/prefetch", { current_sample_id: current });
+      const task = await this.api.post(paths.prefetch("review"), { current_sample_id: current });
       if (!task) return null;
       const prepared = await this.prepare(task);
       if (this.current && this.current.task.sample_id === current) this.prepared = prepared;
@@ -232,7 +233,7 @@ class ReviewPage {
     this.deciding = true;
     this.release3d();
     try {
-      const url = `/api/review/samples/${task.sample_id}/decision`;
+      const url = paths.decision(task.sample_id);
       let result;
       try {
         result = await this.api.post(url, { decision, reason, lease_token: task.lease_token });
@@ -245,7 +246,7 @@ class ReviewPage {
       const decidedAt = performance.now();
       this.timer.mark("decide");
       this.leases.drop(task.sample_id, false);
-      this.api.post("/api/activity", { context: "review", sample_id: task.sample_id, decision_id: result.id,
+      this.api.post(paths.activity(), { context: "review", sample_id: task.sample_id, decision_id: result.id,
         time_spent_s: Math.round(this.spentSeconds() * 1000) / 1000, actions: this.timer.actions })
         .catch((error) => toast(`time log not saved: ${error.message}`, "warn"));
       toast(`sample ${task.sample_id}: ${decision}${result.stream ? ` (joins D as ${result.stream})` : ""}`, "ok", 2000);

@@ -33,6 +33,12 @@ class AdminPage {
     this.user = user;
     this.root = root;
     this.watching = new Map(); // job id -> AbortController of its event stream
+    // What the last refresh() read (GET /api/admin/...: rounds/statistics, rounds, dashboard, jobs, preannotation).
+    /** @type {any} */ this.stats;
+    /** @type {any} */ this.rounds;
+    /** @type {any} */ this.dashboard;
+    /** @type {any} */ this.jobs;
+    /** @type {any} */ this.preannotation;
     this.bars = new Map(); // job id -> its progress bar
     this.sections = {
       overview: h("section", { class: "card", id: "overview" }),

@@ -115,7 +115,14 @@ export class Api {
     return this.token ? { Authorization: `Bearer ${this.token}`, ...extra } : extra;
   }
 
-  // keepalive: the request outlives the page (a draft saved while it unloads; bodies up to 64 KiB).
+  /**
+   * One request; throws ApiError unless the answer is 2xx. keepalive: the request outlives the page (a draft
+   * saved while it unloads; bodies up to 64 KiB).
+   * @param {string} method
+   * @param {string} path  one of `paths` (above)
+   * @param {{body?: any, signal?: AbortSignal, headers?: Record<string, string>, keepalive?: boolean}} [options]
+   * @returns {Promise<Response>}
+   */
   async fetch(method, path, { body, signal, headers, keepalive } = {}) {
     const init = { method, headers: this.headers(headers), signal, keepalive: Boolean(keepalive) };
     if (body instanceof FormData) {

@@ -59,6 +59,13 @@ export class DraftSaver {
   // tab could not be restored (the sample moved on), the page says so; onconflict(theirs): another tab or
   // window saved this sample's draft after the revision this page's work was made on (the server refused ours,
   // writing nothing): the page shows both, then calls keepMine() or takeTheirs(theirs).
+  /**
+   * @param {import("./api.js").Api} api
+   * @param {"annotate" | "review"} queue
+   * @param {{userId: number, snapshot: () => any, onstatus?: (state: string, detail?: any) => void,
+   *   onlease?: (error: any) => void, onkept?: (message: string) => void, onconflict?: ((theirs: any) => void) | null,
+   *   delayMs?: number}} options
+   */
   constructor(api, queue, { userId, snapshot, onstatus = () => {}, onlease = () => {}, onkept = () => {},
     onconflict = null, delayMs = 700 }) {
     this.api = api;

@@ -8,8 +8,10 @@ export class LeaseKeeper {
     this.api = api;
     this.queue = queue; // "annotate" | "review"
     this.leases = new Map(); // sample id -> {token, expiresAt (ms), timer}
-    this.onretaken = () => {}; // (sampleId, token)
-    this.onlost = () => {}; // (sampleId, error)
+    /** @type {(sampleId: number, token: string) => void} */
+    this.onretaken = () => {};
+    /** @type {(sampleId: number, error: any) => void} */
+    this.onlost = () => {};
   }
 
   hold(task) {

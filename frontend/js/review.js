@@ -2,12 +2,11 @@
 // per-view IoU and residuals; the sample's 3D scene in viser's client; accept / reject / needs annotation
 // with one key (a reason for the last two); the next sample is prefetched and drawn ahead.
 import { fitCanvas, fmt, h, handSide, isTyping, toast, fill } from "./dom.js";
-import { DraftSaver } from "./drafts.js";
 import { marker, segment } from "./draw.js";
 import { loadViews } from "./images.js";
 import { colorOf, fingerOf, FINGER_COLORS } from "./keypoints.js";
-import { LeaseKeeper } from "./lease.js";
 import { contourEdges, decodeMesh, projectVertices } from "./mesh.js";
+import { QueueController } from "./queue.js";
 import { ActionTimer } from "./timing.js";
 import { Viewport } from "./viewport.js";
 import { paths } from "./api.js";
@@ -75,25 +74,23 @@ class ReviewPage {
   constructor(root, { api, user }) {
     this.api = api;
     this.root = root;
-    this.leases = new LeaseKeeper(api, "review");
-    this.leases.onretaken = (sampleId, token) => this.leaseRetaken(sampleId, token);
-    this.leases.onlost = (sampleId, error) => this.leaseLost(sampleId, error);
     // The reviewer's note in progress (decision picked, reason typed) survives a reload like annotations.
-    this.drafts = new DraftSaver(api, "review", { userId: user.id, snapshot: () => this.draftBody(),
-      onstatus: (state, detail) => {
+    this.queue = new QueueController(api, "review", user.id, {
+      prepare: (task) => this.prepare(task), show: (prepared) => this.show(prepared),
+      empty: () => this.showEmpty(), retaken: () => this.hideLeaseBanner(),
+      lost: (sampleId, error) => this.leaseLost(sampleId, error), snapshot: () => this.draftBody(),
+      // Warm the next 3D scene (built once on the server, then from the browser's cache).
+      prefetched: (prepared) => { if (this.show3d) fetch(prepared.overlay.scene_path, { priority: "low" }).catch(() => null); },
+      draftStatus: (state, detail) => {
         document.body.dataset.draftState = state;
         if (state === "saved") document.body.dataset.draftSaved = String(detail.revision);
-      },
-      onlease: () => this.current && this.leases.retake(this.current.task.sample_id).catch(() => null),
-      onkept: (message) => toast(message, "warn", 15000) });
+      } });
     this.layers = { outline: true, silhouette: false, wireframe: false, keypoints: true, clicks: true, mvnet: false };
     this.show3d = initialShow3d();
     this.large3d = false; // the 3D view over the image grid (F) rather than in the side panel
     this.cropToHand = true;
     this.focus = null;
     this.reason = null;
-    this.prepared = null;
-    this.preparing = null;
     this.metrics = { decisions: [] };
     this.build();
     this.onKey = (e) => { this.firstAct(); this.keydown(e); };
@@ -116,30 +113,43 @@ class ReviewPage {
   }
 
   async start() {
-    await this.loadNext();
+    await this.queue.loadNext();
+  }
+
+  // The queue's state, read by the lifecycle's callers (main.js, `bench ui`): the controller owns it.
+  /** @returns {import("./queue.js").Prepared | null} the sample on screen (its task, overlay, views) */
+  get current() {
+    return this.queue.current;
+  }
+
+  get prepared() {
+    return this.queue.prepared;
+  }
+
+  get leases() {
+    return this.queue.leases;
+  }
+
+  get drafts() {
+    return this.queue.drafts;
   }
 
   unmount() {
     window.removeEventListener("keydown", this.onKey);
     window.removeEventListener("resize", this.onResize);
     clearInterval(this.clock);
-    clearTimeout(this.emptyTimer);
     clearTimeout(this.viewerTimer);
     delete document.body.dataset.viewer3d;
-    this.drafts.stop();
-    if (this.prepared) this.leases.drop(this.prepared.task.sample_id, true);
-    this.leases.dropAll(false);
+    this.queue.unmount();
   }
 
-  async releaseAll() {
-    await this.drafts.settle();
-    await this.leases.dropAll(true);
+  releaseAll() {
+    return this.queue.releaseAll();
   }
 
   // --- tasks --------------------------------------------------------------------------------------
 
   async prepare(task) {
-    this.leases.hold(task);
     const [overlay, views, draft] = await Promise.all([
       this.api.get(paths.overlay(task.sample_id)),
       loadViews(this.api, task, { masks: false }),
@@ -156,46 +166,16 @@ class ReviewPage {
     return { task, overlay, mesh, views: prepared, draft };
   }
 
-  async loadNext() {
-    let prepared = this.prepared;
-    this.prepared = null;
-    if (!prepared && this.preparing) prepared = await this.preparing.catch(() => null);
-    this.prepared = null;
-    if (!prepared) {
-      const task = await this.api.post(paths.next("review"));
-      if (!task) return this.showEmpty();
-      prepared = await this.prepare(task);
-    }
-    this.show(prepared);
-    this.prefetch();
-  }
-
-  prefetch() {
-    const current = this.current.task.sample_id;
-    this.preparing = (async () => {
-      const task = await this.api.post(paths.prefetch("review"), { current_sample_id: current });
-      if (!task) return null;
-      const prepared = await this.prepare(task);
-      if (this.current && this.current.task.sample_id === current) this.prepared = prepared;
-      // Warm the next 3D scene (built once on the server, then from the browser's cache).
-      if (this.show3d) fetch(prepared.overlay.scene_path, { priority: "low" }).catch(() => null);
-      return prepared;
-    })().catch((error) => { toast(`prefetch failed: ${error.message}`, "warn"); return null; });
-  }
-
   showEmpty() {
-    this.current = null;
     fill(this.grid, h("div", { class: "empty-note" }, h("h2", {}, "Nothing to review"),
       h("p", {}, "No fitted sample is waiting for verification. This page looks again every 10 s."),
-      h("button", { onclick: () => this.loadNext() }, "Look again")));
+      h("button", { onclick: () => this.queue.loadNext() }, "Look again")));
     this.banner.textContent = "";
     fill(this.side, );
     document.body.dataset.ready = "review-empty";
-    this.emptyTimer = setTimeout(() => this.loadNext().catch(() => null), 10000);
   }
 
   show(prepared) {
-    this.current = prepared;
     this.timer = new ActionTimer();
     // The clock runs from the reviewer's first act (a key, the pointer), not from when the page opened; right
     // after a decision the reviewer is acting already, so the next sample's clock starts at once.
@@ -233,27 +213,18 @@ class ReviewPage {
     this.deciding = true;
     this.release3d();
     try {
-      const url = paths.decision(task.sample_id);
-      let result;
-      try {
-        result = await this.api.post(url, { decision, reason, lease_token: task.lease_token });
-      } catch (error) {
-        if (error.status !== 403 && error.status !== 409) throw error;
-        const token = await this.leases.retake(task.sample_id); // lapsed: taken again while still free
-        result = await this.api.post(url, { decision, reason, lease_token: token });
-      }
-      this.drafts.forget(); // the server deleted the draft with the decision
+      const result = await this.queue.postLeased(paths.decision(task.sample_id),
+        { decision, reason, lease_token: task.lease_token }, task.sample_id);
+      this.queue.finished(task.sample_id); // the server deleted the draft with the decision
       const decidedAt = performance.now();
       this.timer.mark("decide");
-      this.leases.drop(task.sample_id, false);
-      this.api.post(paths.activity(), { context: "review", sample_id: task.sample_id, decision_id: result.id,
-        time_spent_s: Math.round(this.spentSeconds() * 1000) / 1000, actions: this.timer.actions })
-        .catch((error) => toast(`time log not saved: ${error.message}`, "warn"));
+      this.queue.logActivity({ context: "review", sample_id: task.sample_id, decision_id: result.id,
+        time_spent_s: Math.round(this.spentSeconds() * 1000) / 1000, actions: this.timer.actions });
       toast(`sample ${task.sample_id}: ${decision}${result.stream ? ` (joins D as ${result.stream})` : ""}`, "ok", 2000);
       this.deciding = false;
       this.justDecided = true;
       const prefetched = Boolean(this.prepared);
-      await this.loadNext();
+      await this.queue.loadNext();
       const drawnAt = performance.now();
       await new Promise((resolve) => requestAnimationFrame(() => resolve())); // the frame that paints it
       this.metrics.decisions.push({ sample_id: task.sample_id, decision, decided_ms: decidedAt - keyAt,
@@ -299,7 +270,7 @@ class ReviewPage {
     this.reason = null;
     this.drafts.changed();
     this.renderSide();
-    if (document.activeElement && document.activeElement !== document.body) document.activeElement.blur();
+    if (document.activeElement && document.activeElement !== document.body) /** @type {HTMLElement} */ (document.activeElement).blur();
   }
 
   openReason(kind) {
@@ -320,20 +291,7 @@ class ReviewPage {
       time_spent_s: Math.round(this.spentSeconds() * 1000) / 1000 };
   }
 
-  leaseRetaken(sampleId, token) {
-    if (this.prepared && this.prepared.task.sample_id === sampleId) this.prepared.task.lease_token = token;
-    if (!this.current || this.current.task.sample_id !== sampleId) return;
-    this.current.task.lease_token = token;
-    this.hideLeaseBanner();
-    this.drafts.resume();
-  }
-
   leaseLost(sampleId, error) {
-    if (this.prepared && this.prepared.task.sample_id === sampleId) {
-      this.prepared = null;
-      return;
-    }
-    if (!this.current || this.current.task.sample_id !== sampleId) return;
     fill(this.leaseBanner, h("strong", {}, `Sample ${sampleId} is no longer yours. `), h("span", {}, `${error.message}.`),
       h("button", { class: "primary next-task", onclick: () => this.giveUp() }, "Take the next sample"));
     this.leaseBanner.hidden = false;
@@ -346,13 +304,9 @@ class ReviewPage {
     delete document.body.dataset.lease;
   }
 
-  async giveUp() {
-    if (!this.current) return;
-    this.drafts.forget();
-    this.leases.drop(this.current.task.sample_id, false);
+  giveUp() {
     this.hideLeaseBanner();
-    this.current = null;
-    await this.loadNext();
+    return this.queue.giveUp();
   }
 
   // --- keys ---------------------------------------------------------------------------------------
@@ -380,7 +334,7 @@ class ReviewPage {
     }
     if (key === "Escape") {
       // Esc always brings the keys back to the page (out of a text box, the 3D view's iframe, a button).
-      if (document.activeElement && document.activeElement !== document.body) document.activeElement.blur();
+      if (document.activeElement && document.activeElement !== document.body) /** @type {HTMLElement} */ (document.activeElement).blur();
       window.focus();
     }
     if (isTyping(e) || e.ctrlKey || e.metaKey || e.altKey) return;

@@ -148,6 +148,7 @@ export class AnnotatePage {
     document.removeEventListener("visibilitychange", this.onVisibility);
     clearInterval(this.clock);
     clearTimeout(this.fitWatch);
+    for (const key of ["viewIndex", "keypoint", "mode", "tool", "radius", "showMask", "pointsPlaced", "noHand"]) delete document.body.dataset[key];
     this.queue.unmount();
   }
 
@@ -237,6 +238,8 @@ export class AnnotatePage {
     document.body.dataset.draft = prepared.draft ? String(prepared.draft.revision) : "none";
     document.body.dataset.ready = "annotate";
     document.body.dataset.sample = String(task.sample_id);
+    document.body.dataset.sequenceId = String(task.sequence_id);
+    document.body.dataset.frameIndex = String(task.frame_index);
   }
 
   get view() {
@@ -780,6 +783,23 @@ export class AnnotatePage {
 
   // --- rendering ----------------------------------------------------------------------------------
 
+  // The page's state as data-* attributes of <body> (what the browser tests read, not the page's fields):
+  // data-sample, data-sequence-id and data-frame-index (set in show), data-view-index (the view enlarged, 0-based), data-keypoint (the one picked),
+  // data-mode ("points" | "mask"), data-tool ("brush" | "eraser"), data-radius (the brush's, image px), data-show-mask
+  // ("yes" | "no"), data-points-placed (over every view), data-no-hand (the views marked, ids).
+  // Each thumbnail carries its view's (drawing.labelThumb); the canvas its zoom (drawing.publishViewport).
+  publish() {
+    const d = document.body.dataset;
+    d.viewIndex = String(this.viewIndex);
+    d.keypoint = String(this.keypoint);
+    d.mode = this.mode;
+    d.tool = this.tool;
+    d.radius = String(this.radius);
+    d.showMask = this.showMask ? "yes" : "no";
+    d.pointsPlaced = String(this.views.reduce((n, v) => n + this.annotation.doneIn(v.id), 0));
+    d.noHand = [...this.noHand].join(" ");
+  }
+
   renderClock() {
     const el = this.side.querySelector(".clock");
     if (!el || !this.task) return;
@@ -792,6 +812,7 @@ export class AnnotatePage {
 
   renderSide() {
     if (!this.task || !this.proposals) return;
+    this.publish();
     const view = this.view;
     const props = this.proposals.get(view.id);
     const rows = SPARSE.map((k, i) => {

@@ -41,10 +41,21 @@ export class AnnotateDrawing {
     this.page = page;
   }
 
+  // The enlarged view's zoom and pan as data-* attributes of its canvas (read by the browser tests and `bench ui`):
+  // an image point (u, v) shows at ((u + 0.5) * data-scale + data-ox, (v + 0.5) * data-scale + data-oy), CSS px
+  // from the canvas's corner. Written whenever a redraw is asked for, so after every change of the viewport.
+  publishViewport() {
+    const { vp, canvas } = this.page;
+    canvas.dataset.scale = String(vp.scale);
+    canvas.dataset.ox = String(vp.ox);
+    canvas.dataset.oy = String(vp.oy);
+  }
+
   // Schedule a redraw for the next frame: of the whole view (no rectangles given), or only of the given
   // screen rectangles (null entries are skipped); a full request wins over partial ones.
   requestRender(...rects) {
     const page = this.page;
+    this.publishViewport();
     if (rects.length === 0) page.dirty = "all";
     else if (page.dirty !== "all") for (const r of rects) if (r) page.dirty = unionRect(page.dirty, r);
     if (page.frame) return;
@@ -54,6 +65,7 @@ export class AnnotateDrawing {
   // Draw what is pending now (the whole view with force); a scheduled frame is then not needed.
   renderNow(force = false) {
     const page = this.page;
+    this.publishViewport();
     if (page.frame) { cancelAnimationFrame(page.frame); page.frame = null; }
     const pending = force ? "all" : page.dirty;
     page.dirty = null;
@@ -83,7 +95,8 @@ export class AnnotateDrawing {
       ctx.font = "14px system-ui, sans-serif";
       ctx.fillText(`loading ${view.camera}…`, 16, 24);
     }
-    if (page.mode === "points" && !page.annotation.get(view.id, page.keypoint)) this.drawEpipolar(ctx, view);
+    const curves = page.mode === "points" && !page.annotation.get(view.id, page.keypoint) ? this.drawEpipolar(ctx, view) : 0;
+    page.canvas.dataset.epipolarCurves = String(curves);
     this.drawPoints(ctx, view, page.vp, { labels: true, selected: page.keypoint });
     const target = page.target();
     const tc = target.viewId === view.id ? page.annotation.get(view.id, target.keypoint) : null;
@@ -189,7 +202,8 @@ export class AnnotateDrawing {
   drawEpipolar(ctx, view) {
     const page = this.page;
     const camTo = page.cameras.get(view.id);
-    if (!camTo) return;
+    if (!camTo) return 0;
+    let curves = 0;
     ctx.save();
     ctx.strokeStyle = colorOf(page.keypoint);
     ctx.globalAlpha = 0.7;
@@ -205,8 +219,10 @@ export class AnnotateDrawing {
         if (i === 0) ctx.moveTo(sx, sy); else ctx.lineTo(sx, sy);
       });
       ctx.stroke();
+      curves++;
     }
     ctx.restore();
+    return curves;
   }
 
   // Clicks, proposals and the dragged point of one view, on a 2D context in screen units.
@@ -255,6 +271,7 @@ export class AnnotateDrawing {
       view.thumb = { el, canvas };
       return el;
     }));
+    page.views.forEach((_, i) => this.labelThumb(i));
     requestAnimationFrame(() => page.views.forEach((_, i) => this.renderThumb(i)));
   }
 
@@ -274,6 +291,22 @@ export class AnnotateDrawing {
     if (page.showMask && view.overlay) ctx.drawImage(view.overlay.canvas, 0, 0);
     ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
     this.drawPoints(ctx, view, vp, { r: 3 });
+    this.labelThumb(index);
+  }
+
+  // A thumbnail's label, and its data-* attributes (read by the browser tests): data-view-id, data-camera, data-loaded
+  // (its image is in), data-width and data-height (the full-resolution image's, px) and per keypoint k data-k{k} = its status here ("unset", "visible", "occluded", "not_annotated").
+  labelThumb(/** @type {number} */ index) {
+    const page = this.page;
+    const view = page.views[index];
+    if (!view || !view.thumb) return;
+    const { el } = view.thumb;
+    el.dataset.viewId = String(view.id);
+    el.dataset.loaded = view.image ? "yes" : "no";
+    el.dataset.camera = view.camera;
+    el.dataset.width = String(view.width);
+    el.dataset.height = String(view.height);
+    for (const k of page.annotation.keypoints) el.dataset[`k${k}`] = page.annotation.status(view.id, k);
     // Placed points out of the keypoints; those marked not annotated apart ("· 2 N"): they are decided, not done.
     const done = page.annotation.doneIn(view.id);
     const skipped = page.annotation.notAnnotatedIn(view.id);

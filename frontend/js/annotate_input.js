@@ -277,6 +277,7 @@ export class AnnotateInput {
       page.setRadius(page.radius * 1.25);
     } else if (key === "h" || key === "H") {
       page.showMask = !page.showMask;
+      page.publish();
       page.timer.mark("toggle");
       page.drawing.requestRender();
       page.drawing.buildThumbs();

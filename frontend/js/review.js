@@ -140,6 +140,7 @@ class ReviewPage {
     clearInterval(this.clock);
     clearTimeout(this.viewerTimer);
     delete document.body.dataset.viewer3d;
+    for (const key of ["reason", "focus", "crop", "layers", "show3d", "clock"]) delete document.body.dataset[key];
     this.queue.unmount();
   }
 
@@ -412,6 +413,7 @@ class ReviewPage {
 
   renderViews() {
     if (!this.current) return;
+    this.publish();
     for (const view of this.current.views) this.renderView(view);
   }
 
@@ -605,7 +607,23 @@ class ReviewPage {
     const carried = this.timer.carriedMs;
     this.timer.start();
     this.timer.carriedMs = carried;
+    this.publish();
     this.renderClock();
+  }
+
+  // The page's state as data-* attributes of <body> (what the browser tests read, not the page's fields):
+  // data-sample (set in show), data-reason (the decision whose reason is asked for: "reject" | "annotate"; absent
+  // when none), data-focus (the view enlarged, 0-based; absent: the grid), data-crop ("hand" | "whole"),
+  // data-layers (those shown, space-separated), data-show3d ("yes" | "no"), data-clock ("waits" until the first
+  // act, then "runs").
+  publish() {
+    const d = document.body.dataset;
+    if (this.reason) d.reason = this.reason.kind; else delete d.reason;
+    if (this.focus !== null) d.focus = String(this.focus); else delete d.focus;
+    d.crop = this.cropToHand ? "hand" : "whole";
+    d.layers = Object.keys(this.layers).filter((name) => this.layers[name]).join(" ");
+    d.show3d = this.show3d ? "yes" : "no";
+    d.clock = this.clockWaits ? "waits" : "runs";
   }
 
   // Active seconds on this sample so far (0 until the first act).
@@ -621,6 +639,7 @@ class ReviewPage {
 
   renderSide() {
     if (!this.current) return;
+    this.publish();
     const { task, overlay } = this.current;
     const fit = overlay.fit;
     const heur = fit.heuristic;

@@ -29,7 +29,7 @@ def test_the_3d_view_is_released_at_a_decision_and_started_again_for_the_next_sa
     sign_in(t, stack.base_url, user.email, user.password, "review")
     page = t.page
     first = page.get_attribute("body", "data-sample")
-    if not page.evaluate("() => window.__handloop.page.show3d"):
+    if not page.evaluate("() => document.body.dataset.show3d === 'yes'"):
         page.keyboard.press("v")
     page.wait_for_selector("iframe.viewer-frame")
     held = []  # the decision's request, answered only once the test has looked

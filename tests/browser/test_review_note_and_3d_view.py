@@ -59,7 +59,7 @@ def test_the_3d_view_goes_large_and_full_screen_without_viser_notice_and_keys_ar
     user = stack.users["reviewer"]
     sign_in(t, stack.base_url, user.email, user.password, "review")
     page = t.page
-    if not page.evaluate("() => window.__handloop.page.show3d"):
+    if not page.evaluate("() => document.body.dataset.show3d === 'yes'"):
         page.keyboard.press("v")
     page.wait_for_selector("iframe.viewer-frame")
     page.wait_for_function("() => { const f = document.querySelector('iframe.viewer-frame');"

@@ -68,7 +68,7 @@ def test_ui_viewer_and_docs_work_under_their_policies(live_stack, tab):
     sign_in(reviewer, stack.base_url, stack.users["reviewer"].email, stack.users["reviewer"].password, "review")
     page = reviewer.page
     assert page.get_attribute("body", "data-sample") == str(sample_id)
-    if not page.evaluate("() => window.__handloop.page.show3d"):
+    if not page.evaluate("() => document.body.dataset.show3d === 'yes'"):
         page.keyboard.press("v")
     page.wait_for_selector("iframe.viewer-frame")
     viewer = page.frame_locator("iframe.viewer-frame")

@@ -14,7 +14,7 @@ function query(/** @type {Record<string, string | number | null | undefined>} */
 
 /**
  * The API's paths, one named function each: the only place in frontend/js that spells "/api/..." (a test,
- * tests/test_frontend_conventions.py, holds the other modules to that). Routes: backend/api/routes/.
+ * tests/backend/api/test_frontend_paths.py, holds the other modules to that). Routes: backend/api/routes/.
  */
 export const paths = Object.freeze({
   // accounts

@@ -12,7 +12,7 @@ import { History } from "./history.js";
 import { decodeMask, loadView } from "./images.js";
 import { colorOf, SPARSE, SPARSE_LABELS } from "./keypoints.js";
 import { MaskLayer, MaskOverlay } from "./mask.js";
-import { QueueController } from "./queue.js";
+import { QueueController, QueuePage } from "./queue.js";
 import { ActionTimer } from "./timing.js";
 import { Viewport } from "./viewport.js";
 
@@ -47,8 +47,9 @@ export async function mountAnnotate(root, ctx) {
   return page;
 }
 
-export class AnnotatePage {
+export class AnnotatePage extends QueuePage {
   constructor(root, { api, user }) {
+    super();
     this.api = api;
     this.root = root;
     this.queue = new QueueController(api, "annotate", user.id, {
@@ -111,27 +112,6 @@ export class AnnotatePage {
     this.input.attach(this.canvas);
   }
 
-  async start() {
-    await this.queue.loadNext();
-  }
-
-  // The queue's state, read by the lifecycle's callers (main.js, `bench ui`): the controller owns it.
-  get task() {
-    return this.queue.task;
-  }
-
-  get prepared() {
-    return this.queue.prepared;
-  }
-
-  get leases() {
-    return this.queue.leases;
-  }
-
-  get drafts() {
-    return this.queue.drafts;
-  }
-
   // Zoom and drawing, as the tests and `bench ui` call them.
   fitView(options = {}) {
     this.zoom.fitView(options);
@@ -148,12 +128,8 @@ export class AnnotatePage {
     document.removeEventListener("visibilitychange", this.onVisibility);
     clearInterval(this.clock);
     clearTimeout(this.fitWatch);
-    for (const key of ["viewIndex", "keypoint", "mode", "tool", "radius", "showMask", "pointsPlaced", "noHand"]) delete document.body.dataset[key];
+    this.unpublish(["viewIndex", "keypoint", "mode", "tool", "radius", "showMask", "pointsPlaced", "noHand"]);
     this.queue.unmount();
-  }
-
-  releaseAll() {
-    return this.queue.releaseAll();
   }
 
   // --- tasks --------------------------------------------------------------------------------------
@@ -459,11 +435,16 @@ export class AnnotatePage {
           : { view_id: viewId, keypoint, x: c.x, y: c.y, visibility: c.visibility, from_proposal: Boolean(c.from) });
       }
     }
-    const masks = this.views.filter((v) => v.maskEdited && v.mask)
-      .map((v) => ({ view_id: v.id, width: v.width, height: v.height, rle: v.mask.toRLE() }));
+    const masks = this.editedMasks();
     return { lease_token: this.task.lease_token, submission_id: this.submissionId,
       time_spent_s: Math.round(this.timer.spentSeconds() * 1000) / 1000, clicks, masks,
       view_index: this.viewIndex, keypoint: this.keypoint, no_hand_views: [...this.noHand] };
+  }
+
+  // The masks corrected by hand, as the draft and the submission carry them (run-length encoded, full resolution).
+  editedMasks() {
+    return this.views.filter((v) => v.maskEdited && v.mask)
+      .map((v) => ({ view_id: v.id, width: v.width, height: v.height, rle: v.mask.toRLE() }));
   }
 
   // Restore a saved draft over the freshly shown task (it holds the whole state: it replaces previous clicks).
@@ -748,8 +729,7 @@ export class AnnotatePage {
     }
     this.closeAsk();
     const task = this.task;
-    const masks = this.views.filter((v) => v.maskEdited && v.mask)
-      .map((v) => ({ view_id: v.id, width: v.width, height: v.height, rle: v.mask.toRLE() }));
+    const masks = this.editedMasks();
     const body = {
       submission_id: this.submissionId,
       lease_token: task.lease_token,

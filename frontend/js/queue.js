@@ -193,3 +193,48 @@ export class QueueController {
     await this.leases.dropAll(true);
   }
 }
+
+// A page that works through a queue (annotate, review): it makes its QueueController in its constructor; what the
+// lifecycle's callers read of it (main.js, `bench ui`, the browser tests) is the controller's.
+export class QueuePage {
+  constructor() {
+    /** @type {QueueController} */
+    this.queue = null;
+  }
+
+  start() {
+    return this.queue.loadNext();
+  }
+
+  /** @returns {Task | null} the task on screen */
+  get task() {
+    return this.queue.task;
+  }
+
+  /** @returns {Prepared | null} the sample on screen, as the page prepared it */
+  get current() {
+    return this.queue.current;
+  }
+
+  get prepared() {
+    return this.queue.prepared;
+  }
+
+  get leases() {
+    return this.queue.leases;
+  }
+
+  get drafts() {
+    return this.queue.drafts;
+  }
+
+  // Sign-out (main.js): every sample back to the queue, the drafts saved first.
+  releaseAll() {
+    return this.queue.releaseAll();
+  }
+
+  // The data-* attributes of <body> the page published (its publish()), removed as it goes.
+  unpublish(/** @type {string[]} */ keys) {
+    for (const key of keys) delete document.body.dataset[key];
+  }
+}

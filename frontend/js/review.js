@@ -6,7 +6,7 @@ import { marker, segment } from "./draw.js";
 import { loadViews } from "./images.js";
 import { colorOf, fingerOf, FINGER_COLORS } from "./keypoints.js";
 import { contourEdges, decodeMesh, projectVertices } from "./mesh.js";
-import { QueueController } from "./queue.js";
+import { QueueController, QueuePage } from "./queue.js";
 import { ActionTimer } from "./timing.js";
 import { Viewport } from "./viewport.js";
 import { paths } from "./api.js";
@@ -70,8 +70,9 @@ export async function mountReview(root, ctx) {
   return page;
 }
 
-class ReviewPage {
+class ReviewPage extends QueuePage {
   constructor(root, { api, user }) {
+    super();
     this.api = api;
     this.root = root;
     // The reviewer's note in progress (decision picked, reason typed) survives a reload like annotations.
@@ -112,40 +113,14 @@ class ReviewPage {
       h("section", { class: "review-main" }, this.leaseBanner, this.banner, this.grid), this.side));
   }
 
-  async start() {
-    await this.queue.loadNext();
-  }
-
-  // The queue's state, read by the lifecycle's callers (main.js, `bench ui`): the controller owns it.
-  /** @returns {import("./queue.js").Prepared | null} the sample on screen (its task, overlay, views) */
-  get current() {
-    return this.queue.current;
-  }
-
-  get prepared() {
-    return this.queue.prepared;
-  }
-
-  get leases() {
-    return this.queue.leases;
-  }
-
-  get drafts() {
-    return this.queue.drafts;
-  }
-
   unmount() {
     window.removeEventListener("keydown", this.onKey);
     window.removeEventListener("resize", this.onResize);
     clearInterval(this.clock);
     clearTimeout(this.viewerTimer);
     delete document.body.dataset.viewer3d;
-    for (const key of ["reason", "focus", "crop", "layers", "show3d", "clock"]) delete document.body.dataset[key];
+    this.unpublish(["reason", "focus", "crop", "layers", "show3d", "clock"]);
     this.queue.unmount();
-  }
-
-  releaseAll() {
-    return this.queue.releaseAll();
   }
 
   // --- tasks --------------------------------------------------------------------------------------

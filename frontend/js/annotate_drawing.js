@@ -39,6 +39,8 @@ export class AnnotateDrawing {
   /** @param {import("./annotate.js").AnnotatePage} page */
   constructor(page) {
     this.page = page;
+    /** @type {{scale: number, ox: number, oy: number} | null} the zoom last written to the canvas's data-* */
+    this.published = null;
   }
 
   // The enlarged view's zoom and pan as data-* attributes of its canvas (read by the browser tests and `bench ui`):
@@ -46,6 +48,9 @@ export class AnnotateDrawing {
   // from the canvas's corner. Written whenever a redraw is asked for, so after every change of the viewport.
   publishViewport() {
     const { vp, canvas } = this.page;
+    const p = this.published;
+    if (p && p.scale === vp.scale && p.ox === vp.ox && p.oy === vp.oy) return; // a stroke's redraws write nothing
+    this.published = { scale: vp.scale, ox: vp.ox, oy: vp.oy };
     canvas.dataset.scale = String(vp.scale);
     canvas.dataset.ox = String(vp.ox);
     canvas.dataset.oy = String(vp.oy);

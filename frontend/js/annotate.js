@@ -1,16 +1,20 @@
 // The annotate page: 8 views in a grid plus one enlarged with zoom and pan; click wrist and fingertips
 // per view (keys pick the keypoint, mark it occluded or not annotated), accept or drag proposals, correct
 // the automatic mask with brush and eraser, undo and redo, submit; the next task is prefetched.
+// AnnotatePage holds the annotation and its edits; the queue lifecycle is queue.js's, the pointer and keys
+// annotate_input.js's, the zoom annotate_zoom.js's, the drawing and magnifier annotate_drawing.js's, the side
+// panel annotate_panel.js's (frontend/README.md).
 import { Annotation, inside, proposals as computeProposals, triangulateClicked } from "./annotation.js";
-import { AnnotateDrawing, ACCEPT_CONF, confident, proposalLabel, SOURCE_LETTER } from "./annotate_drawing.js";
+import { AnnotateDrawing, ACCEPT_CONF, confident } from "./annotate_drawing.js";
 import { AnnotateInput } from "./annotate_input.js";
+import { AnnotatePanel, draftLabel } from "./annotate_panel.js";
 import { AnnotateZoom } from "./annotate_zoom.js";
 import { paths } from "./api.js";
-import { fmt, h, handSide, toast, fill } from "./dom.js";
+import { fill, h, toast } from "./dom.js";
 import { projectPoint } from "./geometry.js";
 import { History } from "./history.js";
 import { decodeMask, loadView } from "./images.js";
-import { colorOf, SPARSE, SPARSE_LABELS } from "./keypoints.js";
+import { SPARSE } from "./keypoints.js";
 import { MaskLayer, MaskOverlay } from "./mask.js";
 import { QueueController, QueuePage } from "./queue.js";
 import { ActionTimer } from "./timing.js";
@@ -18,28 +22,6 @@ import { Viewport } from "./viewport.js";
 
 const MIN_CONF = 0.3; // a source's points below this confidence are not offered (annotation.js proposals())
 const ALTERNATE_PX = 2; // a detector point this close to the proposal shown is not drawn again
-const HELP = [
-  ["1 … 6", "pick wrist, thumb, index, middle, ring, pinky"],
-  ["click", "place the keypoint (then the next one is picked); the magnifier beside the cursor shows where"],
-  ["drag", "move a point or a proposal"],
-  ["A / Enter", `accept the proposal of this keypoint / all of this view's with confidence >= ${ACCEPT_CONF}; ` +
-    "those the fit's mesh hides (\"hidden\") as occluded"],
-  ["O", "toggle occluded: the point just placed in this view, else the picked one (ringed white)"],
-  ["N", "not annotated in this view: the point just placed, else the picked one"],
-  ["Del / Backspace", "clear the picked keypoint in this view"],
-  ["Tab / Shift+Tab", "next / previous view (or click a thumbnail)"],
-  ["M", "mask mode on / off; B brush, E eraser"],
-  ["[ ] / wheel", "brush size (wheel in mask mode; Ctrl+wheel zooms)"],
-  ["P", "back to points"],
-  ["wheel, right-drag", "zoom, pan (Space+drag pans too)"],
-  ["+ / - / 0", "zoom in / out at the centre / fit the hand (again: the whole image); each view keeps its zoom"],
-  ["H", "hide / show the mask"],
-  ["Ctrl+Z / Ctrl+Shift+Z / Ctrl+Y", "undo / redo / redo"],
-  ["X", "no hand in this view: every point here not annotated (again: undo the mark)"],
-  ["Ctrl+Enter", "submit and show the next task (asks first when points are not set; again: submit as is)"],
-  ["Esc", "cancel a drag, give the keys back to the view (from any button)"],
-  ["?", "open / close this list"],
-];
 
 export async function mountAnnotate(root, ctx) {
   const page = new AnnotatePage(root, ctx);
@@ -85,6 +67,7 @@ export class AnnotatePage extends QueuePage {
     this.input = new AnnotateInput(this);
     this.zoom = new AnnotateZoom(this);
     this.drawing = new AnnotateDrawing(this);
+    this.panel = new AnnotatePanel(this);
     this.build();
     this.onKey = (e) => this.input.keydown(e);
     this.onKeyUp = (e) => this.keys.delete(e.code);
@@ -95,7 +78,7 @@ export class AnnotatePage extends QueuePage {
     window.addEventListener("keydown", this.onKey);
     window.addEventListener("keyup", this.onKeyUp);
     window.addEventListener("resize", this.onResize);
-    this.clock = setInterval(() => this.renderClock(), 1000);
+    this.clock = setInterval(() => this.panel.renderClock(), 1000);
   }
 
   build() {
@@ -110,6 +93,11 @@ export class AnnotatePage extends QueuePage {
     this.root.append(h("div", { class: "annotate-page" }, this.thumbs,
       h("section", { class: "stage" }, this.canvas, this.hud, this.banner, this.ask), this.side));
     this.input.attach(this.canvas);
+  }
+
+  // The side panel, drawn again after each change (annotate_panel.js).
+  renderSide() {
+    this.panel.render();
   }
 
   // Zoom and drawing, as the tests and `bench ui` call them.
@@ -555,15 +543,13 @@ export class AnnotatePage extends QueuePage {
     return this.queue.giveUp();
   }
 
-  // --- pointer ------------------------------------------------------------------------------------
+  // --- tools and views (what input, annotate_input.js, calls) --------------------------------------
 
   setRadius(r) {
     this.radius = Math.max(1, Math.min(200, r));
     this.drawing.requestRender();
     this.renderSide();
   }
-
-  // --- keys ---------------------------------------------------------------------------------------
 
   setMode(mode) {
     this.mode = mode;
@@ -761,13 +747,14 @@ export class AnnotatePage extends QueuePage {
     }
   }
 
-  // --- rendering ----------------------------------------------------------------------------------
+  // --- data-* hooks -------------------------------------------------------------------------------
 
   // The page's state as data-* attributes of <body> (what the browser tests read, not the page's fields):
-  // data-sample, data-sequence-id and data-frame-index (set in show), data-view-index (the view enlarged, 0-based), data-keypoint (the one picked),
-  // data-mode ("points" | "mask"), data-tool ("brush" | "eraser"), data-radius (the brush's, image px), data-show-mask
-  // ("yes" | "no"), data-points-placed (over every view), data-no-hand (the views marked, ids).
-  // Each thumbnail carries its view's (drawing.labelThumb); the canvas its zoom (drawing.publishViewport).
+  // data-sample, data-sequence-id and data-frame-index (set in show), data-view-index (the view enlarged,
+  // 0-based), data-keypoint (the one picked), data-mode ("points" | "mask"), data-tool ("brush" | "eraser"),
+  // data-radius (the brush's, image px), data-show-mask ("yes" | "no"), data-points-placed (over every view),
+  // data-no-hand (the ids of the views marked). Each thumbnail carries its view's (drawing.labelThumb), the canvas
+  // its zoom (drawing.publishViewport) and whether the pointer is over it (data-hover, input.setHover).
   publish() {
     const d = document.body.dataset;
     d.viewIndex = String(this.viewIndex);
@@ -779,97 +766,5 @@ export class AnnotatePage extends QueuePage {
     d.pointsPlaced = String(this.views.reduce((n, v) => n + this.annotation.doneIn(v.id), 0));
     d.noHand = [...this.noHand].join(" ");
   }
-
-  renderClock() {
-    const el = this.side.querySelector(".clock");
-    if (!el || !this.task) return;
-    const expires = this.leases.expiresAt(this.task.sample_id);
-    const left = expires ? Math.max(0, Math.round((expires - Date.now()) / 1000)) : null;
-    if (expires && expires <= Date.now() && !this.lostLease) this.leases.retake(this.task.sample_id).catch(() => null);
-    const idle = this.timer.idle() ? ` (paused: no input for ${this.timer.idleCapMs / 1000} s)` : "";
-    el.textContent = `time ${fmt(this.timer.spentSeconds(), 0, " s")}${idle} · lease ${left === null ? "–" : `${left} s`}`;
-  }
-
-  renderSide() {
-    if (!this.task || !this.proposals) return;
-    this.publish();
-    const view = this.view;
-    const props = this.proposals.get(view.id);
-    const rows = SPARSE.map((k, i) => {
-      const status = this.annotation.status(view.id, k);
-      const p = props.get(k);
-      const alt = this.alternates.get(view.id).get(k);
-      const text = status === "unset" ? (p ? `proposal ${proposalLabel(p)}${p.hidden ? " · hidden" : ""}` +
-        `${confident(p) ? "" : " · look"}` +
-        (alt ? ` · ${proposalLabel(alt)} ${fmt(Math.hypot(alt.x - p.x, alt.y - p.y), 0, " px")} away` : "") : "–")
-        : status.replace("_", " ") + (this.annotation.get(view.id, k).from ? " (accepted)" : "");
-      return h("li", { class: `kp-row${k === this.keypoint ? " current" : ""} status-${status}`,
-        onclick: () => this.pick(k) },
-      h("kbd", {}, String(i + 1)), h("span", { class: "swatch", style: { background: colorOf(k) } }),
-      h("span", { class: "kp-name" }, SPARSE_LABELS[i]), h("span", { class: "kp-status" }, text));
-    });
-    const hiddenCount = [...props.values()].filter((p) => confident(p) && p.hidden).length;
-    const total = this.views.reduce((n, v) => n + this.annotation.doneIn(v.id), 0);
-    const skipped = this.views.reduce((n, v) => n + this.annotation.notAnnotatedIn(v.id), 0);
-    const masks = this.views.filter((v) => v.maskEdited).length;
-    const t = this.task;
-    fill(this.side, 
-      h("div", { class: "sample-head" },
-        h("h2", {}, `Sample ${t.sample_id}`),
-        h("div", { class: "muted" }, `${t.sequence ?? `sequence ${t.sequence_id}`} · frame ${t.frame_index}`),
-        handSide(t.side),
-        h("div", { class: "clock muted" }, ""),
-        h("div", { class: "draft-state muted" }, draftLabel(document.body.dataset.draftState))),
-      this.reviewNote ? h("div", { class: "callout" }, h("strong", {}, "Reviewer: "), this.reviewNote) : null,
-      this.fitFailure ? h("div", { class: "callout warn fit-failure-here" }, h("strong", {}, "The last fit failed: "),
-        this.fitFailure.reason, ". Its points are kept below; place what is missing, or skip the sample.") : null,
-      this.failedFits.length ? h("div", { class: "callout warn fit-failures" },
-        h("strong", {}, "Fits that failed on your work: "), this.failedFits.map((f) =>
-          h("div", {}, `sample ${f.sample_id}: ${f.reason} (it goes to another annotator)`))) : null,
-      h("div", { class: "mode-switch", role: "group" },
-        h("button", { class: this.mode === "points" ? "on" : "", onclick: () => this.setMode("points") }, "Points (P)"),
-        h("button", { class: this.mode === "mask" && this.tool === "brush" ? "on" : "",
-          onclick: () => { this.tool = "brush"; this.setMode("mask"); } }, "Brush (B)"),
-        h("button", { class: this.mode === "mask" && this.tool === "eraser" ? "on" : "",
-          onclick: () => { this.tool = "eraser"; this.setMode("mask"); } }, "Eraser (E)")),
-      h("div", { class: "muted" }, `brush radius ${Math.round(this.radius)} px ([ ] or wheel)`),
-      h("h3", {}, `View ${this.viewIndex + 1}/${this.views.length} · ${view.camera}`),
-      h("ul", { class: "kp-list" }, rows),
-      h("div", { class: "button-row" },
-        h("button", { class: "accept-all", onclick: () => this.acceptAllInView(), disabled: props.size === 0 },
-          `Accept ${[...props.values()].filter(confident).length} of ${props.size} proposals (Enter)` +
-          `${hiddenCount ? ` · ${hiddenCount} as occluded` : ""}`),
-        h("button", { onclick: () => this.toggleOccluded() }, "Occluded (O)"),
-        h("button", { onclick: () => this.markNotAnnotated() }, "Not annotated (N)"),
-        h("button", { class: `no-hand-view${this.noHand.has(view.id) ? " on" : ""}`, onclick: () => this.toggleNoHand() },
-          this.noHand.has(view.id) ? "No hand here ✓ (X)" : "No hand here (X)")),
-      h("div", { class: "button-row" },
-        h("button", { onclick: () => this.undo(), disabled: !this.history.canUndo }, "Undo"),
-        h("button", { onclick: () => this.redo(), disabled: !this.history.canRedo }, "Redo")),
-      h("div", { class: "totals" }, `${total}/${this.views.length * this.annotation.keypoints.length} keypoints placed · ` +
-        `${skipped} not annotated · ${masks} mask(s) corrected`),
-      h("button", { class: "primary submit", onclick: () => this.submit(), disabled: this.submitting },
-        this.submitting ? "Submitting…" : "Submit (Ctrl+Enter)"),
-      h("div", { class: "button-row" },
-        h("button", { class: "no-hand-sample", onclick: () => this.askPass("no_hand") }, "No hand in this sample…"),
-        h("button", { class: "skip-sample", onclick: () => this.askPass("skip") }, "Skip…")),
-      h("div", { class: "muted legend" }, "proposals: T triangulated from your clicks, F current fit, M MVNet, " +
-        `D detector; the number is its confidence (orange: below ${ACCEPT_CONF}, Enter leaves it)`),
-      this.sources.map((source) => h("div", { class: source.label.includes("not MANO") ? "badge warn" : "badge" },
-        `${SOURCE_LETTER[source.kind]}: ${source.label}`)),
-      this.lastSubmission ? h("div", { class: "muted last-submission" },
-        `last: sample ${this.lastSubmission.sample_id} → fit job ${this.lastSubmission.fit_job_id ?? "–"}` +
-        (this.lastSubmission.failed ? ` failed: ${this.lastSubmission.failed}` : "")) : null,
-      h("details", { class: "help" }, h("summary", {}, "Keys (?)"),
-        h("table", {}, HELP.map(([k, d]) => h("tr", {}, h("td", {}, h("kbd", {}, k)), h("td", {}, d))))),
-    );
-    this.renderClock();
-  }
 }
 
-function draftLabel(state) {
-  return { unsaved: "draft: unsaved changes", saving: "draft: saving…", saved: "draft: saved",
-    error: "draft: not saved yet (retrying)", conflict: "draft: changed in another tab too (keep one above)",
-    lost: "draft: saved up to the last save; later changes cannot be saved (sample no longer yours)",
-  }[state] || "draft: nothing to save";
-}

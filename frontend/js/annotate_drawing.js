@@ -284,7 +284,7 @@ export class AnnotateDrawing {
     const page = this.page;
     const view = page.views[index];
     if (!view || !view.thumb) return;
-    const { canvas, el } = view.thumb;
+    const { canvas } = view.thumb;
     const { width, height, dpr } = fitCanvas(canvas);
     const ctx = canvas.getContext("2d");
     const vp = new Viewport().fit(view.width, view.height, width, height, 2);

@@ -22,9 +22,15 @@ export class AnnotateInput {
     c.addEventListener("pointermove", (e) => this.pointermove(e));
     c.addEventListener("pointerup", (e) => this.pointerup(e));
     c.addEventListener("pointercancel", (e) => this.pointerup(e));
-    c.addEventListener("pointerleave", () => { this.page.hover = null; this.page.drawing.requestRender(); });
+    c.addEventListener("pointerleave", () => { this.setHover(null); this.page.drawing.requestRender(); });
     c.addEventListener("wheel", (e) => this.wheel(e), { passive: false });
     c.addEventListener("contextmenu", (e) => e.preventDefault());
+  }
+
+  // The pointer over the enlarged view (the magnifier follows it), or null; the canvas's data-hover says which.
+  setHover(/** @type {[number, number] | null} */ point) {
+    this.page.hover = point;
+    this.page.canvas.dataset.hover = point ? "yes" : "no";
   }
 
   screenPoint(e) {
@@ -93,7 +99,7 @@ export class AnnotateInput {
     const previous = page.hover;
     // Past the canvas's edge (a drag keeps the pointer captured, so no pointerleave comes): no magnifier there.
     const r = page.canvas.getBoundingClientRect();
-    page.hover = sx >= 0 && sy >= 0 && sx <= r.width && sy <= r.height ? [sx, sy] : null;
+    this.setHover(sx >= 0 && sy >= 0 && sx <= r.width && sy <= r.height ? [sx, sy] : null);
     const d = page.drag;
     if (!d) {
       if (page.mode === "mask") page.drawing.requestRender(this.cursorRect(previous), this.cursorRect(page.hover));

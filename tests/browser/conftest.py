@@ -141,6 +141,18 @@ def static_frontend() -> Iterator[str]:
     server.shutdown()
 
 
+def open_3d_view(page, *, loaded: bool = False) -> None:
+    """The review page's 3D view opened (V where it starts closed: software WebGL, as in this headless browser),
+    its iframe in the page; with loaded, its document loaded too."""
+    if page.get_attribute("body", "data-show3d") != "yes":
+        page.keyboard.press("v")
+    page.wait_for_selector("iframe.viewer-frame")
+    if loaded:
+        page.wait_for_function("() => { const f = document.querySelector('iframe.viewer-frame');"
+                               " return f && f.contentDocument && f.contentDocument.readyState === 'complete'; }",
+                               timeout=60_000)
+
+
 def submit_as_is(page) -> None:
     """Ctrl+Enter on the annotate page; where it asks first (points not set: issue 38), Ctrl+Enter again submits
     them as not annotated."""

@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 from sqlalchemy import text
 
-from tests.browser.conftest import sign_in
+from tests.browser.conftest import open_3d_view, sign_in
 from tests.support.annotate import clicks_body, queue_for_annotation, wait_until
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
@@ -67,12 +67,7 @@ def test_keys_work_after_a_click_in_the_3d_view_and_esc_returns_the_focus(live_s
     user = stack.users["reviewer"]
     sign_in(t, stack.base_url, user.email, user.password, "review")
     page = t.page
-    if not page.evaluate("() => document.body.dataset.show3d === 'yes'"):
-        page.keyboard.press("v")
-    page.wait_for_selector("iframe.viewer-frame")
-    page.wait_for_function("() => { const f = document.querySelector('iframe.viewer-frame');"
-                           " return f && f.contentDocument && f.contentDocument.readyState === 'complete'; }",
-                           timeout=60_000)
+    open_3d_view(page, loaded=True)
     box = page.locator("iframe.viewer-frame").bounding_box()
     page.mouse.click(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)  # the 3D view takes the focus
     assert page.evaluate("() => document.activeElement.tagName") == "IFRAME"

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from sqlalchemy import select
 
-from tests.browser.conftest import SCALE, SCREEN_OF, TASK, WHOLE_SCALE, sign_in, submit_as_is
+from tests.browser.conftest import SCALE, SCREEN_OF, TASK, WHOLE_SCALE, open_3d_view, sign_in, submit_as_is
 from tests.support.annotate import ground_truth_of, queue_for_annotation, wait_until
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
@@ -95,9 +95,7 @@ def test_annotate_fit_review_and_round_in_the_browser(live_stack, tab):
     assert "built-in stand-in hand, not MANO" in page.inner_text(".fit-banner")
     assert overlay["fit"]["mean_residual_px"] < 3.0  # the worker's fit lands on the clicks
     assert page.locator(".view-card").count() == len(task["views"])
-    if not page.evaluate("() => document.body.dataset.show3d === 'yes'"):
-        page.keyboard.press("v")  # closed by default where WebGL is software-rendered (this headless browser)
-    page.wait_for_selector("iframe.viewer-frame")
+    open_3d_view(page)
     page.wait_for_timeout(4000)  # let viser's client load the recording and draw
     reviewer.shot("03-review-fit")
     page.keyboard.press("a")  # one key accepts

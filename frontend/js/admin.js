@@ -4,6 +4,7 @@
 // jobs, users and roles, exports, and the reliability of the confidences per round.
 import { histogram, lines, pairedBars, reliability, stackedBars } from "./charts.js";
 import { fmt, h, toast, fill } from "./dom.js";
+import { paths } from "./api.js";
 
 const STATES = ["unlabeled", "needs_annotation", "annotated", "fitting", "fitted", "in_review", "accepted", "rejected"];
 const STREAMS = [
@@ -32,6 +33,12 @@ class AdminPage {
     this.user = user;
     this.root = root;
     this.watching = new Map(); // job id -> AbortController of its event stream
+    // What the last refresh() read (GET /api/admin/...: rounds/statistics, rounds, dashboard, jobs, preannotation).
+    /** @type {any} */ this.stats;
+    /** @type {any} */ this.rounds;
+    /** @type {any} */ this.dashboard;
+    /** @type {any} */ this.jobs;
+    /** @type {any} */ this.preannotation;
     this.bars = new Map(); // job id -> its progress bar
     this.sections = {
       overview: h("section", { class: "card", id: "overview" }),
@@ -63,11 +70,11 @@ class AdminPage {
 
   async refresh() {
     const [stats, rounds, dashboard, jobs, preannotation] = await Promise.all([
-      this.api.get("/api/admin/rounds/statistics"),
-      this.api.get("/api/admin/rounds"),
-      this.api.get("/api/admin/dashboard"),
-      this.api.get("/api/admin/jobs?limit=25"),
-      this.api.get("/api/admin/preannotation"),
+      this.api.get(paths.roundStatistics()),
+      this.api.get(paths.rounds()),
+      this.api.get(paths.dashboard()),
+      this.api.get(paths.jobs({ limit: 25 })),
+      this.api.get(paths.preannotation()),
     ]);
     Object.assign(this, { stats, rounds, dashboard, jobs, preannotation });
     this.renderOverview();
@@ -174,7 +181,7 @@ class AdminPage {
 
   async preannotate(projectId, rest) {
     try {
-      const launched = await this.api.post("/api/admin/preannotation", { project_id: projectId, rest });
+      const launched = await this.api.post(paths.preannotation(), { project_id: projectId, rest });
       toast(`pre-annotating ${launched.samples} samples (job ${launched.job_id})`, "ok");
       this.watch(launched.job_id);
       await this.refresh();
@@ -217,7 +224,7 @@ class AdminPage {
   // Do the confidences mean something? Mean true error per confidence bin, a line per round; read on demand
   // (it reads every detection and prediction), not at each refresh.
   async renderReliability() {
-    const r = await this.api.get("/api/admin/reliability?bins=10");
+    const r = await this.api.get(paths.reliability(10));
     const refs = r.references;
     const figures = CONFIDENCES.map(({ name, title }) => {
       const series = r.rounds.map((round, i) => {
@@ -256,7 +263,7 @@ class AdminPage {
 
   async launchRound(note) {
     try {
-      const launched = await this.api.post("/api/admin/rounds", { note });
+      const launched = await this.api.post(paths.rounds(), { note });
       toast(`round ${launched.round.index} launched (job ${launched.job_id})`, "ok");
       this.watch(launched.job_id);
       await this.refresh();
@@ -268,7 +275,7 @@ class AdminPage {
   async cancelRound(roundId) {
     if (!confirm("Cancel this round and its jobs?")) return;
     try {
-      await this.api.post(`/api/admin/rounds/${roundId}/cancel`);
+      await this.api.post(paths.roundCancel(roundId));
       toast("round cancelled", "ok");
       await this.refresh();
     } catch (error) {
@@ -278,7 +285,7 @@ class AdminPage {
 
   async cancelJob(jobId) {
     try {
-      await this.api.post(`/api/admin/jobs/${jobId}/cancel`);
+      await this.api.post(paths.jobCancel(jobId));
       await this.refresh();
     } catch (error) {
       toast(`cancel failed: ${error.message}`, "error");
@@ -287,7 +294,7 @@ class AdminPage {
 
   async buildReviewQueue() {
     try {
-      const built = await this.api.post("/api/admin/rounds/review-queue");
+      const built = await this.api.post(paths.reviewQueue());
       toast(`${built.queued.length} sample(s) queued for review`, "ok");
       await this.refresh();
     } catch (error) {
@@ -307,7 +314,7 @@ class AdminPage {
       h("div", { class: "live-head" }, `${job.kind || "round"} job ${job.id}: ${job.state}`, h("span", { class: "muted" },
         ` ${FINAL.has(job.state) ? "" : job.message || ""}`)), progressBar(job.progress, true), phaseSteps(job),
       job.error ? h("div", { class: "error" }, job.error) : null);
-    this.api.events(`/api/admin/jobs/${jobId}/events`, (name, job) => {
+    this.api.events(paths.jobEvents(jobId), (name, job) => {
       if (!job) return;
       draw(job);
       bar.dataset.state = job.state;
@@ -321,7 +328,7 @@ class AdminPage {
   // --- users --------------------------------------------------------------------------------------
 
   async renderUsers() {
-    const users = await this.api.get("/api/admin/users");
+    const users = await this.api.get(paths.users());
     const email = h("input", { type: "email", name: "email", placeholder: "email", required: true });
     const name = h("input", { type: "text", name: "full_name", placeholder: "name" });
     const password = h("input", { type: "password", name: "password", placeholder: "password (8+)", minlength: 8, required: true });
@@ -329,7 +336,7 @@ class AdminPage {
     const create = async (e) => {
       e.preventDefault();
       try {
-        await this.api.post("/api/admin/users", { email: email.value, full_name: name.value, password: password.value,
+        await this.api.post(paths.users(), { email: email.value, full_name: name.value, password: password.value,
           role: role.value });
         toast(`created ${email.value}`, "ok");
         this.renderUsers();
@@ -339,7 +346,7 @@ class AdminPage {
     };
     const update = async (user, change) => {
       try {
-        await this.api.patch(`/api/admin/users/${user.id}`, change);
+        await this.api.patch(paths.user(user.id), change);
         toast(`updated ${user.email}`, "ok", 1500);
       } catch (error) {
         toast(`update failed: ${error.message}`, "error", 8000);
@@ -382,7 +389,7 @@ class AdminPage {
     const importCapture = async (e) => {
       e.preventDefault();
       try {
-        const r = await this.api.post("/api/admin/imports", { path: path.value, project: project.value || null,
+        const r = await this.api.post(paths.imports(), { path: path.value, project: project.value || null,
           preannotate: preannotate.checked });
         const round0 = r.preannotation_job_id
           ? `pre-annotation job ${r.preannotation_job_id} queued for ${r.samples} samples: its progress is under Rounds`
@@ -398,10 +405,10 @@ class AdminPage {
     fill(this.sections.data, 
       h("h2", {}, "Exports"),
       h("div", { class: "inline-form" }, upTo,
-        h("button", { onclick: () => download(`/api/admin/exports/dataset${upTo.value ? `?up_to_round=${upTo.value}` : ""}`,
+        h("button", { onclick: () => download(paths.datasetExport(upTo.value || null),
           "handloop-dataset.json") }, "Dataset (accepted fits)"),
-        h("button", { onclick: () => download("/api/admin/exports/samples", "handloop-samples.json") }, "Sample index"),
-        h("button", { onclick: () => download("/api/admin/exports/predictions", "handloop-predictions.json") }, "Predictions")),
+        h("button", { onclick: () => download(paths.samplesExport(), "handloop-samples.json") }, "Sample index"),
+        h("button", { onclick: () => download(paths.predictionsExport(), "handloop-predictions.json") }, "Predictions")),
       h("p", { class: "muted" }, "The FreiHAND layout (images, masks, meshes) is written by `handloop export --format freihand`."),
       h("h2", {}, "Import a capture"),
       h("form", { class: "inline-form import-form", onsubmit: importCapture }, path, project,

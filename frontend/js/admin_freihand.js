@@ -5,6 +5,7 @@
 // Kept out of admin.js: `withFreihandExport` adds this section to the admin page that admin.js mounts.
 import { progressBar } from "./admin.js";
 import { h, toast, fill } from "./dom.js";
+import { paths } from "./api.js";
 
 const FINAL = new Set(["succeeded", "failed", "cancelled"]);
 
@@ -47,7 +48,7 @@ export class FreihandExport {
         const body = { meshes: meshes.value };
         if (upTo.value !== "") body.up_to_round = Number(upTo.value);
         if (project.value.trim()) body.project = project.value.trim();
-        const queued = await this.api.post("/api/admin/exports/freihand", body);
+        const queued = await this.api.post(paths.freihandExport(), body);
         toast(`export job ${queued.job_id} queued: ${queued.samples} accepted samples`, "ok");
         this.follow(queued.job_id);
       } catch (error) {
@@ -66,7 +67,7 @@ export class FreihandExport {
 
   // The export jobs so far, newest first, with a download for each that succeeded.
   async renderList() {
-    const jobs = await this.api.get("/api/admin/jobs?kind=export&limit=5");
+    const jobs = await this.api.get(paths.jobs({ kind: "export", limit: 5 }));
     fill(this.list, jobs.length ? h("table", { class: "table" }, h("tbody", {}, jobs.map((j) => h("tr",
       { dataset: { exportJob: String(j.id), state: j.state } }, h("td", {}, `job ${j.id}`), h("td", {}, j.state),
       h("td", { class: "muted" }, j.error || (j.result ? `${j.result.samples.training} training, ` +
@@ -82,7 +83,7 @@ export class FreihandExport {
 
   async download(jobId) {
     try {
-      const blob = await this.api.blob(`/api/admin/exports/freihand/${jobId}/archive`);
+      const blob = await this.api.blob(paths.freihandArchive(jobId));
       const a = h("a", { href: URL.createObjectURL(blob), download: `handloop-freihand-job-${jobId}.zip` });
       document.body.append(a);
       a.click();
@@ -106,7 +107,7 @@ export class FreihandExport {
       job.error ? h("div", { class: "error" }, job.error) : null,
       job.state === "succeeded" ? this.downloadButton(job.id) : null);
     };
-    this.api.events(`/api/admin/jobs/${jobId}/events`, (name, job) => {
+    this.api.events(paths.jobEvents(jobId), (name, job) => {
       if (!job) return;
       draw(job);
       if (name === "done") this.renderList().catch(() => null);

@@ -3,6 +3,7 @@
 // the accounts that failed logins locked, each with "Unlock" (POST /api/admin/users/{id}/unlock).
 // Kept out of admin.js: `withTeam` adds this section to the admin page that admin.js mounts.
 import { fmt, h, toast, fill } from "./dom.js";
+import { paths } from "./api.js";
 
 export function withTeam(mount) {
   return async (root, ctx) => {
@@ -29,8 +30,8 @@ export class TeamSection {
   }
 
   async refresh() {
-    const [people, locks] = await Promise.all([this.api.get("/api/admin/team/statistics"),
-      this.api.get("/api/admin/users/locks")]);
+    const [people, locks] = await Promise.all([this.api.get(paths.teamStatistics()),
+      this.api.get(paths.userLocks())]);
     const locked = new Map(locks.map((l) => [l.user_id, l]));
     const rate = (p) => p.accept_rate === null ? "–" : `${Math.round(p.accept_rate * 100)} % of ${p.decided}`;
     const rows = people.map((p) => {
@@ -60,7 +61,7 @@ export class TeamSection {
 
   async unlock(person) {
     try {
-      const result = await this.api.post(`/api/admin/users/${person.user_id}/unlock`);
+      const result = await this.api.post(paths.unlockUser(person.user_id));
       toast(result.was_locked ? `${person.email} can sign in again` : `${person.email} was not locked`, "ok");
     } catch (error) {
       toast(`unlock failed: ${error.message}`, "error", 8000);

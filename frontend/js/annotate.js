@@ -1,56 +1,27 @@
 // The annotate page: 8 views in a grid plus one enlarged with zoom and pan; click wrist and fingertips
 // per view (keys pick the keypoint, mark it occluded or not annotated), accept or drag proposals, correct
 // the automatic mask with brush and eraser, undo and redo, submit; the next task is prefetched.
+// AnnotatePage holds the annotation and its edits; the queue lifecycle is queue.js's, the pointer and keys
+// annotate_input.js's, the zoom annotate_zoom.js's, the drawing and magnifier annotate_drawing.js's, the side
+// panel annotate_panel.js's (frontend/README.md).
 import { Annotation, inside, proposals as computeProposals, triangulateClicked } from "./annotation.js";
-import { fitCanvas, fmt, h, handSide, isTyping, toast, fill } from "./dom.js";
-import { epipolarCurve, projectPoint } from "./geometry.js";
-import { marker, segment } from "./draw.js";
+import { AnnotateDrawing, ACCEPT_CONF, confident } from "./annotate_drawing.js";
+import { AnnotateInput } from "./annotate_input.js";
+import { AnnotatePanel, draftLabel } from "./annotate_panel.js";
+import { AnnotateZoom } from "./annotate_zoom.js";
+import { paths } from "./api.js";
+import { fill, h, toast } from "./dom.js";
+import { projectPoint } from "./geometry.js";
 import { History } from "./history.js";
-import { DraftSaver } from "./drafts.js";
-import { decodeMask, loadFullImage, loadView, needsFullImage } from "./images.js";
-import { colorOf, SPARSE, SPARSE_LABELS } from "./keypoints.js";
-import { LeaseKeeper } from "./lease.js";
-import { MaskLayer, MaskOverlay, StrokeRecorder, unionRect } from "./mask.js";
+import { decodeMask, loadView } from "./images.js";
+import { SPARSE } from "./keypoints.js";
+import { MaskLayer, MaskOverlay } from "./mask.js";
+import { QueueController, QueuePage } from "./queue.js";
 import { ActionTimer } from "./timing.js";
 import { Viewport } from "./viewport.js";
 
-const HIT_PX = 12; // how close (screen px) a press must be to grab a point
-const LOUPE_R = 56; // the magnifier's radius, screen px
-const LOUPE_OFFSET = 80; // its centre from the cursor, screen px (up and right, flipped near the edges)
-const LOUPE_ZOOM = 4; // times the view's zoom ...
-const LOUPE_MAX_PX = 24; // ... up to this many screen px per image pixel
-const DRAG_PX = 3; // movement below this is a click, not a drag
-// A view opens on the hand with the working copy's pixels at most this many screen px wide (more is visibly
-// blocky; zooming in further loads the full-resolution pixels), unless the whole image already shows larger.
-const OPEN_MAX_PX = 2;
 const MIN_CONF = 0.3; // a source's points below this confidence are not offered (annotation.js proposals())
 const ALTERNATE_PX = 2; // a detector point this close to the proposal shown is not drawn again
-const SOURCE_LETTER = { triangulated: "T", fit: "F", mvnet: "M", detector: "D" };
-// Enter accepts only proposals at least this confident; the others are ringed orange for a look (A takes
-// one anyway). A fit's projection has no confidence: it is always left for a look.
-const ACCEPT_CONF = 0.6;
-const HELP = [
-  ["1 … 6", "pick wrist, thumb, index, middle, ring, pinky"],
-  ["click", "place the keypoint (then the next one is picked); the magnifier beside the cursor shows where"],
-  ["drag", "move a point or a proposal"],
-  ["A / Enter", `accept the proposal of this keypoint / all of this view's with confidence >= ${ACCEPT_CONF}; ` +
-    "those the fit's mesh hides (\"hidden\") as occluded"],
-  ["O", "toggle occluded: the point just placed in this view, else the picked one (ringed white)"],
-  ["N", "not annotated in this view: the point just placed, else the picked one"],
-  ["Del / Backspace", "clear the picked keypoint in this view"],
-  ["Tab / Shift+Tab", "next / previous view (or click a thumbnail)"],
-  ["M", "mask mode on / off; B brush, E eraser"],
-  ["[ ] / wheel", "brush size (wheel in mask mode; Ctrl+wheel zooms)"],
-  ["P", "back to points"],
-  ["wheel, right-drag", "zoom, pan (Space+drag pans too)"],
-  ["+ / - / 0", "zoom in / out at the centre / fit the hand (again: the whole image); each view keeps its zoom"],
-  ["H", "hide / show the mask"],
-  ["Ctrl+Z / Ctrl+Shift+Z / Ctrl+Y", "undo / redo / redo"],
-  ["X", "no hand in this view: every point here not annotated (again: undo the mark)"],
-  ["Ctrl+Enter", "submit and show the next task (asks first when points are not set; again: submit as is)"],
-  ["Esc", "cancel a drag, give the keys back to the view (from any button)"],
-  ["?", "open / close this list"],
-];
 
 export async function mountAnnotate(root, ctx) {
   const page = new AnnotatePage(root, ctx);
@@ -58,17 +29,17 @@ export async function mountAnnotate(root, ctx) {
   return page;
 }
 
-class AnnotatePage {
+export class AnnotatePage extends QueuePage {
   constructor(root, { api, user }) {
+    super();
     this.api = api;
     this.root = root;
-    this.leases = new LeaseKeeper(api, "annotate");
-    this.leases.onretaken = (sampleId, token) => this.leaseRetaken(sampleId, token);
-    this.leases.onlost = (sampleId, error) => this.leaseLost(sampleId, error);
-    this.drafts = new DraftSaver(api, "annotate", { userId: user.id, snapshot: () => this.draftBody(),
-      onstatus: (state, detail) => this.draftStatus(state, detail),
-      onlease: () => this.task && this.leases.retake(this.task.sample_id).catch(() => null),
-      onkept: (message) => toast(message, "warn", 15000), onconflict: (theirs) => this.draftConflict(theirs) });
+    this.queue = new QueueController(api, "annotate", user.id, {
+      prepare: (task, options) => this.prepare(task, options), show: (prepared) => this.show(prepared),
+      empty: () => this.showEmpty(), retaken: (sampleId) => this.leaseRetaken(sampleId),
+      lost: (sampleId, error) => this.leaseLost(sampleId, error), snapshot: () => this.draftBody(),
+      draftStatus: (state, detail) => this.draftStatus(state, detail),
+      draftConflict: (theirs) => this.draftConflict(theirs) });
     this.history = new History();
     this.history.onchange = () => this.renderSide();
     this.vp = new Viewport();
@@ -77,25 +48,37 @@ class AnnotatePage {
     this.radius = 12;
     this.showMask = true;
     this.autoAdvance = true;
-    this.prepared = null;
-    this.preparing = null;
     this.pending = 0;
+    // State that input (annotate_input.js) writes and drawing (annotate_drawing.js) reads:
+    /** @type {any} the press in progress: {type: "pan" | "stroke" | "point" | "place", ...}, or null */
+    this.drag = null;
+    /** @type {[number, number] | null} the pointer over the enlarged view, screen px */
+    this.hover = null;
+    /** @type {number | null} the animation frame a redraw waits for */
+    this.frame = null;
+    /** @type {"all" | {x: number, y: number, w: number, h: number} | null} what the next redraw covers */
+    this.dirty = null;
+    /** @type {{cx: number, cy: number, u: number, v: number, zoom: number} | null} the magnifier last drawn */
+    this.loupe = null;
     this.keys = new Set();
-    this.zooms = new Map(); // "sample/view" -> {scale, ox, oy, minScale}: each view keeps its zoom and pan
     this.metrics = { shown: [] };
     this.failedFits = []; // the fits that failed on this person's submissions (GET /api/annotate/fit-failures)
     this.noHand = new Set();
+    this.input = new AnnotateInput(this);
+    this.zoom = new AnnotateZoom(this);
+    this.drawing = new AnnotateDrawing(this);
+    this.panel = new AnnotatePanel(this);
     this.build();
-    this.onKey = (e) => this.keydown(e);
+    this.onKey = (e) => this.input.keydown(e);
     this.onKeyUp = (e) => this.keys.delete(e.code);
-    this.onResize = () => { this.fitView(); this.requestRender(); };
+    this.onResize = () => { this.zoom.fitView(); this.drawing.requestRender(); };
     // The clock counts working time: between inputs, not across a pause of more than 30 s or a hidden tab.
     this.onVisibility = () => { if (document.hidden && this.timer) this.timer.pause(); };
     document.addEventListener("visibilitychange", this.onVisibility);
     window.addEventListener("keydown", this.onKey);
     window.addEventListener("keyup", this.onKeyUp);
     window.addEventListener("resize", this.onResize);
-    this.clock = setInterval(() => this.renderClock(), 1000);
+    this.clock = setInterval(() => this.panel.renderClock(), 1000);
   }
 
   build() {
@@ -109,18 +92,21 @@ class AnnotatePage {
     this.side = h("aside", { class: "side" });
     this.root.append(h("div", { class: "annotate-page" }, this.thumbs,
       h("section", { class: "stage" }, this.canvas, this.hud, this.banner, this.ask), this.side));
-    const c = this.canvas;
-    c.addEventListener("pointerdown", (e) => this.pointerdown(e));
-    c.addEventListener("pointermove", (e) => this.pointermove(e));
-    c.addEventListener("pointerup", (e) => this.pointerup(e));
-    c.addEventListener("pointercancel", (e) => this.pointerup(e));
-    c.addEventListener("pointerleave", () => { this.hover = null; this.requestRender(); });
-    c.addEventListener("wheel", (e) => this.wheel(e), { passive: false });
-    c.addEventListener("contextmenu", (e) => e.preventDefault());
+    this.input.attach(this.canvas);
   }
 
-  async start() {
-    await this.loadNext();
+  // The side panel, drawn again after each change (annotate_panel.js).
+  renderSide() {
+    this.panel.render();
+  }
+
+  // Zoom and drawing, as the tests and `bench ui` call them.
+  fitView(options = {}) {
+    this.zoom.fitView(options);
+  }
+
+  renderNow(force = false) {
+    this.drawing.renderNow(force);
   }
 
   unmount() {
@@ -129,17 +115,9 @@ class AnnotatePage {
     window.removeEventListener("resize", this.onResize);
     document.removeEventListener("visibilitychange", this.onVisibility);
     clearInterval(this.clock);
-    clearTimeout(this.emptyTimer);
     clearTimeout(this.fitWatch);
-    this.drafts.stop(); // what is not saved yet goes now (Back, another page): the next mount restores it
-    // The prefetched sample goes back to the queue; the one on screen stays ours until its lease expires.
-    if (this.prepared) this.leases.drop(this.prepared.task.sample_id, true);
-    this.leases.dropAll(false);
-  }
-
-  async releaseAll() {
-    await this.drafts.settle(); // saved under the lease before the lease goes: a new login restores it
-    await this.leases.dropAll(true);
+    this.unpublish(["viewIndex", "keypoint", "mode", "tool", "radius", "showMask", "pointsPlaced", "noHand"]);
+    this.queue.unmount();
   }
 
   // --- tasks --------------------------------------------------------------------------------------
@@ -148,71 +126,31 @@ class AnnotatePage {
   // is: the others fill in while the annotator works on it. A prefetched task is loaded whole.
   async prepare(task, { eager = true } = {}) {
     const t0 = performance.now();
-    this.leases.hold(task);
     const loads = task.views.map((view) => loadView(this.api, view));
-    const proposals = this.api.get(`/api/annotate/samples/${task.sample_id}/proposals`);
+    const proposals = this.api.get(paths.proposals(task.sample_id));
     const draft = this.drafts.load(task.sample_id);
     const ready = eager ? await Promise.all(loads) : [await loads[0]];
     const views = task.views.map((view, i) => ({ ...view, image: null, maskImage: null, ...(ready[i] || {}) }));
     return { task, proposals: await proposals, draft: await draft, views, loads, loadMs: performance.now() - t0 };
   }
 
-  async loadNext() {
-    let prepared = null;
-    if (this.prepared) {
-      prepared = this.prepared;
-      this.prepared = null;
-    } else if (this.preparing) {
-      prepared = await this.preparing.catch(() => null);
-      this.prepared = null;
-    }
-    // A prefetched sample whose lease lapsed (the laptop slept) may have gone on to someone else and on to review:
-    // taken again first, or dropped for a fresh task.
-    if (prepared && !(this.leases.expiresAt(prepared.task.sample_id) > Date.now())) {
-      const token = await this.leases.retake(prepared.task.sample_id).catch(() => null);
-      if (token) prepared.task.lease_token = token;
-      else prepared = null;
-    }
-    if (!prepared) {
-      const task = await this.api.post("/api/annotate/next");
-      if (!task) return this.showEmpty();
-      prepared = await this.prepare(task, { eager: false });
-    }
-    this.show(prepared);
-    this.prefetch();
-  }
-
-  prefetch() {
-    const current = this.task.sample_id;
-    this.preparing = (async () => {
-      const task = await this.api.post("/api/annotate/prefetch", { current_sample_id: current });
-      if (!task) return null;
-      const prepared = await this.prepare(task);
-      if (this.task && this.task.sample_id === current) this.prepared = prepared;
-      return prepared;
-    })().catch((error) => { toast(`prefetch failed: ${error.message}`, "warn"); return null; });
-  }
-
   showEmpty() {
-    this.task = null;
     this.root.querySelector(".annotate-page").classList.add("empty");
     fill(this.side, h("div", { class: "empty-note" }, h("h2", {}, "Nothing to annotate"),
       h("p", {}, "The annotation queue is empty. This page looks again every 10 s."),
-      h("button", { onclick: () => this.loadNext() }, "Look again")));
+      h("button", { onclick: () => this.queue.loadNext() }, "Look again")));
     fill(this.thumbs, );
     this.hud.textContent = "";
     const ctx = this.canvas.getContext("2d");
     ctx.setTransform(1, 0, 0, 1, 0, 0);
     ctx.clearRect(0, 0, this.canvas.width, this.canvas.height);
     document.body.dataset.ready = "annotate-empty";
-    this.emptyTimer = setTimeout(() => this.loadNext().catch(() => null), 10000);
   }
 
   show(prepared) {
     const t0 = performance.now();
     this.root.querySelector(".annotate-page").classList.remove("empty");
     const { task, proposals, views } = prepared;
-    this.task = task;
     this.sources = proposals.sources;
     this.reviewNote = proposals.review_note;
     this.fitFailure = proposals.fit_failure || null;
@@ -227,8 +165,8 @@ class AnnotatePage {
         if (this.task !== task) return;
         Object.assign(view, loaded);
         this.decodeMask(view);
-        if (i === this.viewIndex) this.requestRender();
-        this.renderThumb(i);
+        if (i === this.viewIndex) this.drawing.requestRender();
+        this.drawing.renderThumb(i);
       }).catch((error) => toast(`view ${view.camera} did not load: ${error.message}`, "error"));
     });
     this.annotation = new Annotation(this.views.map((v) => v.id), task.keypoints_to_click || SPARSE);
@@ -254,9 +192,9 @@ class AnnotatePage {
     if (prepared.draft) this.applyDraft(prepared.draft);
     this.updateProposals();
     this.history.clear();
-    this.buildThumbs();
-    this.fitView();
-    this.renderNow(true);
+    this.drawing.buildThumbs();
+    this.zoom.fitView();
+    this.drawing.renderNow(true);
     this.renderSide();
     this.metrics.shown.push({ sample_id: task.sample_id, show_ms: performance.now() - t0, load_ms: prepared.loadMs,
       at_ms: performance.now() });
@@ -264,6 +202,8 @@ class AnnotatePage {
     document.body.dataset.draft = prepared.draft ? String(prepared.draft.revision) : "none";
     document.body.dataset.ready = "annotate";
     document.body.dataset.sample = String(task.sample_id);
+    document.body.dataset.sequenceId = String(task.sequence_id);
+    document.body.dataset.frameIndex = String(task.frame_index);
   }
 
   get view() {
@@ -311,8 +251,8 @@ class AnnotatePage {
   changed(viewId) {
     this.drafts.changed();
     this.updateProposals();
-    this.renderThumb(this.views.findIndex((v) => v.id === viewId));
-    this.requestRender();
+    this.drawing.renderThumb(this.views.findIndex((v) => v.id === viewId));
+    this.drawing.requestRender();
     this.renderSide();
   }
 
@@ -394,7 +334,7 @@ class AnnotatePage {
       // Stay on the first doubtful one, so the next key is about it.
       this.keypoint = all.find(([, p]) => !confident(p))[0];
       this.renderSide();
-      this.requestRender();
+      this.drawing.requestRender();
     } else {
       this.advance();
     }
@@ -412,7 +352,7 @@ class AnnotatePage {
   pick(keypoint) {
     this.justPlaced = null;
     this.keypoint = keypoint;
-    this.requestRender();
+    this.drawing.requestRender();
     this.renderSide();
   }
 
@@ -455,7 +395,7 @@ class AnnotatePage {
       const view = pending.shift();
       if (!view || !this.task || this.task.sample_id !== sampleId) return;
       this.decodeMask(view);
-      this.renderThumb(this.views.indexOf(view));
+      this.drawing.renderThumb(this.views.indexOf(view));
       setTimeout(next, 0);
     };
     setTimeout(next, 50);
@@ -483,11 +423,16 @@ class AnnotatePage {
           : { view_id: viewId, keypoint, x: c.x, y: c.y, visibility: c.visibility, from_proposal: Boolean(c.from) });
       }
     }
-    const masks = this.views.filter((v) => v.maskEdited && v.mask)
-      .map((v) => ({ view_id: v.id, width: v.width, height: v.height, rle: v.mask.toRLE() }));
+    const masks = this.editedMasks();
     return { lease_token: this.task.lease_token, submission_id: this.submissionId,
       time_spent_s: Math.round(this.timer.spentSeconds() * 1000) / 1000, clicks, masks,
       view_index: this.viewIndex, keypoint: this.keypoint, no_hand_views: [...this.noHand] };
+  }
+
+  // The masks corrected by hand, as the draft and the submission carry them (run-length encoded, full resolution).
+  editedMasks() {
+    return this.views.filter((v) => v.maskEdited && v.mask)
+      .map((v) => ({ view_id: v.id, width: v.width, height: v.height, rle: v.mask.toRLE() }));
   }
 
   // Restore a saved draft over the freshly shown task (it holds the whole state: it replaces previous clicks).
@@ -559,28 +504,19 @@ class AnnotatePage {
         this.drafts.takeTheirs(theirs);
         this.history.clear();
         this.updateProposals();
-        this.renderNow(true);
+        this.drawing.renderNow(true);
         this.renderSide();
       } }, "Take the other"));
     this.banner.hidden = false;
     document.body.dataset.draftConflict = String(theirs.revision);
   }
 
-  leaseRetaken(sampleId, token) {
-    if (this.prepared && this.prepared.task.sample_id === sampleId) this.prepared.task.lease_token = token;
-    if (!this.task || this.task.sample_id !== sampleId) return;
-    this.task.lease_token = token;
+  leaseRetaken(sampleId) {
     this.hideBanner();
-    this.drafts.resume();
     toast(`your lease on sample ${sampleId} had lapsed: taken again, nothing lost`, "info", 3000);
   }
 
   leaseLost(sampleId, error) {
-    if (this.prepared && this.prepared.task.sample_id === sampleId) {
-      this.prepared = null; // the prefetched sample went to someone else: fetch another when needed
-      return;
-    }
-    if (!this.task || this.task.sample_id !== sampleId) return;
     this.lostLease = true;
     // What was saved goes with the sample to its new holder (backend/services/drafts.py); later changes could not be.
     const saved = document.body.dataset.draftSaved ? "Your work up to the last save goes with the sample to whoever " +
@@ -602,304 +538,23 @@ class AnnotatePage {
     delete document.body.dataset.lease;
   }
 
-  async giveUp() {
-    if (!this.task) return;
-    this.drafts.forget();
-    this.leases.drop(this.task.sample_id, false);
+  giveUp() {
     this.hideBanner();
-    this.task = null;
-    // The prefetched sample's lease lapsed with this one's (the laptop slept): it may have gone on to someone
-    // else and to review. Taken again (renewed when still live) before it is shown, else dropped (leaseLost).
-    if (this.prepared) {
-      const token = await this.leases.retake(this.prepared.task.sample_id).catch(() => null);
-      if (token && this.prepared) this.prepared.task.lease_token = token;
-      else this.prepared = this.preparing = null; // gone on: a fresh task from the queue
-    }
-    await this.loadNext();
+    return this.queue.giveUp();
   }
 
-  // --- pointer ------------------------------------------------------------------------------------
-
-  screenPoint(e) {
-    const r = this.canvas.getBoundingClientRect();
-    return [e.clientX - r.left, e.clientY - r.top];
-  }
-
-  hit(sx, sy) {
-    let best = null, bestD = HIT_PX;
-    const consider = (k, x, y, kind) => {
-      if (x === null || y === null) return;
-      const [px, py] = this.vp.toScreen(x, y);
-      const d = Math.hypot(px - sx, py - sy);
-      if (d < bestD) { bestD = d; best = { keypoint: k, kind, x, y }; }
-    };
-    for (const [k, c] of this.annotation.clicks.get(this.view.id)) consider(k, c.x, c.y, "click");
-    for (const [k, p] of this.proposals.get(this.view.id)) consider(k, p.x, p.y, "proposal");
-    for (const [k, p] of this.alternates.get(this.view.id)) consider(k, p.x, p.y, "alternate");
-    return best;
-  }
-
-  pointerdown(e) {
-    if (!this.task) return;
-    this.timer.input();
-    this.canvas.focus();
-    try {
-      this.canvas.setPointerCapture(e.pointerId);
-    } catch {
-      // synthetic events (tests, benchmarks) have no active pointer to capture
-    }
-    const [sx, sy] = this.screenPoint(e);
-    const pan = e.button === 1 || e.button === 2 || (e.button === 0 && this.keys.has("Space"));
-    if (pan) {
-      this.drag = { type: "pan", sx, sy };
-      return;
-    }
-    if (e.button !== 0) return;
-    const [u, v] = this.vp.toImage(sx, sy);
-    if (this.mode === "mask") {
-      const layer = this.ensureMask(this.view);
-      const value = this.tool === "brush" ? 1 : 0;
-      this.drag = { type: "stroke", recorder: new StrokeRecorder(layer), last: [u, v], value, view: this.view };
-      this.strokeTo(u, v);
-      return;
-    }
-    const target = this.hit(sx, sy);
-    if (target) {
-      // Decided on release: a drag moves this point; a click places the current keypoint if it is unset.
-      this.drag = { type: "point", keypoint: target.keypoint, from: target.kind, sx, sy, moved: false, u: target.x,
-        v: target.y, pressU: u, pressV: v };
-    } else {
-      const existing = this.annotation.get(this.view.id, this.keypoint);
-      const visibility = existing && existing.visibility === "occluded" ? "occluded" : "visible";
-      this.drag = { type: "place", keypoint: this.keypoint, sx, sy, u, v, visibility };
-    }
-    this.requestRender();
-  }
-
-  pointermove(e) {
-    if (this.timer) this.timer.input();
-    const [sx, sy] = this.screenPoint(e);
-    const previous = this.hover;
-    // Past the canvas's edge (a drag keeps the pointer captured, so no pointerleave comes): no magnifier there.
-    const r = this.canvas.getBoundingClientRect();
-    this.hover = sx >= 0 && sy >= 0 && sx <= r.width && sy <= r.height ? [sx, sy] : null;
-    const d = this.drag;
-    if (!d) {
-      if (this.mode === "mask") this.requestRender(this.cursorRect(previous), this.cursorRect(this.hover));
-      else if (this.view && this.view.image) {
-        const before = this.loupeGeometry(previous), now = this.loupeGeometry(this.hover);
-        this.requestRender(before && before.rect, now && now.rect);
-      }
-      return;
-    }
-    if (d.type === "pan") {
-      this.vp.pan(sx - d.sx, sy - d.sy);
-      d.sx = sx;
-      d.sy = sy;
-    } else if (d.type === "stroke") {
-      const [u, v] = this.vp.toImage(sx, sy);
-      const rect = this.strokeTo(u, v);
-      // A stroke redraws only what it changed and where the cursor was and is (measured by bench ui).
-      this.requestRender(rect && this.imageRectOnScreen(rect), this.cursorRect(previous), this.cursorRect(this.hover));
-      return;
-    } else {
-      if (Math.hypot(sx - d.sx, sy - d.sy) > DRAG_PX) d.moved = true;
-      [d.u, d.v] = this.vp.toImage(sx, sy);
-    }
-    this.requestRender();
-  }
-
-  strokeTo(u, v) {
-    const d = this.drag;
-    const layer = d.view.mask;
-    const radius = this.radius / 1; // radius is in image pixels
-    const rect = layer.stroke(d.last[0], d.last[1], u, v, radius, d.value);
-    d.last = [u, v];
-    if (rect) {
-      d.view.overlay.refresh(rect);
-      d.recorder.add(rect);
-    }
-    return rect;
-  }
-
-  imageRectOnScreen(rect) {
-    const [x0, y0] = this.vp.toScreen(rect.x - 0.5, rect.y - 0.5);
-    const [x1, y1] = this.vp.toScreen(rect.x + rect.w - 0.5, rect.y + rect.h - 0.5);
-    return { x: x0 - 2, y: y0 - 2, w: x1 - x0 + 4, h: y1 - y0 + 4 };
-  }
-
-  cursorRect(point) {
-    if (!point) return null;
-    const r = this.radius * this.vp.scale + 3;
-    return { x: point[0] - r, y: point[1] - r, w: 2 * r, h: 2 * r };
-  }
-
-  pointerup(e) {
-    const d = this.drag;
-    this.drag = null;
-    if (!d) return;
-    if (this.canvas.hasPointerCapture(e.pointerId)) this.canvas.releasePointerCapture(e.pointerId);
-    if (d.type === "stroke") {
-      const view = d.view;
-      const command = d.recorder.finish((rect) => { view.overlay.refresh(rect); this.changed(view.id); });
-      if (command) {
-        view.maskEdited = true;
-        this.history.record({ kind: "mask", ...command, undo: command.undo, redo: command.redo });
-        this.timer.mark(d.value ? "brush" : "erase", { view_id: view.id });
-        this.changed(view.id);
-      }
-    } else if (d.type === "place") {
-      if (this.placeable(d.u, d.v)) {
-        this.setClick(this.view.id, d.keypoint, { x: d.u, y: d.v, visibility: d.visibility }, "click");
-        this.advance({ afterClick: true });
-      }
-    } else if (d.type === "point") {
-      // A not-annotated keypoint is unset: a click on another point places it there (docs/ui.md).
-      const currentUnset = !this.annotation.placed(this.view.id, this.keypoint);
-      if (d.moved && !this.placeable(d.u, d.v)) {
-        // dropped outside the image: the point stays where it was
-      } else if (d.moved) {
-        this.keypoint = d.keypoint;
-        const existing = this.annotation.get(this.view.id, d.keypoint);
-        const offered = d.from === "proposal" ? this.proposals.get(this.view.id).get(d.keypoint) : null;
-        const occluded = existing ? existing.visibility === "occluded" : Boolean(offered && offered.hidden);
-        this.setClick(this.view.id, d.keypoint, { x: d.u, y: d.v, visibility: occluded ? "occluded" : "visible" }, "drag");
-        if (d.from !== "click") this.advance();
-      } else if (d.keypoint !== this.keypoint && currentUnset) {
-        if (this.placeable(d.pressU, d.pressV)) {
-          this.setClick(this.view.id, this.keypoint, { x: d.pressU, y: d.pressV, visibility: "visible" }, "click");
-          this.advance({ afterClick: true });
-        }
-      } else if (d.from === "proposal" || d.from === "alternate") {
-        this.keypoint = d.keypoint;
-        this.acceptProposal(d.keypoint, { alternate: d.from === "alternate" });
-      } else {
-        this.keypoint = d.keypoint;
-        this.renderSide();
-      }
-    }
-    this.requestRender();
-  }
-
-  // Whether image point (u, v) lies in the view's image; if not, says so (nothing is placed outside it).
-  placeable(u, v) {
-    if (inside([u, v], this.view)) return true;
-    toast(`outside ${this.view.camera}'s image: nothing placed (click on the image)`, "warn", 2500);
-    document.body.dataset.refused = "outside";
-    return false;
-  }
-
-  wheel(e) {
-    e.preventDefault();
-    if (!this.task) return;
-    this.timer.input();
-    if (this.mode === "mask" && !e.ctrlKey) {
-      this.setRadius(this.radius * (e.deltaY < 0 ? 1.15 : 1 / 1.15));
-      return;
-    }
-    const [sx, sy] = this.screenPoint(e);
-    this.vp.zoomAt(Math.exp(-e.deltaY * 0.0015), sx, sy);
-    this.requestRender();
-  }
+  // --- tools and views (what input, annotate_input.js, calls) --------------------------------------
 
   setRadius(r) {
     this.radius = Math.max(1, Math.min(200, r));
-    this.requestRender();
+    this.drawing.requestRender();
     this.renderSide();
-  }
-
-  // --- keys ---------------------------------------------------------------------------------------
-
-  keydown(e) {
-    if (!this.task || isTyping(e)) return;
-    this.timer.input();
-    this.keys.add(e.code);
-    const ctrl = e.ctrlKey || e.metaKey;
-    const key = e.key;
-    let handled = true;
-    if (ctrl && (key === "z" || key === "Z")) {
-      if (e.shiftKey) this.redo(); else this.undo();
-    } else if (ctrl && (key === "y" || key === "Y")) {
-      this.redo();
-    } else if (ctrl && key === "Enter") {
-      this.submit({ confirmed: this.asking === "submit" });
-    } else if (ctrl) {
-      handled = false;
-    } else if (key >= "1" && key <= "6") {
-      this.pick(SPARSE[Number(key) - 1]);
-    } else if (key === "Escape" && this.asking) {
-      this.closeAsk();
-    } else if (key === "x" || key === "X") {
-      this.toggleNoHand();
-    } else if (key === "Escape") {
-      // Keys back to the view from whatever has the focus (a button, the list); a drag in progress ends.
-      this.drag = null;
-      if (document.activeElement && document.activeElement !== this.canvas) document.activeElement.blur();
-      this.canvas.focus();
-      this.side.querySelector(".help").removeAttribute("open");
-      this.requestRender();
-    } else if (key === "Tab") {
-      this.justPlaced = null;
-      this.selectView((this.viewIndex + (e.shiftKey ? this.views.length - 1 : 1)) % this.views.length);
-    } else if (key === "a" || key === "A") {
-      if (!this.acceptProposal(this.keypoint)) toast("no proposal for this keypoint here", "info", 1500);
-    } else if (key === "Enter") {
-      this.acceptAllInView();
-    } else if (key === "o" || key === "O") {
-      this.toggleOccluded();
-    } else if (key === "n" || key === "N") {
-      this.markNotAnnotated();
-    } else if (key === "Delete" || key === "Backspace") {
-      this.clearKeypoint();
-    } else if (key === "m" || key === "M") {
-      this.setMode(this.mode === "mask" ? "points" : "mask");
-    } else if (key === "b" || key === "B") {
-      this.tool = "brush";
-      this.setMode("mask");
-    } else if (key === "e" || key === "E") {
-      this.tool = "eraser";
-      this.setMode("mask");
-    } else if (key === "p" || key === "P") {
-      this.setMode("points");
-    } else if (key === "[") {
-      this.setRadius(this.radius / 1.25);
-    } else if (key === "]") {
-      this.setRadius(this.radius * 1.25);
-    } else if (key === "h" || key === "H") {
-      this.showMask = !this.showMask;
-      this.timer.mark("toggle");
-      this.requestRender();
-      this.buildThumbs();
-    } else if (key === "0") {
-      // The hand; pressed again (already there), the whole image.
-      const before = [this.vp.scale, this.vp.ox, this.vp.oy];
-      this.fitView();
-      if (Math.abs(before[0] - this.vp.scale) < 1e-9 && Math.abs(before[1] - this.vp.ox) < 1e-6) this.fitView({ whole: true });
-      this.requestRender();
-    } else if (key === "+" || key === "=") {
-      this.zoomCentre(1.25);
-    } else if (key === "-") {
-      this.zoomCentre(0.8);
-    } else if (key === "?") {
-      this.side.querySelector(".help").toggleAttribute("open");
-    } else if (key === " ") {
-      // Space + drag pans; keep the page from scrolling.
-    } else {
-      handled = false;
-    }
-    if (handled) e.preventDefault();
-  }
-
-  zoomCentre(factor) {
-    const r = this.canvas.getBoundingClientRect();
-    this.vp.zoomAt(factor, r.width / 2, r.height / 2);
-    this.requestRender();
   }
 
   setMode(mode) {
     this.mode = mode;
     this.canvas.classList.toggle("mask-mode", mode === "mask");
-    this.requestRender();
+    this.drawing.requestRender();
     this.renderSide();
   }
 
@@ -917,90 +572,16 @@ class AnnotatePage {
 
   selectView(index) {
     if (index === this.viewIndex) return;
-    this.keepZoom();
+    this.zoom.keepZoom();
     this.viewIndex = index;
     this.decodeMask(this.view);
     this.timer.mark("view", { view_id: this.view.id });
     this.keypoint = this.annotation.firstUnset(this.view.id) ??
       this.annotation.firstUnset(this.view.id, -1, { placedToo: true }) ?? this.keypoint;
-    this.restoreZoom();
-    this.requestRender();
+    this.zoom.restoreZoom();
+    this.drawing.requestRender();
     for (const [i, el] of [...this.thumbs.children].entries()) el.classList.toggle("active", i === index);
     this.renderSide();
-  }
-
-  // Fit the view to the hand (its clicks and proposals, else its automatic mask), or with whole=true (or no
-  // hand found) to the whole image.
-  fitView({ whole = false } = {}) {
-    if (!this.task) return;
-    const { width, height } = fitCanvas(this.canvas);
-    const view = this.view;
-    const box = whole ? null : this.handBox(view);
-    const wholeScale = Math.min((width - 16) / view.width, (height - 16) / view.height);
-    if (box) {
-      this.vp.fitRect(...box, width, height, 8);
-      // No closer than OPEN_MAX_PX screen px per working-copy pixel (unless the whole image shows larger):
-      // zoomed further, a 640 px copy opened at 483 % looked blocky. The hand stays centred.
-      const copyWidth = view.image ? view.image.width : view.width;
-      const most = Math.max(OPEN_MAX_PX * copyWidth / view.width, 1.25 * wholeScale);
-      if (this.vp.scale > most) {
-        const cx = (box[0] + box[2]) / 2, cy = (box[1] + box[3]) / 2;
-        this.vp.scale = most;
-        this.vp.ox = width / 2 - (cx + 0.5) * most;
-        this.vp.oy = height / 2 - (cy + 0.5) * most;
-        this.vp.minScale = most / 8;
-      }
-      // No blank beyond the image's edge: a hand at the edge once opened as a strip of arm beside empty canvas.
-      this.vp.keepInside(view.width, view.height, width, height);
-    } else {
-      this.vp.fit(view.width, view.height, width, height);
-    }
-    this.vp.minScale = Math.min(this.vp.minScale, Math.min(width / view.width, height / view.height) / 2);
-  }
-
-  // The image rectangle [x0, y0, x1, y1] around the hand in a view, with a margin; null if nothing shows it.
-  handBox(view, margin = 0.35, minFraction = 0.2) {
-    const xs = [], ys = [];
-    // Only points inside the image: a source's projection off the image once opened a view on a strip of arm
-    // at its edge.
-    const add = (x, y) => {
-      if (Number.isFinite(x) && Number.isFinite(y) && x >= 0 && y >= 0 && x <= view.width && y <= view.height) {
-        xs.push(x);
-        ys.push(y);
-      }
-    };
-    for (const c of this.annotation.clicks.get(view.id).values()) add(c.x, c.y);
-    for (const p of (this.proposals ? this.proposals.get(view.id) : new Map()).values()) add(p.x, p.y);
-    for (const source of this.sources || []) for (const p of source.views[String(view.id)] || []) if (p) add(p[0], p[1]);
-    let box = null;
-    if (xs.length >= 2) {
-      box = [Math.min(...xs), Math.min(...ys), Math.max(...xs), Math.max(...ys)];
-    } else if (view.overlay) {
-      box = view.overlay.bounds();
-      margin = 0.15;
-    }
-    if (!box) return null;
-    const [x0, y0, x1, y1] = box;
-    const w = Math.max((x1 - x0) * (1 + 2 * margin), view.width * minFraction);
-    const hh = Math.max((y1 - y0) * (1 + 2 * margin), view.height * minFraction);
-    const cx = (x0 + x1) / 2, cy = (y0 + y1) / 2;
-    return [cx - w / 2, cy - hh / 2, cx + w / 2, cy + hh / 2];
-  }
-
-  zoomKey(view = this.view) {
-    return `${this.task.sample_id}/${view.id}`;
-  }
-
-  keepZoom() {
-    if (!this.task || !this.view) return;
-    const { scale, ox, oy, minScale } = this.vp;
-    this.zooms.set(this.zoomKey(), { scale, ox, oy, minScale });
-  }
-
-  restoreZoom() {
-    const kept = this.zooms.get(this.zoomKey());
-    if (kept) Object.assign(this.vp, kept);
-    else this.fitView();
   }
 
   // --- submit -------------------------------------------------------------------------------------
@@ -1058,23 +639,14 @@ class AnnotatePage {
     if (!reason.trim()) return toast("give a reason", "warn", 2500);
     const task = this.task;
     try {
-      let result;
-      const url = `/api/annotate/samples/${task.sample_id}/skip`;
       const body = { kind, reason: reason.trim(), lease_token: task.lease_token };
-      try {
-        result = await this.api.post(url, body);
-      } catch (error) {
-        if (error.status !== 403 && error.status !== 409) throw error;
-        body.lease_token = await this.leases.retake(task.sample_id);
-        result = await this.api.post(url, body);
-      }
+      const result = await this.queue.postLeased(paths.skip(task.sample_id), body, task.sample_id);
       this.closeAsk();
-      this.drafts.forget();
-      this.leases.drop(task.sample_id, false);
+      this.queue.finished(task.sample_id);
       toast(kind === "no_hand" ? `sample ${task.sample_id}: no hand (${result.state})`
         : `skipped sample ${task.sample_id}: it goes to someone else`, "ok", 2500);
-      this.task = null;
-      await this.loadNext();
+      this.queue.current = null;
+      await this.queue.loadNext();
     } catch (error) {
       toast(`${kind === "no_hand" ? "no hand" : "skip"} failed: ${error.message}`, "error", 8000);
     }
@@ -1084,7 +656,7 @@ class AnnotatePage {
   watchFit(submissionId, tries = 24) {
     clearTimeout(this.fitWatch);
     const look = async () => {
-      const failures = await this.api.get("/api/annotate/fit-failures").catch(() => null);
+      const failures = await this.api.get(paths.fitFailures()).catch(() => null);
       if (failures) {
         const fresh = failures.filter((f) => !this.failedFits.some((g) => g.submission_id === f.submission_id));
         const mine = failures.find((f) => f.submission_id === submissionId);
@@ -1143,8 +715,7 @@ class AnnotatePage {
     }
     this.closeAsk();
     const task = this.task;
-    const masks = this.views.filter((v) => v.maskEdited && v.mask)
-      .map((v) => ({ view_id: v.id, width: v.width, height: v.height, rle: v.mask.toRLE() }));
+    const masks = this.editedMasks();
     const body = {
       submission_id: this.submissionId,
       lease_token: task.lease_token,
@@ -1156,30 +727,19 @@ class AnnotatePage {
     this.submitting = true;
     this.renderSide();
     try {
-      const url = `/api/annotate/samples/${task.sample_id}/submissions`;
-      let result;
-      try {
-        result = await this.api.post(url, body);
-      } catch (error) {
-        if (error.status !== 403 && error.status !== 409) throw error;
-        // The lease lapsed (or the token is stale): take it again while the sample is free, then submit.
-        body.lease_token = await this.leases.retake(task.sample_id);
-        result = await this.api.post(url, body);
-      }
-      this.drafts.forget(); // the server deleted the draft with the submission
-      this.leases.drop(task.sample_id, false);
-      const log = {
+      const result = await this.queue.postLeased(paths.submissions(task.sample_id), body, task.sample_id);
+      this.queue.finished(task.sample_id); // the server deleted the draft with the submission
+      this.queue.logActivity({
         context: "annotate", sample_id: task.sample_id, submission_id: result.submission_id,
         time_spent_s: body.time_spent_s, actions: this.timer.actions.slice(0, 20000),
-      };
-      this.api.post("/api/activity", log).catch((error) => toast(`time log not saved: ${error.message}`, "warn"));
+      });
       this.lastSubmission = { sample_id: task.sample_id, fit_job_id: result.fit_job_id, clicks: body.clicks.length,
         masks: masks.length, submission: result.id };
       this.watchFit(result.id);
       toast(`submitted sample ${task.sample_id}: ${masks.length} mask(s), fit job ${result.fit_job_id ?? "–"} queued`,
         "ok", 2500);
       this.submitting = false;
-      await this.loadNext();
+      await this.queue.loadNext();
     } catch (error) {
       this.submitting = false;
       toast(`submit failed: ${error.message}`, "error", 8000);
@@ -1187,346 +747,24 @@ class AnnotatePage {
     }
   }
 
-  // --- rendering ----------------------------------------------------------------------------------
+  // --- data-* hooks -------------------------------------------------------------------------------
 
-  // Schedule a redraw for the next frame: of the whole view (no rectangles given), or only of the given
-  // screen rectangles (null entries are skipped); a full request wins over partial ones.
-  requestRender(...rects) {
-    if (rects.length === 0) this.dirty = "all";
-    else if (this.dirty !== "all") for (const r of rects) if (r) this.dirty = unionRect(this.dirty, r);
-    if (this.frame) return;
-    this.frame = requestAnimationFrame(() => { this.frame = null; this.renderNow(); });
-  }
-
-  // Draw what is pending now (the whole view with force); a scheduled frame is then not needed.
-  renderNow(force = false) {
-    if (this.frame) { cancelAnimationFrame(this.frame); this.frame = null; }
-    const pending = force ? "all" : this.dirty;
-    this.dirty = null;
-    if (!this.task || !pending) return;
-    const dirty = pending === "all" ? null : pending;
-    const view = this.view;
-    const { width, height, dpr } = fitCanvas(this.canvas);
-    const ctx = this.canvas.getContext("2d");
-    ctx.save();
-    ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
-    if (dirty) {
-      ctx.beginPath();
-      ctx.rect(Math.floor(dirty.x), Math.floor(dirty.y), Math.ceil(dirty.w) + 1, Math.ceil(dirty.h) + 1);
-      ctx.clip();
-    }
-    ctx.fillStyle = "#1b1e24";
-    ctx.fillRect(0, 0, width, height);
-    this.vp.apply(ctx, dpr);
-    ctx.imageSmoothingEnabled = this.vp.scale < 3;
-    const image = this.pixelsOf(view, dpr);
-    if (image) ctx.drawImage(image, 0, 0, view.width, view.height);  // a working-width copy: full-resolution units
-    // Points mode shows the mask's outline only, so the skin under it stays visible.
-    if (this.showMask && view.overlay) ctx.drawImage(this.mode === "points" ? view.overlay.outline() : view.overlay.canvas, 0, 0);
-    ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
-    if (!view.image) {
-      ctx.fillStyle = "#9aa0ab";
-      ctx.font = "14px system-ui, sans-serif";
-      ctx.fillText(`loading ${view.camera}…`, 16, 24);
-    }
-    if (this.mode === "points" && !this.annotation.get(view.id, this.keypoint)) this.drawEpipolar(ctx, view);
-    this.drawPoints(ctx, view, this.vp, { labels: true, selected: this.keypoint });
-    const target = this.target();
-    const tc = target.viewId === view.id ? this.annotation.get(view.id, target.keypoint) : null;
-    if (tc && tc.x !== null && target.justPlaced) {
-      // The point O and N will change, when it is not the picked one: a white ring around it.
-      const [tx, ty] = this.vp.toScreen(tc.x, tc.y);
-      ctx.save();
-      ctx.strokeStyle = "#fff";
-      ctx.lineWidth = 1.5;
-      ctx.setLineDash([2, 2]);
-      ctx.beginPath();
-      ctx.arc(tx, ty, 14, 0, 2 * Math.PI);
-      ctx.stroke();
-      ctx.restore();
-    }
-    if (this.mode === "points" && this.hover && view.image && !this.drag) this.drawLoupe(ctx, view, dpr);
-    if (this.mode === "mask" && this.hover) {
-      ctx.save();
-      ctx.strokeStyle = this.tool === "brush" ? "#4cc9f0" : "#ff6b6b";
-      ctx.lineWidth = 1.5;
-      ctx.beginPath();
-      ctx.arc(this.hover[0], this.hover[1], this.radius * this.vp.scale, 0, 2 * Math.PI);
-      ctx.stroke();
-      ctx.restore();
-    }
-    ctx.restore();
-    if (dirty) return;
-    this.hud.textContent = `${view.camera} · ${view.width}×${view.height} · ${Math.round(this.vp.scale * 100)}% · ` +
-      (this.mode === "mask" ? `mask: ${this.tool} r=${Math.round(this.radius)} px` : `points: ${labelFor(this.keypoint)}` +
-        ` · O/N: ${labelFor(target.keypoint)}${target.justPlaced ? " (just placed)" : ""}`);
-  }
-
-  // The pixels to draw a view with: its working-width copy, or once zoomed past that copy's own pixels, the
-  // full-resolution original (loaded the first time it is needed, then kept for the view).
-  pixelsOf(view, dpr) {
-    if (!view.fullImage && !view.fullLoading && needsFullImage(view, this.vp.scale, dpr)) {
-      const task = this.task;
-      view.fullLoading = loadFullImage(this.api, view).then((bitmap) => {
-        view.fullImage = bitmap;
-        if (this.task === task && this.view === view) this.requestRender();
-      }).catch((error) => {
-        toast(`full-resolution ${view.camera} did not load: ${error.message}`, "warn", 4000);
-      });
-    }
-    return view.fullImage || view.image;
-  }
-
-  // The magnifier: up to LOUPE_ZOOM times the view's zoom around the cursor, in a circle beside it (clear of
-  // the finger that points), with a crosshair on the pixel a click would place.
-  loupeGeometry(point = this.hover) {
-    if (!point) return null;
-    const r = this.canvas.getBoundingClientRect();
-    const [x, y] = point;
-    const cx = x + (x + LOUPE_OFFSET + LOUPE_R > r.width ? -LOUPE_OFFSET : LOUPE_OFFSET);
-    const cy = y + (y - LOUPE_OFFSET - LOUPE_R < 0 ? LOUPE_OFFSET : -LOUPE_OFFSET);
-    return { x, y, cx, cy, rect: { x: cx - LOUPE_R - 3, y: cy - LOUPE_R - 3, w: 2 * LOUPE_R + 6, h: 2 * LOUPE_R + 6 } };
-  }
-
-  drawLoupe(ctx, view, dpr) {
-    const g = this.loupeGeometry();
-    const [u, v] = this.vp.toImage(g.x, g.y);
-    // LOUPE_ZOOM times the view's zoom, but no more than LOUPE_MAX_PX screen px per image pixel (at least 1.5x).
-    const scale = Math.min(this.vp.scale * LOUPE_ZOOM, Math.max(this.vp.scale * 1.5, LOUPE_MAX_PX));
-    ctx.save();
-    ctx.beginPath();
-    ctx.arc(g.cx, g.cy, LOUPE_R, 0, 2 * Math.PI);
-    ctx.fillStyle = "#000";
-    ctx.fill();
-    ctx.clip();
-    // Image point (u, v) at the loupe's centre: screen = (px + 0.5) * scale + o.
-    ctx.setTransform(scale * dpr, 0, 0, scale * dpr, (g.cx - (u + 0.5) * scale) * dpr, (g.cy - (v + 0.5) * scale) * dpr);
-    ctx.imageSmoothingEnabled = false;
-    ctx.drawImage(view.fullImage || view.image, 0, 0, view.width, view.height);
-    if (this.showMask && view.overlay) ctx.drawImage(view.overlay.outline(), 0, 0);
-    ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
-    ctx.strokeStyle = "rgba(255, 255, 255, 0.9)";
-    ctx.lineWidth = 1;
-    ctx.beginPath();
-    ctx.moveTo(g.cx - 8, g.cy);
-    ctx.lineTo(g.cx + 8, g.cy);
-    ctx.moveTo(g.cx, g.cy - 8);
-    ctx.lineTo(g.cx, g.cy + 8);
-    ctx.stroke();
-    ctx.restore();
-    ctx.save();
-    ctx.strokeStyle = "#000";
-    ctx.lineWidth = 3;
-    ctx.beginPath();
-    ctx.arc(g.cx, g.cy, LOUPE_R, 0, 2 * Math.PI);
-    ctx.stroke();
-    ctx.strokeStyle = "#fff";
-    ctx.lineWidth = 1.5;
-    ctx.stroke();
-    ctx.restore();
-    this.loupe = { cx: g.cx, cy: g.cy, u, v, zoom: scale / this.vp.scale };
-  }
-
-  // While the picked keypoint is being placed here: the epipolar curve of each view where it was placed by
-  // hand (the point lies on all of them; lens distortion bends them slightly).
-  drawEpipolar(ctx, view) {
-    const camTo = this.cameras.get(view.id);
-    if (!camTo) return;
-    ctx.save();
-    ctx.strokeStyle = colorOf(this.keypoint);
-    ctx.globalAlpha = 0.7;
-    ctx.lineWidth = 1;
-    ctx.setLineDash([6, 4]);
-    for (const other of this.views) {
-      const c = other.id === view.id ? null : this.annotation.get(other.id, this.keypoint);
-      if (!c || c.from || c.x === null) continue;
-      const curve = epipolarCurve([c.x, c.y], this.cameras.get(other.id), camTo);
-      ctx.beginPath();
-      curve.forEach(([u, v], i) => {
-        const [sx, sy] = this.vp.toScreen(u, v);
-        if (i === 0) ctx.moveTo(sx, sy); else ctx.lineTo(sx, sy);
-      });
-      ctx.stroke();
-    }
-    ctx.restore();
-  }
-
-  // Clicks, proposals and the dragged point of one view, on a 2D context in screen units.
-  drawPoints(ctx, view, vp, { labels = false, selected = null, r = 6 } = {}) {
-    const clicks = this.annotation.clicks.get(view.id);
-    const drag = this.drag && view === this.view && (this.drag.type === "place" || this.drag.type === "point")
-      ? this.drag : null;
-    const pos = (k, c) => (drag && drag.keypoint === k && (drag.type === "place" || drag.moved) ? [drag.u, drag.v] : [c.x, c.y]);
-    const wrist = clicks.get(0);
-    if (wrist && wrist.x !== null) {
-      for (const k of SPARSE.slice(1)) {
-        const c = clicks.get(k);
-        if (c && c.x !== null) segment(ctx, vp.toScreen(...pos(0, wrist)), vp.toScreen(...pos(k, c)), colorOf(k), 1, [4, 4]);
-      }
-    }
-    for (const [k, p] of this.alternates.get(view.id)) {
-      if (drag && drag.keypoint === k) continue;
-      const [x, y] = vp.toScreen(p.x, p.y);
-      marker(ctx, x, y, k, { style: "alternate", r, label: labels ? proposalLabel(p) : null });
-    }
-    for (const [k, p] of this.proposals.get(view.id)) {
-      if (drag && drag.keypoint === k) continue;
-      const [x, y] = vp.toScreen(p.x, p.y);
-      marker(ctx, x, y, k, { style: "proposal", r, label: labels ? proposalLabel(p) : null,
-        selected: labels && selected === k, look: !confident(p) });
-    }
-    for (const [k, c] of clicks) {
-      if (c.x === null) continue;
-      const [x, y] = vp.toScreen(...pos(k, c));
-      marker(ctx, x, y, k, { style: c.visibility === "occluded" ? "occluded" : "solid", r,
-        selected: labels && selected === k });
-    }
-    if (drag && drag.type === "place" && !clicks.has(drag.keypoint)) {
-      const [x, y] = vp.toScreen(drag.u, drag.v);
-      marker(ctx, x, y, drag.keypoint, { r, selected: true });
-    }
-  }
-
-  buildThumbs() {
-    fill(this.thumbs, ...this.views.map((view, i) => {
-      const canvas = h("canvas", { class: "thumb-canvas" });
-      const el = h("button", { class: `thumb${i === this.viewIndex ? " active" : ""}`, title: `${view.camera} (Tab)`,
-        onclick: () => { this.justPlaced = null; this.selectView(i); } }, canvas, h("span", { class: "thumb-label" }, ""));
-      view.thumb = { el, canvas };
-      return el;
-    }));
-    requestAnimationFrame(() => this.views.forEach((_, i) => this.renderThumb(i)));
-  }
-
-  renderThumb(index) {
-    const view = this.views[index];
-    if (!view || !view.thumb) return;
-    const { canvas, el } = view.thumb;
-    const { width, height, dpr } = fitCanvas(canvas);
-    const ctx = canvas.getContext("2d");
-    const vp = new Viewport().fit(view.width, view.height, width, height, 2);
-    ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
-    ctx.fillStyle = "#111";
-    ctx.fillRect(0, 0, width, height);
-    vp.apply(ctx, dpr);
-    if (view.image) ctx.drawImage(view.image, 0, 0, view.width, view.height);  // a working-width copy: full-resolution units
-    if (this.showMask && view.overlay) ctx.drawImage(view.overlay.canvas, 0, 0);
-    ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
-    this.drawPoints(ctx, view, vp, { r: 3 });
-    // Placed points out of the keypoints; those marked not annotated apart ("· 2 N"): they are decided, not done.
-    const done = this.annotation.doneIn(view.id);
-    const skipped = this.annotation.notAnnotatedIn(view.id);
-    el.querySelector(".thumb-label").textContent =
-      `${index + 1} ${view.camera} ${this.noHand.has(view.id) ? "no hand"
-        : `${done}/${this.annotation.keypoints.length}${skipped ? ` · ${skipped} N` : ""}`}` +
-      `${view.maskEdited ? " ✎" : ""}`;
-    el.classList.toggle("complete", done === this.annotation.keypoints.length);
-  }
-
-  renderClock() {
-    const el = this.side.querySelector(".clock");
-    if (!el || !this.task) return;
-    const expires = this.leases.expiresAt(this.task.sample_id);
-    const left = expires ? Math.max(0, Math.round((expires - Date.now()) / 1000)) : null;
-    if (expires && expires <= Date.now() && !this.lostLease) this.leases.retake(this.task.sample_id).catch(() => null);
-    const idle = this.timer.idle() ? ` (paused: no input for ${this.timer.idleCapMs / 1000} s)` : "";
-    el.textContent = `time ${fmt(this.timer.spentSeconds(), 0, " s")}${idle} · lease ${left === null ? "–" : `${left} s`}`;
-  }
-
-  renderSide() {
-    if (!this.task || !this.proposals) return;
-    const view = this.view;
-    const props = this.proposals.get(view.id);
-    const rows = SPARSE.map((k, i) => {
-      const status = this.annotation.status(view.id, k);
-      const p = props.get(k);
-      const alt = this.alternates.get(view.id).get(k);
-      const text = status === "unset" ? (p ? `proposal ${proposalLabel(p)}${p.hidden ? " · hidden" : ""}` +
-        `${confident(p) ? "" : " · look"}` +
-        (alt ? ` · ${proposalLabel(alt)} ${fmt(Math.hypot(alt.x - p.x, alt.y - p.y), 0, " px")} away` : "") : "–")
-        : status.replace("_", " ") + (this.annotation.get(view.id, k).from ? " (accepted)" : "");
-      return h("li", { class: `kp-row${k === this.keypoint ? " current" : ""} status-${status}`,
-        onclick: () => this.pick(k) },
-      h("kbd", {}, String(i + 1)), h("span", { class: "swatch", style: { background: colorOf(k) } }),
-      h("span", { class: "kp-name" }, SPARSE_LABELS[i]), h("span", { class: "kp-status" }, text));
-    });
-    const hiddenCount = [...props.values()].filter((p) => confident(p) && p.hidden).length;
-    const total = this.views.reduce((n, v) => n + this.annotation.doneIn(v.id), 0);
-    const skipped = this.views.reduce((n, v) => n + this.annotation.notAnnotatedIn(v.id), 0);
-    const masks = this.views.filter((v) => v.maskEdited).length;
-    const t = this.task;
-    fill(this.side, 
-      h("div", { class: "sample-head" },
-        h("h2", {}, `Sample ${t.sample_id}`),
-        h("div", { class: "muted" }, `${t.sequence ?? `sequence ${t.sequence_id}`} · frame ${t.frame_index}`),
-        handSide(t.side),
-        h("div", { class: "clock muted" }, ""),
-        h("div", { class: "draft-state muted" }, draftLabel(document.body.dataset.draftState))),
-      this.reviewNote ? h("div", { class: "callout" }, h("strong", {}, "Reviewer: "), this.reviewNote) : null,
-      this.fitFailure ? h("div", { class: "callout warn fit-failure-here" }, h("strong", {}, "The last fit failed: "),
-        this.fitFailure.reason, ". Its points are kept below; place what is missing, or skip the sample.") : null,
-      this.failedFits.length ? h("div", { class: "callout warn fit-failures" },
-        h("strong", {}, "Fits that failed on your work: "), this.failedFits.map((f) =>
-          h("div", {}, `sample ${f.sample_id}: ${f.reason} (it goes to another annotator)`))) : null,
-      h("div", { class: "mode-switch", role: "group" },
-        h("button", { class: this.mode === "points" ? "on" : "", onclick: () => this.setMode("points") }, "Points (P)"),
-        h("button", { class: this.mode === "mask" && this.tool === "brush" ? "on" : "",
-          onclick: () => { this.tool = "brush"; this.setMode("mask"); } }, "Brush (B)"),
-        h("button", { class: this.mode === "mask" && this.tool === "eraser" ? "on" : "",
-          onclick: () => { this.tool = "eraser"; this.setMode("mask"); } }, "Eraser (E)")),
-      h("div", { class: "muted" }, `brush radius ${Math.round(this.radius)} px ([ ] or wheel)`),
-      h("h3", {}, `View ${this.viewIndex + 1}/${this.views.length} · ${view.camera}`),
-      h("ul", { class: "kp-list" }, rows),
-      h("div", { class: "button-row" },
-        h("button", { class: "accept-all", onclick: () => this.acceptAllInView(), disabled: props.size === 0 },
-          `Accept ${[...props.values()].filter(confident).length} of ${props.size} proposals (Enter)` +
-          `${hiddenCount ? ` · ${hiddenCount} as occluded` : ""}`),
-        h("button", { onclick: () => this.toggleOccluded() }, "Occluded (O)"),
-        h("button", { onclick: () => this.markNotAnnotated() }, "Not annotated (N)"),
-        h("button", { class: `no-hand-view${this.noHand.has(view.id) ? " on" : ""}`, onclick: () => this.toggleNoHand() },
-          this.noHand.has(view.id) ? "No hand here ✓ (X)" : "No hand here (X)")),
-      h("div", { class: "button-row" },
-        h("button", { onclick: () => this.undo(), disabled: !this.history.canUndo }, "Undo"),
-        h("button", { onclick: () => this.redo(), disabled: !this.history.canRedo }, "Redo")),
-      h("div", { class: "totals" }, `${total}/${this.views.length * this.annotation.keypoints.length} keypoints placed · ` +
-        `${skipped} not annotated · ${masks} mask(s) corrected`),
-      h("button", { class: "primary submit", onclick: () => this.submit(), disabled: this.submitting },
-        this.submitting ? "Submitting…" : "Submit (Ctrl+Enter)"),
-      h("div", { class: "button-row" },
-        h("button", { class: "no-hand-sample", onclick: () => this.askPass("no_hand") }, "No hand in this sample…"),
-        h("button", { class: "skip-sample", onclick: () => this.askPass("skip") }, "Skip…")),
-      h("div", { class: "muted legend" }, "proposals: T triangulated from your clicks, F current fit, M MVNet, " +
-        `D detector; the number is its confidence (orange: below ${ACCEPT_CONF}, Enter leaves it)`),
-      this.sources.map((source) => h("div", { class: source.label.includes("not MANO") ? "badge warn" : "badge" },
-        `${SOURCE_LETTER[source.kind]}: ${source.label}`)),
-      this.lastSubmission ? h("div", { class: "muted last-submission" },
-        `last: sample ${this.lastSubmission.sample_id} → fit job ${this.lastSubmission.fit_job_id ?? "–"}` +
-        (this.lastSubmission.failed ? ` failed: ${this.lastSubmission.failed}` : "")) : null,
-      h("details", { class: "help" }, h("summary", {}, "Keys (?)"),
-        h("table", {}, HELP.map(([k, d]) => h("tr", {}, h("td", {}, h("kbd", {}, k)), h("td", {}, d))))),
-    );
-    this.renderClock();
+  // The page's state as data-* attributes of <body> (what the browser tests read, not the page's fields):
+  // data-sample, data-sequence-id and data-frame-index (set in show), data-view-index (the view enlarged,
+  // 0-based), data-keypoint (the one picked), data-mode ("points" | "mask"), data-tool ("brush" | "eraser"),
+  // data-radius (the brush's, image px), data-show-mask ("yes" | "no"), data-points-placed (over every view),
+  // data-no-hand (the ids of the views marked). Each thumbnail carries its view's (drawing.labelThumb), the canvas
+  // its zoom (drawing.publishViewport) and whether the pointer is over it (data-hover, input.setHover).
+  publish() {
+    const d = document.body.dataset;
+    d.viewIndex = String(this.viewIndex);
+    d.keypoint = String(this.keypoint);
+    d.mode = this.mode;
+    d.tool = this.tool;
+    d.radius = String(this.radius);
+    d.showMask = this.showMask ? "yes" : "no";
+    d.pointsPlaced = String(this.views.reduce((n, v) => n + this.annotation.doneIn(v.id), 0));
+    d.noHand = [...this.noHand].join(" ");
   }
 }
 
-function labelFor(keypoint) {
-  const i = SPARSE.indexOf(keypoint);
-  return i >= 0 ? SPARSE_LABELS[i] : String(keypoint);
-}
-
-function draftLabel(state) {
-  return { unsaved: "draft: unsaved changes", saving: "draft: saving…", saved: "draft: saved",
-    error: "draft: not saved yet (retrying)", conflict: "draft: changed in another tab too (keep one above)",
-    lost: "draft: saved up to the last save; later changes cannot be saved (sample no longer yours)",
-  }[state] || "draft: nothing to save";
-}
-
-function confident(p) {
-  return p.confidence !== null && p.confidence !== undefined && p.confidence >= ACCEPT_CONF;
-}
-
-// "T 0.92": source letter and confidence ("F ?" for a fit, which has none).
-function proposalLabel(p) {
-  const conf = p.confidence === null || p.confidence === undefined ? "?" : p.confidence.toFixed(2);
-  return `${SOURCE_LETTER[p.source] || "?"} ${conf}`;
-}

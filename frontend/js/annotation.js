@@ -115,6 +115,7 @@ export function proposals(annotation, cameras, sources, { minConf = 0.3 } = {}) 
     for (const viewId of annotation.viewIds) {
       if (annotation.get(viewId, keypoint) !== null) continue;
       const cam = cameras.get(viewId);
+      /** @type {import("./annotate_drawing.js").Proposal | null} */
       let proposal = null;
       if (tri) {
         const p = projectPoint(tri.point, cam);

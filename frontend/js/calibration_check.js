@@ -4,6 +4,7 @@
 // GET /api/admin/projects/{id}/calibration-check; `handloop calibration check CAPTURE` prints the same figures.
 // Kept out of admin.js: `withCalibrationCheck` adds this section to the admin page that admin.js mounts.
 import { fmt, h, fill } from "./dom.js";
+import { paths } from "./api.js";
 
 export function withCalibrationCheck(mount) {
   return async (root, ctx) => {
@@ -25,7 +26,7 @@ export class CalibrationCheck {
   }
 
   async start() {
-    const overview = await this.api.get("/api/admin/preannotation");  // lists every project with its name
+    const overview = await this.api.get(paths.preannotation());  // lists every project with its name
     const projects = overview.projects || [];
     fill(this.select, projects.map((p) => h("option", { value: String(p.project_id) }, p.name)));
     fill(this.section, h("h2", {}, "Calibration check"),
@@ -43,7 +44,7 @@ export class CalibrationCheck {
   async run() {
     fill(this.result, h("p", { class: "muted" }, "checking…"));
     try {
-      const report = await this.api.get(`/api/admin/projects/${Number(this.select.value)}/calibration-check`);
+      const report = await this.api.get(paths.calibrationCheck(Number(this.select.value)));
       fill(this.result, renderReport(report));
     } catch (error) {
       fill(this.result, h("p", { class: "error" }, `calibration check: ${error.message}`));

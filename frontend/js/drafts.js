@@ -8,6 +8,7 @@
 // the server's revision is still that one, it is restored and saved. It is dropped once saved, when the
 // server holds a newer draft, after a day, or when the sample moved on (its draft deleted or the lease not
 // ours: the page is told, onkept).
+import { paths } from "./api.js";
 
 // Saves still travelling when a page unmounts (Back, a route change): the next page waits for them before
 // it reads the draft, so it never restores an older one.
@@ -58,6 +59,13 @@ export class DraftSaver {
   // tab could not be restored (the sample moved on), the page says so; onconflict(theirs): another tab or
   // window saved this sample's draft after the revision this page's work was made on (the server refused ours,
   // writing nothing): the page shows both, then calls keepMine() or takeTheirs(theirs).
+  /**
+   * @param {import("./api.js").Api} api
+   * @param {"annotate" | "review"} queue
+   * @param {{userId: number, snapshot: () => any, onstatus?: (state: string, detail?: any) => void,
+   *   onlease?: (error: any) => void, onkept?: (message: string) => void, onconflict?: ((theirs: any) => void) | null,
+   *   delayMs?: number}} options
+   */
   constructor(api, queue, { userId, snapshot, onstatus = () => {}, onlease = () => {}, onkept = () => {},
     onconflict = null, delayMs = 700 }) {
     this.api = api;
@@ -92,7 +100,7 @@ export class DraftSaver {
   }
 
   url(sampleId = this.sampleId) {
-    return `/api/${this.queue}/samples/${sampleId}/draft`;
+    return paths.draft(this.queue, sampleId);
   }
 
   // The sample now on screen; changes from here on are saved as its draft.

@@ -55,6 +55,7 @@ export function undistortPixel(uv, cam, iterations = 20) {
 export function symmetricEigen(A, sweeps = 50) {
   const n = A.length;
   const a = A.map((row) => row.slice());
+  /** @type {number[][]} */
   const v = Array.from({ length: n }, (_, i) => Array.from({ length: n }, (_, j) => (i === j ? 1 : 0)));
   for (let sweep = 0; sweep < sweeps; sweep++) {
     let off = 0;

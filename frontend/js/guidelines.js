@@ -4,6 +4,7 @@
 // /api/admin/guidelines, images with a caption), each edit sent with the revision it was made on (409 when
 // another admin saved meanwhile). The text is shown as text (paragraphs), never as HTML.
 import { h, toast, fill } from "./dom.js";
+import { paths } from "./api.js";
 
 const SEEN_KEY = "handloop.guidelinesSeen.";
 
@@ -14,7 +15,7 @@ function paragraphs(text) {
 
 // The images' bytes need the bearer token: fetched as blobs, shown through object URLs.
 async function imageUrls(api, images) {
-  return Promise.all(images.map((i) => api.blob(`/api/guidelines/images/${i.id}`).then((b) => URL.createObjectURL(b))));
+  return Promise.all(images.map((i) => api.blob(paths.guidelineImage(i.id)).then((b) => URL.createObjectURL(b))));
 }
 
 function figures(images, urls) {
@@ -51,7 +52,7 @@ export class GuidelinesPanel {
   }
 
   async load() {
-    const g = await this.api.get("/api/guidelines");
+    const g = await this.api.get(paths.guidelines());
     this.urls = await imageUrls(this.api, g.images);
     this.revision = g.revision;
     fill(this.body, g.revision === 0 && !g.text && !g.images.length
@@ -101,7 +102,7 @@ export class GuidelinesEditor {
   }
 
   async load(g = null) {
-    g = g || await this.api.get("/api/guidelines");
+    g = g || await this.api.get(paths.guidelines());
     this.revision = g.revision;
     const urls = await imageUrls(this.api, g.images);
     const text = h("textarea", { name: "guidelines-text", rows: 8, maxlength: 50000,
@@ -109,7 +110,7 @@ export class GuidelinesEditor {
     text.value = g.text;
     const file = h("input", { type: "file", name: "guidelines-image", accept: "image/png,image/jpeg,image/webp,image/gif" });
     const caption = h("input", { type: "text", name: "guidelines-caption", placeholder: "caption", maxlength: 500 });
-    const save = async () => this.apply(() => this.api.put("/api/admin/guidelines", { text: text.value, revision: this.revision }),
+    const save = async () => this.apply(() => this.api.put(paths.adminGuidelines(), { text: text.value, revision: this.revision }),
       "guidelines saved");
     const upload = async (e) => {
       e.preventDefault();
@@ -118,7 +119,7 @@ export class GuidelinesEditor {
       form.append("file", file.files[0]);
       form.append("caption", caption.value);
       form.append("revision", String(this.revision));
-      await this.apply(async () => (await this.api.fetch("POST", "/api/admin/guidelines/images", { body: form })).json(),
+      await this.apply(async () => (await this.api.fetch("POST", paths.adminGuidelineImages(), { body: form })).json(),
         "image added");
     };
     fill(this.section, h("h2", {}, "Guidelines"),
@@ -128,7 +129,7 @@ export class GuidelinesEditor {
       text, h("div", { class: "button-row" }, h("button", { class: "primary save-guidelines", onclick: save }, "Save text")),
       h("div", { class: "guideline-images" }, g.images.map((image, k) => h("div", { class: "guideline-image" },
         figures([image], [urls[k]]), h("button", { class: "small danger", onclick: () => this.apply(() =>
-          this.api.json("DELETE", `/api/admin/guidelines/images/${image.id}?revision=${this.revision}`), "image removed") },
+          this.api.json("DELETE", paths.adminGuidelineImage(image.id, this.revision)), "image removed") },
         "Delete")))),
       h("form", { class: "inline-form guidelines-upload", onsubmit: upload }, file, caption,
         h("button", { type: "submit" }, "Add image")));

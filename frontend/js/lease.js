@@ -1,13 +1,17 @@
 // Keeps a queue lease alive while its task is on screen (or prefetched), and lets it go on request. A lease
 // that lapsed (the server was unreachable, the laptop slept) is re-taken at once while nobody else holds
 // the sample (POST .../lease/retake); when someone does, `onlost(sampleId, error)` tells the page.
+import { paths } from "./api.js";
+
 export class LeaseKeeper {
   constructor(api, queue) {
     this.api = api;
     this.queue = queue; // "annotate" | "review"
     this.leases = new Map(); // sample id -> {token, expiresAt (ms), timer}
-    this.onretaken = () => {}; // (sampleId, token)
-    this.onlost = () => {}; // (sampleId, error)
+    /** @type {(sampleId: number, token: string) => void} */
+    this.onretaken = () => {};
+    /** @type {(sampleId: number, error: any) => void} */
+    this.onlost = () => {};
   }
 
   hold(task) {
@@ -18,7 +22,7 @@ export class LeaseKeeper {
     const renew = async () => {
       if (lease.lost) return;
       try {
-        const body = await this.api.post(`/api/${this.queue}/samples/${task.sample_id}/lease/renew`,
+        const body = await this.api.post(paths.leaseRenew(this.queue, task.sample_id),
           { lease_token: lease.token });
         lease.expiresAt = Date.parse(body.lease_expires_at);
         lease.error = null;
@@ -47,7 +51,7 @@ export class LeaseKeeper {
     const lease = this.leases.get(sampleId);
     if (!lease) throw new Error(`no lease kept for sample ${sampleId}`);
     if (lease.retaking) return lease.retaking;
-    lease.retaking = this.api.post(`/api/${this.queue}/samples/${sampleId}/lease/retake`, { lease_token: lease.token })
+    lease.retaking = this.api.post(paths.leaseRetake(this.queue, sampleId), { lease_token: lease.token })
       .then((body) => {
         lease.token = body.lease_token;
         lease.expiresAt = Date.parse(body.lease_expires_at);
@@ -73,7 +77,7 @@ export class LeaseKeeper {
     clearInterval(lease.timer);
     this.leases.delete(sampleId);
     if (!release || lease.lost) return Promise.resolve();
-    return this.api.post(`/api/${this.queue}/samples/${sampleId}/lease/release`, { lease_token: lease.token })
+    return this.api.post(paths.leaseRelease(this.queue, sampleId), { lease_token: lease.token })
       .catch(() => null);
   }
 

@@ -1,6 +1,6 @@
 // The single page: login, then a home per role (annotators annotate, reviewers review, admins see the
 // dashboard), a hash route per page (#/annotate, #/review, #/admin).
-import { Api, ApiError, TOKEN_KEY } from "./api.js";
+import { Api, ApiError, paths, TOKEN_KEY } from "./api.js";
 import { h, toast, fill } from "./dom.js";
 
 const RANK = { annotator: 0, reviewer: 1, admin: 2 };
@@ -109,7 +109,7 @@ function loginPage(message = "") {
     error.textContent = "";
     try {
       await api.login(email.value, password.value);
-      user = await api.get("/api/auth/me");
+      user = await api.get(paths.me());
       go(HOME[user.role]);
     } catch (err) {
       error.textContent = err instanceof ApiError ? err.detail : String(err);
@@ -131,7 +131,7 @@ async function route() {
   const name = location.hash.replace(/^#\/?/, "") || "";
   if (!user && api.signedIn) {
     try {
-      user = await api.get("/api/auth/me");
+      user = await api.get(paths.me());
     } catch {
       api.logout();
     }
@@ -178,7 +178,7 @@ window.addEventListener("storage", async (e) => {
   let who = null;
   if (token) {
     try {
-      who = await api.get("/api/auth/me");
+      who = await api.get(paths.me());
     } catch {
       who = null;
     }

@@ -2,14 +2,14 @@
 // per-view IoU and residuals; the sample's 3D scene in viser's client; accept / reject / needs annotation
 // with one key (a reason for the last two); the next sample is prefetched and drawn ahead.
 import { fitCanvas, fmt, h, handSide, isTyping, toast, fill } from "./dom.js";
-import { DraftSaver } from "./drafts.js";
 import { marker, segment } from "./draw.js";
 import { loadViews } from "./images.js";
 import { colorOf, fingerOf, FINGER_COLORS } from "./keypoints.js";
-import { LeaseKeeper } from "./lease.js";
 import { contourEdges, decodeMesh, projectVertices } from "./mesh.js";
+import { QueueController, QueuePage } from "./queue.js";
 import { ActionTimer } from "./timing.js";
 import { Viewport } from "./viewport.js";
+import { paths } from "./api.js";
 
 const QUICK_REASONS = {
   reject: ["hand model badly misaligned", "wrong global pose (flipped or mirrored)", "fingers tangled or implausible",
@@ -70,29 +70,28 @@ export async function mountReview(root, ctx) {
   return page;
 }
 
-class ReviewPage {
+class ReviewPage extends QueuePage {
   constructor(root, { api, user }) {
+    super();
     this.api = api;
     this.root = root;
-    this.leases = new LeaseKeeper(api, "review");
-    this.leases.onretaken = (sampleId, token) => this.leaseRetaken(sampleId, token);
-    this.leases.onlost = (sampleId, error) => this.leaseLost(sampleId, error);
     // The reviewer's note in progress (decision picked, reason typed) survives a reload like annotations.
-    this.drafts = new DraftSaver(api, "review", { userId: user.id, snapshot: () => this.draftBody(),
-      onstatus: (state, detail) => {
+    this.queue = new QueueController(api, "review", user.id, {
+      prepare: (task) => this.prepare(task), show: (prepared) => this.show(prepared),
+      empty: () => this.showEmpty(), retaken: () => this.hideLeaseBanner(),
+      lost: (sampleId, error) => this.leaseLost(sampleId, error), snapshot: () => this.draftBody(),
+      // Warm the next 3D scene (built once on the server, then from the browser's cache).
+      prefetched: (prepared) => { if (this.show3d) fetch(prepared.overlay.scene_path, { priority: "low" }).catch(() => null); },
+      draftStatus: (state, detail) => {
         document.body.dataset.draftState = state;
         if (state === "saved") document.body.dataset.draftSaved = String(detail.revision);
-      },
-      onlease: () => this.current && this.leases.retake(this.current.task.sample_id).catch(() => null),
-      onkept: (message) => toast(message, "warn", 15000) });
+      } });
     this.layers = { outline: true, silhouette: false, wireframe: false, keypoints: true, clicks: true, mvnet: false };
     this.show3d = initialShow3d();
     this.large3d = false; // the 3D view over the image grid (F) rather than in the side panel
     this.cropToHand = true;
     this.focus = null;
     this.reason = null;
-    this.prepared = null;
-    this.preparing = null;
     this.metrics = { decisions: [] };
     this.build();
     this.onKey = (e) => { this.firstAct(); this.keydown(e); };
@@ -114,33 +113,21 @@ class ReviewPage {
       h("section", { class: "review-main" }, this.leaseBanner, this.banner, this.grid), this.side));
   }
 
-  async start() {
-    await this.loadNext();
-  }
-
   unmount() {
     window.removeEventListener("keydown", this.onKey);
     window.removeEventListener("resize", this.onResize);
     clearInterval(this.clock);
-    clearTimeout(this.emptyTimer);
     clearTimeout(this.viewerTimer);
     delete document.body.dataset.viewer3d;
-    this.drafts.stop();
-    if (this.prepared) this.leases.drop(this.prepared.task.sample_id, true);
-    this.leases.dropAll(false);
-  }
-
-  async releaseAll() {
-    await this.drafts.settle();
-    await this.leases.dropAll(true);
+    this.unpublish(["reason", "focus", "crop", "layers", "show3d", "clock"]);
+    this.queue.unmount();
   }
 
   // --- tasks --------------------------------------------------------------------------------------
 
   async prepare(task) {
-    this.leases.hold(task);
     const [overlay, views, draft] = await Promise.all([
-      this.api.get(`/api/review/samples/${task.sample_id}/overlay`),
+      this.api.get(paths.overlay(task.sample_id)),
       loadViews(this.api, task, { masks: false }),
       this.drafts.load(task.sample_id),
     ]);
@@ -155,46 +142,16 @@ class ReviewPage {
     return { task, overlay, mesh, views: prepared, draft };
   }
 
-  async loadNext() {
-    let prepared = this.prepared;
-    this.prepared = null;
-    if (!prepared && this.preparing) prepared = await this.preparing.catch(() => null);
-    this.prepared = null;
-    if (!prepared) {
-      const task = await this.api.post("/api/review/next");
-      if (!task) return this.showEmpty();
-      prepared = await this.prepare(task);
-    }
-    this.show(prepared);
-    this.prefetch();
-  }
-
-  prefetch() {
-    const current = this.current.task.sample_id;
-    this.preparing = (async () => {
-      const task = await this.api.post("/api/review/prefetch", { current_sample_id: current });
-      if (!task) return null;
-      const prepared = await this.prepare(task);
-      if (this.current && this.current.task.sample_id === current) this.prepared = prepared;
-      // Warm the next 3D scene (built once on the server, then from the browser's cache).
-      if (this.show3d) fetch(prepared.overlay.scene_path, { priority: "low" }).catch(() => null);
-      return prepared;
-    })().catch((error) => { toast(`prefetch failed: ${error.message}`, "warn"); return null; });
-  }
-
   showEmpty() {
-    this.current = null;
     fill(this.grid, h("div", { class: "empty-note" }, h("h2", {}, "Nothing to review"),
       h("p", {}, "No fitted sample is waiting for verification. This page looks again every 10 s."),
-      h("button", { onclick: () => this.loadNext() }, "Look again")));
+      h("button", { onclick: () => this.queue.loadNext() }, "Look again")));
     this.banner.textContent = "";
     fill(this.side, );
     document.body.dataset.ready = "review-empty";
-    this.emptyTimer = setTimeout(() => this.loadNext().catch(() => null), 10000);
   }
 
   show(prepared) {
-    this.current = prepared;
     this.timer = new ActionTimer();
     // The clock runs from the reviewer's first act (a key, the pointer), not from when the page opened; right
     // after a decision the reviewer is acting already, so the next sample's clock starts at once.
@@ -232,27 +189,18 @@ class ReviewPage {
     this.deciding = true;
     this.release3d();
     try {
-      const url = `/api/review/samples/${task.sample_id}/decision`;
-      let result;
-      try {
-        result = await this.api.post(url, { decision, reason, lease_token: task.lease_token });
-      } catch (error) {
-        if (error.status !== 403 && error.status !== 409) throw error;
-        const token = await this.leases.retake(task.sample_id); // lapsed: taken again while still free
-        result = await this.api.post(url, { decision, reason, lease_token: token });
-      }
-      this.drafts.forget(); // the server deleted the draft with the decision
+      const result = await this.queue.postLeased(paths.decision(task.sample_id),
+        { decision, reason, lease_token: task.lease_token }, task.sample_id);
+      this.queue.finished(task.sample_id); // the server deleted the draft with the decision
       const decidedAt = performance.now();
       this.timer.mark("decide");
-      this.leases.drop(task.sample_id, false);
-      this.api.post("/api/activity", { context: "review", sample_id: task.sample_id, decision_id: result.id,
-        time_spent_s: Math.round(this.spentSeconds() * 1000) / 1000, actions: this.timer.actions })
-        .catch((error) => toast(`time log not saved: ${error.message}`, "warn"));
+      this.queue.logActivity({ context: "review", sample_id: task.sample_id, decision_id: result.id,
+        time_spent_s: Math.round(this.spentSeconds() * 1000) / 1000, actions: this.timer.actions });
       toast(`sample ${task.sample_id}: ${decision}${result.stream ? ` (joins D as ${result.stream})` : ""}`, "ok", 2000);
       this.deciding = false;
       this.justDecided = true;
       const prefetched = Boolean(this.prepared);
-      await this.loadNext();
+      await this.queue.loadNext();
       const drawnAt = performance.now();
       await new Promise((resolve) => requestAnimationFrame(() => resolve())); // the frame that paints it
       this.metrics.decisions.push({ sample_id: task.sample_id, decision, decided_ms: decidedAt - keyAt,
@@ -298,7 +246,7 @@ class ReviewPage {
     this.reason = null;
     this.drafts.changed();
     this.renderSide();
-    if (document.activeElement && document.activeElement !== document.body) document.activeElement.blur();
+    if (document.activeElement && document.activeElement !== document.body) /** @type {HTMLElement} */ (document.activeElement).blur();
   }
 
   openReason(kind) {
@@ -319,20 +267,7 @@ class ReviewPage {
       time_spent_s: Math.round(this.spentSeconds() * 1000) / 1000 };
   }
 
-  leaseRetaken(sampleId, token) {
-    if (this.prepared && this.prepared.task.sample_id === sampleId) this.prepared.task.lease_token = token;
-    if (!this.current || this.current.task.sample_id !== sampleId) return;
-    this.current.task.lease_token = token;
-    this.hideLeaseBanner();
-    this.drafts.resume();
-  }
-
   leaseLost(sampleId, error) {
-    if (this.prepared && this.prepared.task.sample_id === sampleId) {
-      this.prepared = null;
-      return;
-    }
-    if (!this.current || this.current.task.sample_id !== sampleId) return;
     fill(this.leaseBanner, h("strong", {}, `Sample ${sampleId} is no longer yours. `), h("span", {}, `${error.message}.`),
       h("button", { class: "primary next-task", onclick: () => this.giveUp() }, "Take the next sample"));
     this.leaseBanner.hidden = false;
@@ -345,13 +280,9 @@ class ReviewPage {
     delete document.body.dataset.lease;
   }
 
-  async giveUp() {
-    if (!this.current) return;
-    this.drafts.forget();
-    this.leases.drop(this.current.task.sample_id, false);
+  giveUp() {
     this.hideLeaseBanner();
-    this.current = null;
-    await this.loadNext();
+    return this.queue.giveUp();
   }
 
   // --- keys ---------------------------------------------------------------------------------------
@@ -379,7 +310,7 @@ class ReviewPage {
     }
     if (key === "Escape") {
       // Esc always brings the keys back to the page (out of a text box, the 3D view's iframe, a button).
-      if (document.activeElement && document.activeElement !== document.body) document.activeElement.blur();
+      if (document.activeElement && document.activeElement !== document.body) /** @type {HTMLElement} */ (document.activeElement).blur();
       window.focus();
     }
     if (isTyping(e) || e.ctrlKey || e.metaKey || e.altKey) return;
@@ -457,6 +388,7 @@ class ReviewPage {
 
   renderViews() {
     if (!this.current) return;
+    this.publish();
     for (const view of this.current.views) this.renderView(view);
   }
 
@@ -650,7 +582,23 @@ class ReviewPage {
     const carried = this.timer.carriedMs;
     this.timer.start();
     this.timer.carriedMs = carried;
+    this.publish();
     this.renderClock();
+  }
+
+  // The page's state as data-* attributes of <body> (what the browser tests read, not the page's fields):
+  // data-sample (set in show), data-reason (the decision whose reason is asked for: "reject" | "annotate"; absent
+  // when none), data-focus (the view enlarged, 0-based; absent: the grid), data-crop ("hand" | "whole"),
+  // data-layers (those shown, space-separated), data-show3d ("yes" | "no"), data-clock ("waits" until the first
+  // act, then "runs").
+  publish() {
+    const d = document.body.dataset;
+    if (this.reason) d.reason = this.reason.kind; else delete d.reason;
+    if (this.focus !== null) d.focus = String(this.focus); else delete d.focus;
+    d.crop = this.cropToHand ? "hand" : "whole";
+    d.layers = Object.keys(this.layers).filter((name) => this.layers[name]).join(" ");
+    d.show3d = this.show3d ? "yes" : "no";
+    d.clock = this.clockWaits ? "waits" : "runs";
   }
 
   // Active seconds on this sample so far (0 until the first act).
@@ -666,6 +614,7 @@ class ReviewPage {
 
   renderSide() {
     if (!this.current) return;
+    this.publish();
     const { task, overlay } = this.current;
     const fit = overlay.fit;
     const heur = fit.heuristic;

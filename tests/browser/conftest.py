@@ -87,10 +87,42 @@ def sign_in(tab: Tab, base_url: str, email: str, password: str, expect: str) -> 
     page.wait_for_selector(f"body[data-ready={expect}]", state="attached", timeout=60_000)
 
 
+# What the pages publish as data-* attributes (frontend/js/annotate.js publish(), annotate_drawing.js, review.js
+# publish()): the tests read these, not the pages' fields. The annotate page's enlarged view: its canvas carries
+# the zoom (data-scale, data-ox, data-oy); each thumbnail its view (data-view-id, data-loaded, data-k{keypoint}).
+SCREEN_OF = """([u, v]) => { const c = document.querySelector('canvas.main-canvas');
+  const r = c.getBoundingClientRect(); const s = Number(c.dataset.scale);
+  return [r.left + (u + 0.5) * s + Number(c.dataset.ox), r.top + (v + 0.5) * s + Number(c.dataset.oy)]; }"""
+IMAGE_OF = """([x, y]) => { const c = document.querySelector('canvas.main-canvas'); const s = Number(c.dataset.scale);
+  return [(x - Number(c.dataset.ox)) / s - 0.5, (y - Number(c.dataset.oy)) / s - 0.5]; }"""
+VIEWPORT = """() => { const d = document.querySelector('canvas.main-canvas').dataset;
+  return [Number(d.scale), Number(d.ox), Number(d.oy)]; }"""
+SCALE = "() => Number(document.querySelector('canvas.main-canvas').dataset.scale)"
+STATUS = "([v, k]) => document.querySelectorAll('.thumbs .thumb')[v].dataset['k' + k]"
+VIEW_IDS = "() => [...document.querySelectorAll('.thumbs .thumb')].map((t) => Number(t.dataset.viewId))"
+SAMPLE = "() => document.body.dataset.sample === undefined ? null : Number(document.body.dataset.sample)"
+VIEW_INDEX = "() => Number(document.body.dataset.viewIndex)"
+KEYPOINT = "() => Number(document.body.dataset.keypoint)"
+# The task on screen: {sample_id, sequence_id, frame_index, views: [{id, camera, width, height}]} (for ground_truth_of).
+TASK = """() => { const d = document.body.dataset;
+  return {sample_id: Number(d.sample), sequence_id: Number(d.sequenceId), frame_index: Number(d.frameIndex),
+    views: [...document.querySelectorAll('.thumbs .thumb')].map((t) => ({id: Number(t.dataset.viewId),
+      camera: t.dataset.camera, width: Number(t.dataset.width), height: Number(t.dataset.height)}))}; }"""
+# The scale at which the view on screen shows whole (with the page's 8 px margin), screen px per image px.
+WHOLE_SCALE = """() => { const r = document.querySelector('canvas.main-canvas').getBoundingClientRect();
+  const v = document.querySelectorAll('.thumbs .thumb')[Number(document.body.dataset.viewIndex)].dataset;
+  return Math.min((r.width - 16) / Number(v.width), (r.height - 16) / Number(v.height)); }"""
+VIEW_AND_KEYPOINT = "() => [Number(document.body.dataset.viewIndex), Number(document.body.dataset.keypoint)]"
+# The full-resolution height of the view on screen (its thumbnail's data-height), px.
+VIEW_HEIGHT = """() => Number(document.querySelectorAll('.thumbs .thumb')[Number(document.body.dataset.viewIndex)]
+  .dataset.height)"""
+
+
 def wait_for_every_view(page) -> None:
     """The annotate page is ready once its first view has loaded; the others fill in after (by design, so the
     annotator starts sooner). A test that reads every view's image waits for them all here."""
-    page.wait_for_function("() => window.__handloop.page.views.every((v) => v.image)", timeout=60_000)
+    page.wait_for_function("() => { const t = [...document.querySelectorAll('.thumbs .thumb')];"
+                           " return t.length > 0 && t.every((e) => e.dataset.loaded === 'yes'); }", timeout=60_000)
 
 
 class _QuietHandler(SimpleHTTPRequestHandler):
@@ -107,6 +139,18 @@ def static_frontend() -> Iterator[str]:
     thread.start()
     yield f"http://127.0.0.1:{server.server_address[1]}"
     server.shutdown()
+
+
+def open_3d_view(page, *, loaded: bool = False) -> None:
+    """The review page's 3D view opened (V where it starts closed: software WebGL, as in this headless browser),
+    its iframe in the page; with loaded, its document loaded too."""
+    if page.get_attribute("body", "data-show3d") != "yes":
+        page.keyboard.press("v")
+    page.wait_for_selector("iframe.viewer-frame")
+    if loaded:
+        page.wait_for_function("() => { const f = document.querySelector('iframe.viewer-frame');"
+                               " return f && f.contentDocument && f.contentDocument.readyState === 'complete'; }",
+                               timeout=60_000)
 
 
 def submit_as_is(page) -> None:

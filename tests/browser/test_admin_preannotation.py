@@ -70,7 +70,7 @@ def test_the_import_form_pre_annotates_in_the_same_action(live_stack, tab):
     annotator = tab()
     user = stack.users["annotator"]
     sign_in(annotator, stack.base_url, user.email, user.password, "annotate")
-    kinds = annotator.page.evaluate("() => window.__handloop.page.sources.map((s) => s.kind)")
+    kinds = annotator.page.eval_on_selector_all(".side [data-source]", "els => els.map((e) => e.dataset.source)")
     assert kinds == ["fit", "detector"], kinds
     annotator.shot("annotate-first-sample-preannotated")
     assert not annotator.errors, annotator.errors

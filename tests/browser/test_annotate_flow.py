@@ -10,14 +10,12 @@ from __future__ import annotations
 import pytest
 from sqlalchemy import text
 
-from tests.browser.conftest import sign_in
+from tests.browser.conftest import SAMPLE, SCREEN_OF, VIEW_IDS, sign_in
 from tests.support.live_stack import make_live_stack
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
 FRAMES = (56, 182, 308)  # three frames of the recording with the hand in both views
-SCREEN_OF = """([u, v]) => { const p = window.__handloop.page; const r = p.canvas.getBoundingClientRect();
-  const s = p.vp.toScreen(u, v); return [r.left + s[0], r.top + s[1]]; }"""
 
 
 @pytest.fixture(scope="module")
@@ -108,8 +106,8 @@ def test_empty_submit_is_not_sent_incomplete_asks_and_no_hand_or_skip_take_a_rea
     t = tab()
     page = t.page
     _open(t, stack)
-    first = page.evaluate("() => window.__handloop.page.task.sample_id")
-    views = page.evaluate("() => window.__handloop.page.views.map((v) => v.id)")
+    first = page.evaluate(SAMPLE)
+    views = page.evaluate(VIEW_IDS)
 
     # Nothing placed: Ctrl+Enter sends nothing and says why (it was accepted, and its fit failed).
     page.keyboard.press("Control+Enter")
@@ -127,7 +125,7 @@ def test_empty_submit_is_not_sent_incomplete_asks_and_no_hand_or_skip_take_a_rea
 
     # No hand in view 1 (X); two points in view 2: Ctrl+Enter asks first (10 points not set), Esc keeps working.
     page.keyboard.press("x")
-    assert page.evaluate("() => [...window.__handloop.page.noHand]") == [views[0]]
+    assert page.evaluate("() => document.body.dataset.noHand.split(' ').filter(Boolean).map(Number)") == [views[0]]
     page.click(".thumb >> nth=1")
     box = page.locator("canvas.main-canvas").bounding_box()
     for key, dx in (("1", -40), ("3", 40)):  # wrist and index tip, anywhere on the image
@@ -147,15 +145,15 @@ def test_empty_submit_is_not_sent_incomplete_asks_and_no_hand_or_skip_take_a_rea
     assert sorted(placed) == [(views[1], 0), (views[1], 8)], placed
 
     # The second sample skipped with a reason: back in the queue, never served to this annotator again.
-    second = page.evaluate("() => window.__handloop.page.task.sample_id")
+    second = page.evaluate(SAMPLE)
     page.click(".side .skip-sample")
     assert page.evaluate("() => document.body.dataset.ask") == "skip"
     page.click(".ask .confirm-pass")  # no reason: refused on the page
-    assert page.evaluate("() => window.__handloop.page.task.sample_id") == second
+    assert page.evaluate(SAMPLE) == second
     page.fill(".ask .pass-reason", "the fingers are blurred in both views")
     page.click(".ask .confirm-pass")
     page.wait_for_function(f"() => document.body.dataset.sample !== '{second}'", timeout=30_000)
-    third = page.evaluate("() => window.__handloop.page.task.sample_id")
+    third = page.evaluate(SAMPLE)
     assert third not in (first, second)
     assert _rows(stack, "SELECT state, leased_by_id FROM samples WHERE id = :s", s=second) == [
         ("needs_annotation", None)]
@@ -181,7 +179,7 @@ def test_a_failed_fit_is_shown_and_the_sample_goes_to_someone_else(real_stack, t
     t = tab()
     page = t.page
     _open(t, stack)
-    first = page.evaluate("() => window.__handloop.page.task.sample_id")
+    first = page.evaluate(SAMPLE)
     # A mask corrected, no point placed (every point goes as not annotated): the fit has nothing to fit.
     page.keyboard.press("b")
     box = page.locator("canvas.main-canvas").bounding_box()
@@ -207,7 +205,7 @@ def test_a_failed_fit_is_shown_and_the_sample_goes_to_someone_else(real_stack, t
     assert first not in held
     other = tab()
     _open(other, stack, "reviewer")
-    assert other.page.evaluate("() => window.__handloop.page.task.sample_id") == first
+    assert other.page.evaluate(SAMPLE) == first
     assert "nothing to fit" in other.page.inner_text(".side .fit-failure-here")
     assert not t.errors and not other.errors, (t.errors, other.errors)
 

@@ -10,14 +10,11 @@ from __future__ import annotations
 
 import pytest
 
-from tests.browser.conftest import sign_in
+from tests.browser.conftest import SAMPLE, SCREEN_OF, STATUS, TASK, VIEW_AND_KEYPOINT, VIEW_HEIGHT, sign_in
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
-SCREEN_OF = """([u, v]) => { const p = window.__handloop.page; const r = p.canvas.getBoundingClientRect();
-  const s = p.vp.toScreen(u, v); return [r.left + s[0], r.top + s[1]]; }"""
 CLICK = "([v, k]) => { const p = window.__handloop.page; return p.annotation.get(p.views[v].id, k); }"
-STATUS = "([v, k]) => { const p = window.__handloop.page; return p.annotation.status(p.views[v].id, k); }"
 SPARSE = [0, 4, 8, 12, 16, 20]
 
 
@@ -39,7 +36,7 @@ def test_clicks_set_not_annotated_points_counters_count_placed_o_stays_in_view_n
     user = stack.users["annotator"]
     sign_in(t, stack.base_url, user.email, user.password, "annotate")
     page = t.page
-    n_views = page.evaluate("() => window.__handloop.page.views.length")
+    n_views = page.evaluate("() => document.querySelectorAll('.thumbs .thumb').length")
     total = 6 * n_views
 
     # Every point of every view marked not annotated: N picks the next undecided one each time.
@@ -63,7 +60,7 @@ def test_clicks_set_not_annotated_points_counters_count_placed_o_stays_in_view_n
         assert c["visibility"] == "visible" and (c["x"], c["y"]) == pytest.approx(where[k], abs=0.5), (k, c)
     assert "6/6" in page.inner_text(".thumb >> nth=0")
     assert f"6/{total} keypoints placed · {total - 6} not annotated" in page.inner_text(".totals")
-    assert page.evaluate("() => [window.__handloop.page.viewIndex, window.__handloop.page.keypoint]") == [1, 0]
+    assert page.evaluate(VIEW_AND_KEYPOINT) == [1, 0]
 
     # Item 7: O now acts on view 2 (shown), not on view 1's pinky placed just before the page moved on.
     page.keyboard.press("o")
@@ -71,7 +68,7 @@ def test_clicks_set_not_annotated_points_counters_count_placed_o_stays_in_view_n
     assert "O/N: wrist" in page.inner_text(".hud") and "(just placed)" not in page.inner_text(".hud")
 
     # Item 2: a click left of the image (zoomed out, so the canvas shows beyond it) places nothing.
-    height = page.evaluate("() => window.__handloop.page.view.height")
+    height = page.evaluate(VIEW_HEIGHT)
     click_at(page, -22.0, height / 2, zoom=0.5)
     assert page.evaluate(STATUS, [1, 0]) == "not_annotated"
     assert page.evaluate("() => document.body.dataset.refused") == "outside"
@@ -157,9 +154,9 @@ def test_enter_accepts_what_the_fits_mesh_hides_as_occluded_and_o_flips_one(live
     page.route("**/proposals", with_network)
     user = stack.users["annotator"]
     sign_in(t, stack.base_url, user.email, user.password, "annotate")
-    assert page.evaluate("() => window.__handloop.page.task.sample_id") == sid
+    assert page.evaluate(SAMPLE) == sid
     fit = next(s for s in served[sid]["sources"] if s["kind"] == "fit")
-    views = page.evaluate("() => window.__handloop.page.views.map((v) => [v.id, v.width, v.height])")
+    views = [(v["id"], v["width"], v["height"]) for v in page.evaluate(TASK)["views"]]
 
     def inside(view_id: int, k: int) -> bool:
         p = next(s for s in served[sid]["sources"] if s["kind"] == "mvnet")["views"][str(view_id)][k]

@@ -6,16 +6,27 @@ from __future__ import annotations
 
 import pytest
 
-from tests.browser.conftest import sign_in, submit_as_is
+from tests.browser.conftest import (
+    IMAGE_OF,
+    SAMPLE,
+    SCALE,
+    SCREEN_OF,
+    STATUS,
+    VIEWPORT,
+    WHOLE_SCALE,
+    sign_in,
+    submit_as_is,
+)
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
-SCREEN_OF = """([u, v]) => { const p = window.__handloop.page; const r = p.canvas.getBoundingClientRect();
-  const s = p.vp.toScreen(u, v); return [r.left + s[0], r.top + s[1]]; }"""
-STATUS = "([v, k]) => { const p = window.__handloop.page; return p.annotation.status(p.views[v].id, k); }"
-STATE = """() => { const p = window.__handloop.page; return {view: p.viewIndex, keypoint: p.keypoint, mode: p.mode,
-  tool: p.tool, radius: p.radius, showMask: p.showMask, scale: p.vp.scale, help: p.side.querySelector('.help').open,
-  focus: document.activeElement === p.canvas ? 'canvas' : document.activeElement.tagName}; }"""
+STATE = """() => { const d = document.body.dataset; const c = document.querySelector('canvas.main-canvas');
+  return {view: Number(d.viewIndex), keypoint: Number(d.keypoint), mode: d.mode, tool: d.tool, radius: Number(d.radius),
+  showMask: d.showMask === 'yes', scale: Number(c.dataset.scale), help: document.querySelector('.side .help').open,
+  focus: document.activeElement === c ? 'canvas' : document.activeElement.tagName}; }"""
+# How many keypoints are set (placed or marked not annotated) in the view on screen (its thumbnail's data-k*).
+SET_HERE = r"""() => { const t = document.querySelectorAll('.thumbs .thumb')[Number(document.body.dataset.viewIndex)];
+  return Object.keys(t.dataset).filter((k) => /^k\d+$/.test(k) && t.dataset[k] !== 'unset').length; }"""
 
 
 def click_at(page, u: float, v: float) -> None:
@@ -76,7 +87,7 @@ def test_every_listed_key_does_what_the_panel_says(live_stack, tab):
     assert state()["view"] == 1
     page.keyboard.press("Tab")
     page.keyboard.press("1")
-    assert page.evaluate("() => { const p = window.__handloop.page; return p.proposals.get(p.view.id).has(0); }")
+    assert page.inner_text(".kp-list .kp-row >> nth=0 >> .kp-status").startswith("proposal ")  # the wrist's
     page.keyboard.press("a")
     assert status(2, 0) == "visible"
     page.keyboard.press("Tab")
@@ -124,7 +135,7 @@ def test_every_listed_key_does_what_the_panel_says(live_stack, tab):
     page.keyboard.press("Escape")
     assert state()["focus"] == "canvas" and state()["help"] is False
 
-    sample = page.evaluate("() => window.__handloop.page.task.sample_id")
+    sample = page.evaluate(SAMPLE)
     submit_as_is(page)
     page.wait_for_function(f"() => document.body.dataset.sample !== '{sample}' || "
                            "document.body.dataset.ready === 'annotate-empty'", timeout=30_000)
@@ -134,7 +145,6 @@ def test_every_listed_key_does_what_the_panel_says(live_stack, tab):
 # The Keys panel, row by row (a row added to the panel without a test here fails the next test).
 PANEL = ["1 … 6", "click", "drag", "A / Enter", "O", "N", "Del / Backspace", "Tab / Shift+Tab", "M", "[ ] / wheel",
          "P", "wheel, right-drag", "+ / - / 0", "H", "Ctrl+Z / Ctrl+Shift+Z / Ctrl+Y", "X", "Ctrl+Enter", "Esc", "?"]
-VIEWPORT = "() => { const p = window.__handloop.page; return [p.vp.scale, p.vp.ox, p.vp.oy]; }"
 CLICK = "([v, k]) => { const p = window.__handloop.page; return p.annotation.get(p.views[v].id, k); }"
 
 
@@ -180,26 +190,25 @@ def test_the_pointer_rows_of_the_panel_and_the_keys_they_combine_with(live_stack
     canvas = page.locator("canvas.main-canvas").bounding_box()
     cursor = [canvas["x"] + canvas["width"] * 0.3, canvas["y"] + canvas["height"] * 0.4]
     page.mouse.move(*cursor)
-    under = page.evaluate("([x, y]) => window.__handloop.page.vp.toImage(x, y)",
-                          [cursor[0] - canvas["x"], cursor[1] - canvas["y"]])
+    under = page.evaluate(IMAGE_OF, [cursor[0] - canvas["x"], cursor[1] - canvas["y"]])
     before = viewport()
     page.mouse.wheel(0, -200)
-    page.wait_for_function(f"() => window.__handloop.page.vp.scale > {before[0]}")
-    after = page.evaluate("([u, v]) => window.__handloop.page.vp.toScreen(u, v)", under)
-    assert abs(after[0] - (cursor[0] - canvas["x"])) < 0.5 and abs(after[1] - (cursor[1] - canvas["y"])) < 0.5
+    page.wait_for_function(f"() => ({SCALE})() > {before[0]}")
+    after = page.evaluate(SCREEN_OF, under)
+    assert abs(after[0] - cursor[0]) < 0.5 and abs(after[1] - cursor[1]) < 0.5
     # In mask mode the wheel sizes the brush and leaves the zoom; Ctrl+wheel zooms.
     page.keyboard.press("m")
     radius, zoom = page.evaluate(STATE)["radius"], viewport()
     page.mouse.wheel(0, -100)
-    page.wait_for_function(f"() => window.__handloop.page.radius > {radius}")
+    page.wait_for_function(f"() => Number(document.body.dataset.radius) > {radius}")
     assert viewport() == zoom
     page.keyboard.down("Control")
     page.mouse.wheel(0, 200)
     page.keyboard.up("Control")
-    page.wait_for_function(f"() => window.__handloop.page.vp.scale < {zoom[0]}")
+    page.wait_for_function(f"() => ({SCALE})() < {zoom[0]}")
     page.keyboard.press("p")
     # right-drag pans, Space + drag pans (in points mode, where a left drag would place a point).
-    placed = page.evaluate("() => window.__handloop.page.annotation.clicks.get(window.__handloop.page.view.id).size")
+    placed = page.evaluate(SET_HERE)
     for hold in ("right", "Space"):
         before = viewport()
         page.mouse.move(*cursor)
@@ -212,14 +221,12 @@ def test_the_pointer_rows_of_the_panel_and_the_keys_they_combine_with(live_stack
             page.keyboard.up("Space")
         after = viewport()
         assert after[0] == before[0] and abs(after[1] - before[1] - 40) < 0.5 and abs(after[2] - before[2] - 25) < 0.5
-    assert page.evaluate("() => window.__handloop.page.annotation.clicks.get(window.__handloop.page.view.id).size") \
-        == placed  # panning placed nothing
+    assert page.evaluate(SET_HERE) == placed  # panning placed nothing
     # 0 fits the hand; pressed again, the whole image.
     page.keyboard.press("0")
     hand = viewport()
     page.keyboard.press("0")
     whole = viewport()
-    whole_scale = page.evaluate("""() => { const p = window.__handloop.page; const r = p.canvas.getBoundingClientRect();
-      return Math.min((r.width - 16) / p.view.width, (r.height - 16) / p.view.height); }""")
+    whole_scale = page.evaluate(WHOLE_SCALE)
     assert abs(whole[0] - whole_scale) < 1e-6 and hand[0] > whole[0], (hand, whole, whole_scale)  # closer on the hand
     assert not t.errors, t.errors

@@ -9,16 +9,13 @@ import pytest
 from sqlalchemy import text
 
 from backend.db.base import utcnow
-from tests.browser.conftest import sign_in, submit_as_is
+from tests.browser.conftest import SAMPLE, SCREEN_OF, sign_in, submit_as_is
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
-SCREEN_OF = """([u, v]) => { const p = window.__handloop.page; const r = p.canvas.getBoundingClientRect();
-  const s = p.vp.toScreen(u, v); return [r.left + s[0], r.top + s[1]]; }"""
 CLICKS = """() => { const p = window.__handloop.page; const out = [];
   for (const [view, m] of p.annotation.clicks) for (const [k, c] of m) out.push([view, k, c.x, c.y, c.visibility]);
   return out.sort((a, b) => a[0] - b[0] || a[1] - b[1]); }"""
-SAMPLE = "() => window.__handloop.page.task.sample_id"
 # The view opens cropped to the hand; these tests click anywhere in the image, so they show it whole.
 WHOLE = "() => { const p = window.__handloop.page; p.fitView({whole: true}); p.renderNow(true); }"
 

@@ -6,15 +6,22 @@ from __future__ import annotations
 
 import pytest
 
-from tests.browser.conftest import sign_in, submit_as_is, wait_for_every_view
+from tests.browser.conftest import (
+    IMAGE_OF,
+    SAMPLE,
+    SCALE,
+    SCREEN_OF,
+    TASK,
+    VIEWPORT,
+    WHOLE_SCALE,
+    sign_in,
+    submit_as_is,
+    wait_for_every_view,
+)
 from tests.support.annotate import ground_truth_of
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
-SCREEN_OF = """([u, v]) => { const p = window.__handloop.page; const r = p.canvas.getBoundingClientRect();
-  const s = p.vp.toScreen(u, v); return [r.left + s[0], r.top + s[1]]; }"""
-WHOLE_SCALE = """() => { const p = window.__handloop.page; const r = p.canvas.getBoundingClientRect();
-  return Math.min((r.width - 16) / p.view.width, (r.height - 16) / p.view.height); }"""
 # The mask pixel nearest the view's centre on screen whose 7x7 neighbourhood is all inside (no outline).
 INTERIOR = """() => { const p = window.__handloop.page; const m = p.view.mask; const w = m.width;
   const r = p.canvas.getBoundingClientRect(); const [cu, cv] = p.vp.toImage(r.width / 2, r.height / 2);
@@ -36,8 +43,7 @@ def test_views_open_on_the_hand_keep_their_zoom_and_show_a_magnifier_and_an_outl
     sign_in(t, stack.base_url, user.email, user.password, "annotate")
     page = t.page
     wait_for_every_view(page)  # the third view's mask is read below
-    task = page.evaluate("() => { const p = window.__handloop.page; return {sequence_id: p.task.sequence_id,"
-                         " frame_index: p.task.frame_index, views: p.views.map((v) => ({camera: v.camera}))}; }")
+    task = page.evaluate(TASK)
     gt = ground_truth_of(stack, task)
     names = list(gt.camera_names)
     canvas = page.locator("canvas.main-canvas").bounding_box()
@@ -50,7 +56,7 @@ def test_views_open_on_the_hand_keep_their_zoom_and_show_a_magnifier_and_an_outl
             page.keyboard.press(str(i + 1))
             page.mouse.click(*page.evaluate(SCREEN_OF, gt.keypoints_2d[c, k].tolist()))
     page.click(".thumb >> nth=2")
-    scale = page.evaluate("() => window.__handloop.page.vp.scale")
+    scale = page.evaluate(SCALE)
     assert scale > 1.1 * page.evaluate(WHOLE_SCALE), (scale, page.evaluate(WHOLE_SCALE))
     proposed = page.evaluate("() => { const p = window.__handloop.page;"
                              " return [...p.proposals.get(p.view.id).values()].map((q) => [q.x, q.y]); }")
@@ -62,10 +68,10 @@ def test_views_open_on_the_hand_keep_their_zoom_and_show_a_magnifier_and_an_outl
 
     # Each view keeps its zoom: zoomed in view 3, away to view 4 and back.
     page.keyboard.press("+")
-    zoomed = page.evaluate("() => [window.__handloop.page.vp.scale, window.__handloop.page.vp.ox]")
+    zoomed = page.evaluate(f"() => ({VIEWPORT})().slice(0, 2)")
     page.keyboard.press("Tab")
     page.keyboard.press("Shift+Tab")
-    assert page.evaluate("() => [window.__handloop.page.vp.scale, window.__handloop.page.vp.ox]") == zoomed
+    assert page.evaluate(f"() => ({VIEWPORT})().slice(0, 2)") == zoomed
     page.keyboard.press("0")
 
     # The outline only in points mode: inside the mask the image is as with the mask hidden; filled in mask mode.
@@ -89,7 +95,7 @@ def test_views_open_on_the_hand_keep_their_zoom_and_show_a_magnifier_and_an_outl
     page.mouse.move(*cursor)
     page.wait_for_function("() => window.__handloop.page.loupe && !window.__handloop.page.frame")
     loupe = page.evaluate("() => window.__handloop.page.loupe")
-    u, v = page.evaluate("([x, y]) => window.__handloop.page.vp.toImage(x, y)",
+    u, v = page.evaluate(IMAGE_OF,
                          [cursor[0] - canvas["x"], cursor[1] - canvas["y"]])
     assert abs(loupe["u"] - u) < 1e-6 and abs(loupe["v"] - v) < 1e-6 and loupe["zoom"] >= 1.5
     assert abs(loupe["cx"] - (cursor[0] - canvas["x"])) == 80
@@ -97,11 +103,11 @@ def test_views_open_on_the_hand_keep_their_zoom_and_show_a_magnifier_and_an_outl
 
     # Per sample: the next sample's view 3 opens on its own hand, not with this sample's zoom of view 3.
     page.keyboard.press("+")
-    zoomed = page.evaluate("() => [window.__handloop.page.vp.scale, window.__handloop.page.vp.ox]")
-    sample = page.evaluate("() => window.__handloop.page.task.sample_id")
+    zoomed = page.evaluate(f"() => ({VIEWPORT})().slice(0, 2)")
+    sample = page.evaluate(SAMPLE)
     submit_as_is(page)
     page.wait_for_function(f"() => document.body.dataset.sample !== '{sample}' && "
                            "document.body.dataset.ready === 'annotate'", timeout=30_000)
     page.click(".thumb >> nth=2")
-    assert page.evaluate("() => [window.__handloop.page.vp.scale, window.__handloop.page.vp.ox]") != zoomed
+    assert page.evaluate(f"() => ({VIEWPORT})().slice(0, 2)") != zoomed
     assert not t.errors, t.errors

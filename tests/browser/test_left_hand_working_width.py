@@ -8,13 +8,11 @@ import numpy as np
 import pytest
 from sqlalchemy import update
 
-from tests.browser.conftest import sign_in, wait_for_every_view
+from tests.browser.conftest import SCALE, SCREEN_OF, TASK, sign_in, wait_for_every_view
 from tests.support.annotate import ground_truth_of
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
-SCREEN_OF = """([u, v]) => { const p = window.__handloop.page; const r = p.canvas.getBoundingClientRect();
-  const s = p.vp.toScreen(u, v); return [r.left + s[0], r.top + s[1]]; }"""
 CANVAS_RGB = """(points) => { const p = window.__handloop.page; const ctx = p.canvas.getContext('2d');
   const dpr = window.devicePixelRatio || 1;
   return points.map(([u, v]) => { const s = p.vp.toScreen(u, v);
@@ -38,8 +36,7 @@ def test_a_left_hand_at_a_working_width_is_named_and_clicked_in_full_resolution_
     sizes = page.evaluate("() => window.__handloop.page.views.map((v) => [v.width, v.image.width])")
     assert all(view == 160 and image == WORKING_WIDTH for view, image in sizes), sizes
 
-    task = page.evaluate("""() => { const p = window.__handloop.page; return {sequence_id: p.task.sequence_id,
-        frame_index: p.task.frame_index, views: p.views.map((v) => ({id: v.id, camera: v.camera}))}; }""")
+    task = page.evaluate(TASK)
     gt = ground_truth_of(stack, task)
     c = list(gt.camera_names).index(task["views"][0]["camera"])
     target = np.asarray(gt.keypoints_2d[c, 0], float)
@@ -49,7 +46,7 @@ def test_a_left_hand_at_a_working_width_is_named_and_clicked_in_full_resolution_
     clicked = page.evaluate("""(id) => window.__handloop.page.annotation.toClicks()
         .find((c) => c.view_id === id && c.keypoint === 0)""", task["views"][0]["id"])
     # Screen pixels are coarser than image pixels at this zoom: within one screen pixel's worth.
-    scale = page.evaluate("() => window.__handloop.page.vp.scale")
+    scale = page.evaluate(SCALE)
     assert np.hypot(clicked["x"] - target[0], clicked["y"] - target[1]) <= 1.0 / scale + 0.5, (clicked, target)
     # The copy is drawn over the whole view (not its left half at 1:1): the canvas shows the original's
     # colours in the right half too.

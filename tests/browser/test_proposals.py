@@ -11,13 +11,11 @@ import numpy as np
 import pytest
 from sqlalchemy import text
 
-from tests.browser.conftest import sign_in, submit_as_is
+from tests.browser.conftest import KEYPOINT, SAMPLE, SCREEN_OF, sign_in, submit_as_is
 from tests.support.annotate import ground_truth_of
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
-SCREEN_OF = """([u, v]) => { const p = window.__handloop.page; const r = p.canvas.getBoundingClientRect();
-  const s = p.vp.toScreen(u, v); return [r.left + s[0], r.top + s[1]]; }"""
 CLICK = "([v, k]) => { const p = window.__handloop.page; return p.annotation.get(p.views[v].id, k); }"
 OFFSET_PX = 3.0
 CONFIDENCES = {0: 0.95, 4: 0.45, 8: 0.2, 12: 0.9, 16: 0.9, 20: 0.9}  # thumb: shown, not accepted; index: hidden
@@ -50,7 +48,7 @@ def test_enter_accepts_only_confident_proposals_and_a_click_reprojects_the_accep
     names = list(gt.camera_names)
     page.route("**/proposals", with_mvnet)
     sign_in(t, stack.base_url, user.email, user.password, "annotate")
-    assert page.evaluate("() => window.__handloop.page.task.sample_id") == task["sample_id"]
+    assert page.evaluate(SAMPLE) == task["sample_id"]
     cam = [names.index(v["camera"]) for v in task["views"]]
     truth = lambda v, k: gt.keypoints_2d[cam[v], k]  # noqa: E731
 
@@ -60,7 +58,7 @@ def test_enter_accepts_only_confident_proposals_and_a_click_reprojects_the_accep
     page.keyboard.press("Enter")
     assert [page.evaluate(CLICK, [0, k]) is not None for k in (0, 4, 8, 12, 16, 20)] == [
         True, False, False, True, True, True]
-    assert page.evaluate("() => window.__handloop.page.keypoint") == 4  # on the doubtful one, for a look
+    assert page.evaluate(KEYPOINT) == 4  # on the doubtful one, for a look
     page.mouse.click(*page.evaluate(SCREEN_OF, truth(0, 4).tolist()))  # the thumb, placed by hand
     assert "from" not in page.evaluate(CLICK, [0, 4])
     accepted_wrist = page.evaluate(CLICK, [0, 0])
@@ -73,10 +71,7 @@ def test_enter_accepts_only_confident_proposals_and_a_click_reprojects_the_accep
         page.click(f".thumb >> nth={v}")
         page.keyboard.press("1")
         if v == 2:  # while placing it: the epipolar curve of view 2's wrist is drawn here
-            page.evaluate("() => { const p = window.__handloop.page; p.epipolarDrawn = 0;"
-                          " const d = p.drawEpipolar.bind(p); p.drawEpipolar = (...a) => { p.epipolarDrawn++;"
-                          " d(...a); }; p.renderNow(true); }")
-            assert page.evaluate("() => window.__handloop.page.epipolarDrawn") == 1
+            page.wait_for_function("() => document.querySelector('canvas.main-canvas').dataset.epipolarCurves === '1'")
         page.mouse.click(*page.evaluate(SCREEN_OF, truth(v, 0).tolist()))
     moved = page.evaluate(CLICK, [0, 0])
     assert moved["from"] == "triangulated"

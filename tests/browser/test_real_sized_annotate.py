@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.browser.conftest import sign_in, wait_for_every_view
+from tests.browser.conftest import SCALE, SCREEN_OF, TASK, VIEWPORT, sign_in, wait_for_every_view
 from tests.support.annotate import ground_truth_of
 from tests.support.live_stack import make_live_stack
 from tests.support.real_sized import FULL_WIDTH, upscaled_capture
@@ -16,9 +16,6 @@ from tests.support.real_sized import FULL_WIDTH, upscaled_capture
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
 WORKING_WIDTH = 640
-SCREEN_OF = """([u, v]) => { const p = window.__handloop.page; const r = p.canvas.getBoundingClientRect();
-  const s = p.vp.toScreen(u, v); return [r.left + s[0], r.top + s[1]]; }"""
-VIEWPORT = "() => { const vp = window.__handloop.page.vp; return [vp.scale, vp.ox, vp.oy]; }"
 
 
 @pytest.fixture
@@ -42,8 +39,7 @@ def test_zoom_pan_and_click_on_a_2048_px_view(big_stack, tab):
     wait_for_every_view(page)
     sizes = page.evaluate("() => window.__handloop.page.views.map((v) => [v.width, v.image.width])")
     assert sizes and all(view == FULL_WIDTH and image == WORKING_WIDTH for view, image in sizes), sizes
-    task = page.evaluate("""() => { const p = window.__handloop.page; return {sequence_id: p.task.sequence_id,
-        frame_index: p.task.frame_index, views: p.views.map((v) => ({id: v.id, camera: v.camera}))}; }""")
+    task = page.evaluate(TASK)
     gt = ground_truth_of(stack, task)
     c = list(gt.camera_names).index(task["views"][0]["camera"])
     k = next(k for k in (0, 4, 8, 12, 16, 20) if gt.visibility[c, k])
@@ -56,7 +52,7 @@ def test_zoom_pan_and_click_on_a_2048_px_view(big_stack, tab):
     page.mouse.move(*centre)
     for _ in range(4):  # zoom in with the wheel
         page.mouse.wheel(0, -300)
-    page.wait_for_function(f"() => window.__handloop.page.vp.scale > {fitted[0] * 2.5}")
+    page.wait_for_function(f"() => ({SCALE})() > {fitted[0] * 2.5}")
     zoomed = page.evaluate(VIEWPORT)
     # pan with a right-drag so the keypoint comes to the middle of the canvas
     start = page.evaluate(SCREEN_OF, target.tolist())

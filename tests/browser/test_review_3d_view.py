@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from tests.browser.conftest import sign_in
+from tests.browser.conftest import open_3d_view, sign_in
 from tests.support.annotate import clicks_body, queue_for_annotation, wait_until
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
@@ -29,9 +29,7 @@ def test_the_3d_view_is_released_at_a_decision_and_started_again_for_the_next_sa
     sign_in(t, stack.base_url, user.email, user.password, "review")
     page = t.page
     first = page.get_attribute("body", "data-sample")
-    if not page.evaluate("() => window.__handloop.page.show3d"):
-        page.keyboard.press("v")
-    page.wait_for_selector("iframe.viewer-frame")
+    open_3d_view(page)
     held = []  # the decision's request, answered only once the test has looked
     page.route("**/api/review/samples/*/decision", lambda route: held.append(route))
     page.keyboard.press("a")

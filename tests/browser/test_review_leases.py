@@ -84,7 +84,7 @@ def test_a_lease_lapsed_while_offline_is_retaken_and_a_lost_one_shows_a_banner(l
     admin.page.goto(stack.base_url + "/#/review")
     admin.page.wait_for_selector("body[data-ready=review]", state="attached", timeout=60_000)
     assert admin.page.get_attribute("body", "data-sample") == str(second)
-    assert admin.page.evaluate("() => window.__handloop.page.reason") is None
+    assert admin.page.evaluate("() => document.body.dataset.reason ?? null") is None
     assert admin.page.get_attribute("body", "data-draft") == "none"
     page.keyboard.type(" tip")
     page.wait_for_selector(".lease-banner:not([hidden]) button.next-task", timeout=30_000)

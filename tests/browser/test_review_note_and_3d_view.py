@@ -10,7 +10,7 @@ from __future__ import annotations
 import pytest
 from sqlalchemy import text
 
-from tests.browser.conftest import sign_in
+from tests.browser.conftest import open_3d_view, sign_in
 from tests.browser.test_review_notes_and_keys import _one_sample_in_review
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
@@ -59,12 +59,7 @@ def test_the_3d_view_goes_large_and_full_screen_without_viser_notice_and_keys_ar
     user = stack.users["reviewer"]
     sign_in(t, stack.base_url, user.email, user.password, "review")
     page = t.page
-    if not page.evaluate("() => window.__handloop.page.show3d"):
-        page.keyboard.press("v")
-    page.wait_for_selector("iframe.viewer-frame")
-    page.wait_for_function("() => { const f = document.querySelector('iframe.viewer-frame');"
-                           " return f && f.contentDocument && f.contentDocument.readyState === 'complete'; }",
-                           timeout=60_000)
+    open_3d_view(page, loaded=True)
     side = page.locator("iframe.viewer-frame").bounding_box()
     assert side["height"] >= 240, side  # on main: 260 px tall at most beside a 355 px wide panel
     # The Keys list sits above the 3D view: opened with ?, all of it is inside the window.

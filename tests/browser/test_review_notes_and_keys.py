@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 from sqlalchemy import text
 
-from tests.browser.conftest import sign_in
+from tests.browser.conftest import open_3d_view, sign_in
 from tests.support.annotate import clicks_body, queue_for_annotation, wait_until
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
@@ -39,7 +39,7 @@ def test_a_reviewers_note_survives_a_reload_and_digits_pick_reasons(live_stack, 
     assert "no MVNet prediction exists for this sample" in page.inner_text(".mvnet-note")  # a fit from clicks
     assert page.evaluate("() => window.__handloop.page.spentSeconds()") == 0
     page.keyboard.press("r")
-    assert page.evaluate("() => window.__handloop.page.clockWaits") is False
+    assert page.evaluate("() => document.body.dataset.clock") == "runs"
     assert page.evaluate("() => document.activeElement.classList.contains('reason-input')")  # typing goes there
     page.keyboard.press("2")
     reason = page.input_value(".reason-input")
@@ -67,42 +67,37 @@ def test_keys_work_after_a_click_in_the_3d_view_and_esc_returns_the_focus(live_s
     user = stack.users["reviewer"]
     sign_in(t, stack.base_url, user.email, user.password, "review")
     page = t.page
-    if not page.evaluate("() => window.__handloop.page.show3d"):
-        page.keyboard.press("v")
-    page.wait_for_selector("iframe.viewer-frame")
-    page.wait_for_function("() => { const f = document.querySelector('iframe.viewer-frame');"
-                           " return f && f.contentDocument && f.contentDocument.readyState === 'complete'; }",
-                           timeout=60_000)
+    open_3d_view(page, loaded=True)
     box = page.locator("iframe.viewer-frame").bounding_box()
     page.mouse.click(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)  # the 3D view takes the focus
     assert page.evaluate("() => document.activeElement.tagName") == "IFRAME"
-    before = page.evaluate("() => window.__handloop.page.layers.keypoints")
+    before = page.evaluate("() => document.body.dataset.layers.split(' ').includes('keypoints')")
     page.keyboard.press("k")
-    assert page.evaluate("() => window.__handloop.page.layers.keypoints") is (not before)
+    assert page.evaluate("() => document.body.dataset.layers.split(' ').includes('keypoints')") is (not before)
     page.keyboard.press("2")  # enlarge view 2, from inside the iframe too
-    assert page.evaluate("() => window.__handloop.page.focus") == 1
+    assert page.evaluate("() => document.body.dataset.focus") == "1"
     page.keyboard.press("Escape")
     assert page.evaluate("() => document.activeElement.tagName") != "IFRAME"
-    assert page.evaluate("() => window.__handloop.page.focus") is None
+    assert page.evaluate("() => document.body.dataset.focus ?? null") is None
     page.keyboard.press("z")  # and the page has the keys again
-    assert page.evaluate("() => window.__handloop.page.cropToHand") is False
+    assert page.evaluate("() => document.body.dataset.crop") == "whole"
     listed = page.eval_on_selector_all(".help td kbd", "els => els.map((e) => e.textContent)")
     assert listed == ["A", "R / N", "O S W K C P", "1 … 8", "Esc", "Z", "V", "F", "?"], listed
-    layers = "() => ({...window.__handloop.page.layers})"
+    layers = "() => document.body.dataset.layers.split(' ')"
     for key, name in zip("oswkcp", ("outline", "silhouette", "wireframe", "keypoints", "clicks", "mvnet"), strict=True):
-        before = page.evaluate(layers)[name]
+        before = name in page.evaluate(layers)
         page.keyboard.press(key)
-        assert page.evaluate(layers)[name] is (not before), key
+        assert (name in page.evaluate(layers)) is (not before), key
     page.keyboard.press("n")
-    assert page.evaluate("() => window.__handloop.page.reason.kind") == "annotate"
+    assert page.evaluate("() => document.body.dataset.reason") == "annotate"
     page.keyboard.press("1")
     assert page.input_value(".reason-input") == "a fingertip is on the wrong finger"
     page.keyboard.press("Escape")
-    assert page.evaluate("() => window.__handloop.page.reason") is None
+    assert page.evaluate("() => document.body.dataset.reason ?? null") is None
     assert page.evaluate("() => document.activeElement.tagName") == "BODY"
     page.keyboard.press("?")
     assert page.evaluate("() => document.querySelector('.review-side .help').open") is True
-    shown = page.evaluate("() => window.__handloop.page.show3d")
+    shown = page.evaluate("() => document.body.dataset.show3d === 'yes'")
     page.keyboard.press("v")
-    assert page.evaluate("() => window.__handloop.page.show3d") is (not shown)
+    assert page.evaluate("() => document.body.dataset.show3d === 'yes'") is (not shown)
     assert not t.errors, t.errors

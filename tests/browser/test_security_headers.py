@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-from tests.browser.conftest import sign_in
+from tests.browser.conftest import open_3d_view, sign_in
 from tests.support.annotate import clicks_body, ground_truth_of
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
@@ -67,9 +67,7 @@ def test_ui_viewer_and_docs_work_under_their_policies(live_stack, tab):
     sign_in(reviewer, stack.base_url, stack.users["reviewer"].email, stack.users["reviewer"].password, "review")
     page = reviewer.page
     assert page.get_attribute("body", "data-sample") == str(sample_id)
-    if not page.evaluate("() => window.__handloop.page.show3d"):
-        page.keyboard.press("v")
-    page.wait_for_selector("iframe.viewer-frame")
+    open_3d_view(page)
     viewer = page.frame_locator("iframe.viewer-frame")
     viewer.locator("canvas").first.wait_for(timeout=60_000)  # the client ran: its script and wasm were allowed
     deadline = time.monotonic() + 120

@@ -9,13 +9,11 @@ import numpy as np
 import pytest
 from sqlalchemy import select
 
-from tests.browser.conftest import sign_in, submit_as_is
+from tests.browser.conftest import SCALE, SCREEN_OF, TASK, WHOLE_SCALE, open_3d_view, sign_in, submit_as_is
 from tests.support.annotate import ground_truth_of, queue_for_annotation, wait_until
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
-SCREEN_OF = """([u, v]) => { const p = window.__handloop.page; const r = p.canvas.getBoundingClientRect();
-  const s = p.vp.toScreen(u, v); return [r.left + s[0], r.top + s[1]]; }"""
 
 
 # Records every (state, progress) the admin page's live job bar takes, as the page changes it.
@@ -43,9 +41,7 @@ def annotate_in_browser(tab, stack) -> dict:
     stroke, submitted with Ctrl+Enter. Returns what was submitted."""
     page = tab.page
     sign_in(tab, stack.base_url, stack.users["annotator"].email, stack.users["annotator"].password, "annotate")
-    task = page.evaluate("""() => { const p = window.__handloop.page; return {sample_id: p.task.sample_id,
-        sequence_id: p.task.sequence_id, frame_index: p.task.frame_index,
-        views: p.views.map((v) => ({id: v.id, camera: v.camera, width: v.width, height: v.height}))}; }""")
+    task = page.evaluate(TASK)
     gt = ground_truth_of(stack, task)
     names = list(gt.camera_names)
     clicked = []
@@ -61,9 +57,7 @@ def annotate_in_browser(tab, stack) -> dict:
         page.keyboard.press("Enter")  # accept the points triangulated from the two clicked views
     page.click(".thumb >> nth=0")
     page.keyboard.press("0")
-    if page.evaluate("() => window.__handloop.page.vp.scale") > page.evaluate(
-            "() => { const p = window.__handloop.page; const r = p.canvas.getBoundingClientRect();"
-            " return Math.min((r.width - 16) / p.view.width, (r.height - 16) / p.view.height) + 1e-9; }"):
+    if page.evaluate(SCALE) > page.evaluate(WHOLE_SCALE) + 1e-9:
         page.keyboard.press("0")  # the view opened on the hand: 0 again shows the whole image for the stroke
     page.keyboard.press("b")
     (x0, y0), (x1, y1) = (page.evaluate(SCREEN_OF, p) for p in ([8.0, 8.0], [40.0, 20.0]))
@@ -115,9 +109,7 @@ def test_annotate_fit_review_and_round_in_the_browser(live_stack, tab):
     assert "built-in stand-in hand, not MANO" in page.inner_text(".fit-banner")
     assert overlay["fit"]["mean_residual_px"] < 3.0  # the worker's fit lands on the clicks
     assert page.locator(".view-card").count() == len(task["views"])
-    if not page.evaluate("() => window.__handloop.page.show3d"):
-        page.keyboard.press("v")  # closed by default where WebGL is software-rendered (this headless browser)
-    page.wait_for_selector("iframe.viewer-frame")
+    open_3d_view(page)
     # viser's client loaded and drawing: the frame's document complete and its WebGL canvas in it.
     page.wait_for_function("() => { const d = document.querySelector('iframe.viewer-frame')?.contentDocument;"
                            " return d && d.readyState === 'complete' && d.querySelector('canvas') !== null; }",

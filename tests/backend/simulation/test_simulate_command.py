@@ -136,7 +136,7 @@ def test_bench_sim_runs_d0_alone_with_zero_rounds(monkeypatch, tmp_path):
 
     seen = {}
 
-    def fake_simulate(capture, work, plan, detector, accept_proposals_px):
+    def fake_simulate(capture, work, plan, detector, accept_proposals_px, quality=None):
         seen.update(rounds=plan["rounds"], detector=detector, px=accept_proposals_px)
         return _d0_summary(0.25, 50.0, 18)
 
@@ -186,7 +186,7 @@ def test_bench_sim_passes_the_round_0_plan_to_the_simulation(monkeypatch, tmp_pa
         seen.update(rest=config.round0_rest, every=initial_every)
         return _d0_summary(0.6, 150.0, 4)
 
-    def fake_capture(root, sequences, frames, width):
+    def fake_capture(root, sequences, frames, width, seed=None):
         seen.update(frames=frames)
         return tmp_path
 
@@ -212,7 +212,7 @@ def test_bench_sim_train_steps_counts_training_in_steps(monkeypatch, tmp_path):
 
     seen = []
 
-    def fake_simulate(capture, work, plan, detector, accept_proposals_px):
+    def fake_simulate(capture, work, plan, detector, accept_proposals_px, quality=None):
         seen.append(dict(plan["settings"]))
         return _d0_summary(0.6, 150.0, 4)
 
@@ -270,7 +270,7 @@ def test_bench_sim_reports_a_run_that_stopped_and_ends_with_its_json_line(monkey
 
     reason = "POST /api/admin/rounds -> 409: cannot launch a round yet: ... 0 accepted so far, at least 1 needed."
 
-    def fake_simulate(capture, work, plan, detector, accept_proposals_px):
+    def fake_simulate(capture, work, plan, detector, accept_proposals_px, quality=None):
         return {**_d0_summary(None, None, 0), "dataset_size": 0, "human_hours": 0.1, "bookkeeping_ok": True,
                 "stopped": {"round": 1, "reason": reason}, "failure": f"round 1: {reason}", "detector": detector}
 

@@ -28,7 +28,8 @@ from backend.models.review import Decision, Round, RoundMember
 from backend.models.users import User
 
 __all__ = [
-    "AgreementPair", "AnnotationFlag", "AuditEvent", "CameraCalibration", "Click", "Decision", "DecisionKind", "Draft", "Fit",
+    "AgreementPair",
+    "AnnotationFlag", "AuditEvent", "CameraCalibration", "Click", "Decision", "DecisionKind", "Draft", "Fit",
     "FlagKind", "GoldLabel", "Guidelines", "Job", "JobKind", "JobState", "LabelAudit", "LeaseKind", "Mask", "MaskKind",
     "Prediction", "Project", "QualitySettings", "Role", "Round", "RoundMember", "RoundState", "Sample",
     "SampleState", "Sequence", "Split", "Stream", "Subject", "Submission", "User", "View", "Visibility",

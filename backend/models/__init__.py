@@ -1,5 +1,6 @@
 """All tables; importing this package registers them on Base.metadata (Alembic relies on it)."""
 
+from backend.models.agreement import AgreementPair
 from backend.models.audit import AuditEvent
 from backend.models.capture import CameraCalibration, Project, Sample, Sequence, Subject, View
 from backend.models.drafts import Draft
@@ -27,6 +28,7 @@ from backend.models.review import Decision, Round, RoundMember
 from backend.models.users import User
 
 __all__ = [
+    "AgreementPair",
     "AnnotationFlag", "AuditEvent", "CameraCalibration", "Click", "Decision", "DecisionKind", "Draft", "Fit",
     "FlagKind", "GoldLabel", "Guidelines", "Job", "JobKind", "JobState", "LabelAudit", "LeaseKind", "Mask", "MaskKind",
     "Prediction", "Project", "QualitySettings", "Role", "Round", "RoundMember", "RoundState", "Sample",

@@ -40,6 +40,7 @@ class FlagKind(StrEnum):
     no_hand = "no_hand"
     skip = "skip"
     fit_failed = "fit_failed"
+    agreement = "agreement"  # the first look of an agreement pair: the second goes to another annotator
 
 
 class Split(StrEnum):

@@ -59,6 +59,7 @@ class QualitySettings(Base):
                         name="precision_target_range"),
         CheckConstraint("auditor_error_rate >= 0 AND auditor_error_rate < 0.5", name="auditor_error_rate_range"),
         CheckConstraint("gold_share >= 0 AND gold_share <= 1", name="gold_share_range"),
+        CheckConstraint("agreement_share >= 0 AND agreement_share <= 1", name="agreement_share_range"),
     )
 
     id: Mapped[int] = mapped_column(primary_key=True)
@@ -68,6 +69,8 @@ class QualitySettings(Base):
     min_audits_for_target: Mapped[int] = mapped_column(default=30)
     auditor_error_rate: Mapped[float] = mapped_column(default=0.0)  # an auditor's verdict wrong, in [0, 0.5)
     gold_share: Mapped[float] = mapped_column(default=0.0)  # of a reviewer's tasks, gold labels (in [0, 1])
+    # of annotated samples, annotated twice (services.review.agreement); rows from before the setting: 0 (off)
+    agreement_share: Mapped[float] = mapped_column(default=0.05, server_default="0")
     updated_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
     updated_at: Mapped[datetime] = mapped_column(default=utcnow, onupdate=utcnow)
 

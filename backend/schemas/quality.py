@@ -30,6 +30,8 @@ class QualitySettingsIn(Strict):
 
     gold_share: float = Field(default=None, ge=0, le=1, allow_inf_nan=False,  # type: ignore[assignment]
                               description="Share of a reviewer's tasks that are gold labels, 0..1.")
+    agreement_share: float = Field(default=None, ge=0, le=1, allow_inf_nan=False,  # type: ignore[assignment]
+                                   description="Share of annotated samples a second annotator annotates blind, 0..1.")
 
 
 class QualitySettingsPublic(Public):
@@ -39,6 +41,7 @@ class QualitySettingsPublic(Public):
     min_audits_for_target: int
     auditor_error_rate: float
     gold_share: float
+    agreement_share: float
 
 
 class GoldMark(Strict):
@@ -80,5 +83,8 @@ class QualitySummary(Public):
     streams: dict[str, AuditFigure]
     gold: list[GoldAgreement] = Field(description="Per reviewer, agreement with gold.")
     method: str
+    agreement: dict[str, Any] | None = Field(default=None, description="Two annotators' blind looks at the same "
+                                             "samples: 2D (px) and 3D (mm) disagreement per keypoint, per person and "
+                                             "overall (services.review.agreement).")
     thresholds: dict[str, Any] | None = Field(default=None, description="The heuristic thresholds in use and why "
                                                                          "(services.review.precision_target).")

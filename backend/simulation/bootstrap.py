@@ -237,7 +237,7 @@ class BootstrapSimulation:
         self.admin.set_quality(audit_share=self.config.audit_share, audit_seed=self.config.audit_seed,
                                precision_target=self.config.precision_target,
                                auditor_error_rate=min(self.config.reviewer.error_rate, 0.49),
-                               gold_share=self.config.gold_share)
+                               gold_share=self.config.gold_share, agreement_share=0.0)
         imported = self.admin.import_capture(str(capture_dir), project, queue_for_annotation=False)
         self.project_id = int(imported["project_id"])
         samples = self.admin.sample_index(project=project)["samples"]

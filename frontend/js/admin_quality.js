@@ -29,6 +29,23 @@ function figureCells(f) {
     h("td", { class: "num pending" }, String(f.pending))];
 }
 
+const mm = (x) => (x === null || x === undefined ? "–" : `${fmt(x, 1)} mm`);
+const px = (x) => (x === null || x === undefined ? "–" : `${fmt(x, 1)} px`);
+
+// Agreement (services.review.agreement): two annotators' blind looks at the same samples, per person and overall.
+function agreementPart(a) {
+  if (!a) return [];
+  const row = (who, f, user) => h("tr", { dataset: { user } }, h("td", {}, who),
+    h("td", { class: "num pairs" }, String(f.pairs)), h("td", { class: "num px" }, px(f.mean_px)),
+    h("td", { class: "num mm" }, mm(f.mean_mm)));
+  return [h("h3", {}, "Agreement: samples annotated twice, blind"),
+    h("p", { class: "muted" }, `${a.pairs} pairs, ${a.waiting} waiting for a second look, ${a.disputed} disputed ` +
+      `(fits over ${fmt(a.dispute_mm, 0)} mm apart: the review decides). ${a.method}.`),
+    a.pairs ? h("table", { class: "table quality-agreement" },
+      h("thead", {}, h("tr", {}, ["annotator", "pairs", "2D disagreement", "3D disagreement"].map((c) => h("th", {}, c)))),
+      h("tbody", {}, row("all", a, "all"), a.people.map((p) => row(`user ${p.user_id}`, p, String(p.user_id))))) : null];
+}
+
 const HEAD = ["audited", "called wrong", "share wrong", "95 % interval (Wilson)", "pending"];
 
 export class QualitySection {
@@ -52,7 +69,8 @@ export class QualitySection {
       try {
         await this.api.put("/api/admin/quality/settings", { audit_share: Number(share.value) / 100,
           precision_target: target.value === "" ? null : Number(target.value) / 100,
-          auditor_error_rate: Number(judge.value) / 100, gold_share: Number(goldShare.value) / 100 });
+          auditor_error_rate: Number(judge.value) / 100, gold_share: Number(goldShare.value) / 100,
+          agreement_share: Number(twice.value) / 100 });
         toast("quality settings saved", "ok");
         await this.refresh();
       } catch (error) {
@@ -61,6 +79,8 @@ export class QualitySection {
     };
     const goldShare = h("input", { type: "number", min: "0", max: "100", step: "0.5", class: "gold-share",
       value: String(s.gold_share * 100), title: "share of a reviewer's tasks that are gold labels, percent" });
+    const twice = h("input", { type: "number", min: "0", max: "100", step: "0.5", class: "agreement-share",
+      value: String(s.agreement_share * 100), title: "share of annotated samples a second annotator annotates blind, percent" });
     const goldSample = h("input", { type: "number", min: "1", step: "1", class: "gold-sample", placeholder: "sample id" });
     const markGold = async (e) => {
       e.preventDefault();
@@ -81,6 +101,7 @@ export class QualitySection {
       h("form", { class: "inline-form quality-form", onsubmit: save },
         h("label", {}, "audit share (%) ", share), h("label", {}, " at most wrong of Dʰ (%) ", target),
         h("label", {}, " auditors' error (%) ", judge), h("label", {}, " gold in reviews (%) ", goldShare),
+        h("label", {}, " annotated twice (%) ", twice),
         h("button", { type: "submit" }, "Save")),
       h("table", { class: "table quality-streams" },
         h("thead", {}, h("tr", {}, h("th", {}, "stream (all rounds)"), ...HEAD.map((c) => h("th", { class: "num" }, c)))),
@@ -100,6 +121,7 @@ export class QualitySection {
           h("td", {}, `user ${g.user_id}`), h("td", { class: "num" }, String(g.gold_judged)),
           h("td", { class: "num" }, String(g.gold_agreed)), h("td", { class: "num" }, pct(g.agreement)),
           h("td", { class: "num" }, interval(g.agreement_ci95)))))) : h("p", { class: "muted" }, "No gold judged yet."),
+      ...agreementPart(q.agreement),
       t ? h("div", { class: "callout thresholds" }, h("strong", {}, "Heuristic thresholds: "), t.explanation) : null);
     this.section.dataset.ready = "quality";
   }

@@ -195,7 +195,7 @@ def prepare_database(settings: Settings, capture_dir: Path, *, queue_for_annotat
             for user in USERS.values():
                 create_user(session, user.email, user.password, Role(user.role), user.role)
             # Blind audits off (the product audits 5 % of accepts): a test opts in (test_review_audit_blind.py).
-            session.add(QualitySettings(id=1, audit_share=0.0))
+            session.add(QualitySettings(id=1, audit_share=0.0, agreement_share=0.0))
     finally:
         engine.dispose()
     return result.project_id

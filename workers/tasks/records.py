@@ -25,7 +25,7 @@ from backend.services.captures.storage import Storage
 from backend.services.errors import ConflictError, InvalidInputError
 from backend.services.jobs import fit_samples, jobs
 from backend.services.leases import queues
-from backend.services.review import label_audits
+from backend.services.review import agreement, label_audits
 from backend.services.review.verification import HeuristicThresholds, heuristic_verdict
 from backend.services.rounds import rounds
 from workers.handmodel.params import NUM_PARAMS, HandParams
@@ -149,7 +149,7 @@ def record_fit(session: Session, sample_id: int, *, params: Sequence[float], key
                                  decision=DecisionKind.accept, reason="heuristic: all criteria met"))
             rounds.add_member(session, round_, sample_id, fit.id, Stream.heuristic)
             label_audits.schedule(session, round_, sample_id, fit.id, Stream.heuristic, None)
-    elif inputs.get("submission_ids"):
+    elif inputs.get("submission_ids") and not agreement.route(session, sample, fit):  # issue 40's second looks
         transition(session, sample, SampleState.in_review, None, reason="fitted from annotations")
     audit.record(session, None, "fit.create", "sample", sample_id, fit_id=fit.id, state=sample.state)
     return fit

@@ -8,7 +8,7 @@ from fastapi import APIRouter
 
 from backend.api.deps import AdminUser, SessionDep
 from backend.schemas.quality import GoldMark, GoldPublic, QualitySettingsIn, QualitySettingsPublic, QualitySummary
-from backend.services.review import label_audits, precision_target
+from backend.services.review import agreement, label_audits, precision_target
 
 router = APIRouter(prefix="/admin/quality", tags=["admin: label quality"])
 
@@ -17,7 +17,8 @@ router = APIRouter(prefix="/admin/quality", tags=["admin: label quality"])
 def quality(session: SessionDep, _admin: AdminUser) -> dict[str, Any]:
     """Per round and stream: labels audited blind, found wrong, the share and its Wilson 95 % interval; the
     heuristic's thresholds the newest round chose and why."""
-    return {**label_audits.summary(session), "thresholds": precision_target.current(session)}
+    return {**label_audits.summary(session), "thresholds": precision_target.current(session),
+            "agreement": agreement.summary(session)}
 
 
 @router.put("/settings", response_model=QualitySettingsPublic)

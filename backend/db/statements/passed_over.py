@@ -12,7 +12,8 @@ from backend.models.enums import FlagKind
 from backend.models.flags import AnnotationFlag
 
 _FLAGS = AnnotationFlag.__table__
-PASSED = (FlagKind.skip.value, FlagKind.fit_failed.value)  # after these a person is not given the sample again
+PASSED = (FlagKind.skip.value, FlagKind.fit_failed.value,  # after these a person is not given the sample again
+          FlagKind.agreement.value)  # (agreement: they made its first look; services.review.agreement)
 
 
 def passed_over(sample_id: Any, user_id: Any) -> Any:

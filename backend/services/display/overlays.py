@@ -17,6 +17,7 @@ import numpy as np
 from sqlalchemy import select
 from sqlalchemy.orm import Session, undefer
 
+from backend.models.agreement import AgreementPair
 from backend.models.enums import DecisionKind, LeaseKind
 from backend.models.fits import Fit, Prediction
 from backend.models.labels import Click, Submission
@@ -113,7 +114,10 @@ def annotate_proposals(session: Session, user: Actor, sample_id: int, *, mano_pa
     note = session.execute(
         select(Decision.reason).where(Decision.sample_id == sample_id, Decision.decision == DecisionKind.annotate)
         .order_by(Decision.id.desc()).limit(1)).scalar_one_or_none()
-    previous = clicks_of(session, sample_id)
+    # blind (issue 40): a sample waiting for its agreement second look shows none of the first look's clicks
+    second_look = session.execute(select(AgreementPair.id).where(AgreementPair.sample_id == sample_id,
+                                                                 AgreementPair.state == "second_look")).first()
+    previous = [] if second_look is not None else clicks_of(session, sample_id)
     fit_failure = last_fit_failure(session, sample)
     end_reads(session)
     sources = []

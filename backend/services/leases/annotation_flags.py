@@ -102,4 +102,5 @@ def last_fit_failure(session: Session, sample: Sample) -> dict[str, Any] | None:
 def counts(session: Session) -> dict[str, int]:
     """How many of each flag there are (no hand per view and per sample, skips, failed fits)."""
     found = dict(session.execute(select(_FLAGS.c.kind, func.count()).group_by(_FLAGS.c.kind)).all())
-    return {kind.value: int(found.get(kind.value, 0)) for kind in FlagKind}
+    # 'agreement' is the queue's bookkeeping (services.review.agreement), not something an annotator said
+    return {kind.value: int(found.get(kind.value, 0)) for kind in FlagKind if kind is not FlagKind.agreement}

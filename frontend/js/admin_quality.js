@@ -3,6 +3,7 @@
 // the precision target as settings (PUT /api/admin/quality/settings), and the heuristic's thresholds in use with
 // why they were chosen. Kept out of admin.js: `withQuality` adds this section to the admin page.
 import { fmt, h, toast, fill } from "./dom.js";
+import { paths } from "./api.js";
 
 export function withQuality(mount) {
   return async (root, ctx) => {
@@ -55,7 +56,7 @@ export class QualitySection {
   }
 
   async refresh() {
-    const q = await this.api.get("/api/admin/quality");
+    const q = await this.api.get(paths.quality());
     const s = q.settings;
     const share = h("input", { type: "number", min: "0", max: "100", step: "0.5", value: String(s.audit_share * 100),
       class: "audit-share", title: "share of each stream's accepted labels audited blind, percent" });
@@ -67,7 +68,7 @@ export class QualitySection {
     const save = async (e) => {
       e.preventDefault();
       try {
-        await this.api.put("/api/admin/quality/settings", { audit_share: Number(share.value) / 100,
+        await this.api.put(paths.qualitySettings(), { audit_share: Number(share.value) / 100,
           precision_target: target.value === "" ? null : Number(target.value) / 100,
           auditor_error_rate: Number(judge.value) / 100, gold_share: Number(goldShare.value) / 100,
           agreement_share: Number(twice.value) / 100 });
@@ -85,7 +86,7 @@ export class QualitySection {
     const markGold = async (e) => {
       e.preventDefault();
       try {
-        const g = await this.api.post("/api/admin/quality/gold", { sample_id: Number(goldSample.value) });
+        const g = await this.api.post(paths.qualityGold(), { sample_id: Number(goldSample.value) });
         toast(`sample ${g.sample_id}'s label (${g.stream}) is gold`, "ok");
         goldSample.value = "";
       } catch (error) {

@@ -70,6 +70,10 @@ export const paths = Object.freeze({
   predictionsExport: () => "/api/admin/exports/predictions",
   freihandExport: () => "/api/admin/exports/freihand",
   freihandArchive: (/** @type {number} */ jobId) => `/api/admin/exports/freihand/${jobId}/archive`,
+  // label quality (issue 40)
+  quality: () => "/api/admin/quality",
+  qualitySettings: () => "/api/admin/quality/settings",
+  qualityGold: () => "/api/admin/quality/gold",
 });
 
 export class ApiError extends Error {

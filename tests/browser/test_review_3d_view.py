@@ -29,15 +29,14 @@ def test_the_3d_view_is_released_at_a_decision_and_started_again_for_the_next_sa
     sign_in(t, stack.base_url, user.email, user.password, "review")
     page = t.page
     first = page.get_attribute("body", "data-sample")
-    open_3d_view(page)
+    open_3d_view(page, loaded=True)  # its document loaded: the page listens for keys in it too
     held = []  # the decision's request, answered only once the test has looked
     page.route("**/api/review/samples/*/decision", lambda route: held.append(route))
-    page.keyboard.press("a")
-    for _ in range(200):
-        if held:
-            break
-        page.wait_for_timeout(50)
-    assert held, "the decision was not sent"
+    # Waits on the request itself (the limit only guards a hang: a loaded machine once took over 10 s).
+    with page.expect_request("**/api/review/samples/*/decision", timeout=120_000):
+        page.keyboard.press("a")
+    page.wait_for_selector(".viewer-wait", state="attached", timeout=30_000)
+    assert held, "the decision was not held by the test's route"
     assert page.query_selector("iframe.viewer-frame") is None  # gone while the decision is on its way
     assert page.query_selector(".viewer-wait") is not None
     held[0].continue_()

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import math
+import threading
 import zipfile
 from pathlib import Path
 from typing import Any
@@ -443,6 +444,13 @@ def load_frame_masks(frame: FrameRef) -> dict[str, np.ndarray]:
     return {cam: _decode(path, cv2.IMREAD_GRAYSCALE) >= 128 for cam, path in frame.mask_paths.items()}
 
 
+# numpy parses each .npy header with ast.literal_eval, and CPython 3.11 keeps the AST builder's recursion depth per
+# interpreter, not per thread: two threads parsing at once can fail with "SystemError: AST constructor recursion
+# depth mismatch" (python/cpython#106905). The verification pool reads ground truth in threads, so the reads take
+# turns (a frame's arrays are small: the lock costs little).
+_NPY_HEADERS = threading.Lock()
+
+
 def load_ground_truth(frame: FrameRef, num_vertices: int | None = None) -> GroundTruth:
     """Load and validate one frame's ground truth.
 
@@ -456,7 +464,7 @@ def load_ground_truth(frame: FrameRef, num_vertices: int | None = None) -> Groun
     if path is None:
         raise CaptureError(f"sequence {frame.sequence_id!r} frame {frame.index}: no ground truth")
     try:
-        with np.load(path, allow_pickle=False) as npz:
+        with _NPY_HEADERS, np.load(path, allow_pickle=False) as npz:
             arrays = {key: npz[key] for key in npz.files}
     except FileNotFoundError:
         raise CaptureError(f"{path}: file not found") from None

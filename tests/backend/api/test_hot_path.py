@@ -23,9 +23,8 @@ TABLES = ("submissions", "clicks", "jobs", "audit_events", "annotation_flags")
 PG_ADMIN_URL = os.environ.get("HANDLOOP_TEST_PG_URL", "postgresql+psycopg://postgres@127.0.0.1:5432/postgres")
 
 
-@pytest.fixture
-def answered(monkeypatch):
-    """How many requests the hot path answered itself, per route."""
+def _count_calls(monkeypatch, module) -> dict[str, int]:
+    """Calls of `module`'s next_response and submit_response, counted per route."""
     counts = {"next": 0, "submit": 0}
 
     def counting(name, real):
@@ -34,25 +33,21 @@ def answered(monkeypatch):
             return real(*args, **kwargs)
         return call
 
-    monkeypatch.setattr(hot_path, "next_response", counting("next", hot_path.next_response))
-    monkeypatch.setattr(hot_path, "submit_response", counting("submit", hot_path.submit_response))
+    monkeypatch.setattr(module, "next_response", counting("next", module.next_response))
+    monkeypatch.setattr(module, "submit_response", counting("submit", module.submit_response))
     return counts
+
+
+@pytest.fixture
+def answered(monkeypatch):
+    """How many requests the hot path answered itself, per route."""
+    return _count_calls(monkeypatch, hot_path)
 
 
 @pytest.fixture
 def by_the_route(monkeypatch):
     """How many requests FastAPI's routes ran the work of, per route (the hot path's own calls not counted)."""
-    counts = {"next": 0, "submit": 0}
-
-    def counting(name, real):
-        def call(*args, **kwargs):
-            counts[name] += 1
-            return real(*args, **kwargs)
-        return call
-
-    monkeypatch.setattr(annotate, "next_response", counting("next", annotate.next_response))
-    monkeypatch.setattr(annotate, "submit_response", counting("submit", annotate.submit_response))
-    return counts
+    return _count_calls(monkeypatch, annotate)
 
 
 @pytest.fixture

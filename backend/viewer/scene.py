@@ -1,6 +1,6 @@
 """One sample's 3D scene for reviewers: the fitted mesh, its skeleton and keypoints, MVNet's keypoints,
-and the rig's camera frustums showing their images. The rig's world frame, metres; "up" is the rig's own (a
-synthetic rig's +z, a real rig's often its first camera's -y: see `viewpoint`)."""
+and the rig's camera frustums showing their images. The rig's world frame, metres; "up" is what the rig's cameras
+show as up (a real rig's world is often its first camera's, y down: see `viewpoint`)."""
 
 from __future__ import annotations
 

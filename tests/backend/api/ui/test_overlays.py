@@ -35,6 +35,12 @@ def test_review_overlay_puts_a_true_fit_on_the_clicks(sqlite_env, ui, ui_capture
     assert data["mesh"]["num_vertices"] > 100 and data["fit"]["mesh_keypoint_offset_mm"] < 0.5
     np.testing.assert_allclose(_mesh_vertices(data), gt.vertices, atol=1e-4)
     assert data["scene_path"].startswith(f"/api/viewer/samples/{task['sample_id']}/scene?ticket=")
+    # The 3D view's start (scene.viewpoint): at the hand, up as the cameras' images show it (against their mean
+    # image-down axis: this synthetic rig's cameras are rolled, so it is -z here), the eye above the hand.
+    np.testing.assert_allclose(data["scene_look_at"], gt.keypoints_3d.mean(axis=0), atol=1e-3)
+    down = np.mean([np.asarray(v["R"])[1] for v in data["views"]], axis=0)
+    np.testing.assert_allclose(data["scene_up"], -down / np.linalg.norm(down), atol=1e-3)
+    assert float(np.subtract(data["scene_eye"], data["scene_look_at"]) @ np.asarray(data["scene_up"])) > 0.1
 
 
 def _mesh_vertices(data: dict) -> np.ndarray:

@@ -104,12 +104,10 @@ def viewpoint(keypoints: np.ndarray, rotations: list[np.ndarray], translations: 
     up = up if up is not None else np.array([0.0, 0.0, 1.0])
     centres = [-np.asarray(R, dtype=np.float64).T @ np.asarray(t, dtype=np.float64)
                for R, t in zip(rotations, translations, strict=True)]
-    toward = _unit(np.mean(centres, axis=0) - at) if centres else None
-    if toward is None:
-        toward = _unit(np.cross(up, [1.0, 0.0, 0.0])) if abs(up[0]) < 0.9 else _unit(np.cross(up, [0.0, 1.0, 0.0]))
+    toward = np.mean(centres, axis=0) - at if centres else np.zeros(3)
     side = _unit(toward - float(toward @ up) * up)  # the cameras' direction in the horizontal plane
-    if side is None:  # cameras straight above or below the hand
-        side = _unit(np.cross(up, [1.0, 0.0, 0.0])) if abs(up[0]) < 0.9 else _unit(np.cross(up, [0.0, 1.0, 0.0]))
+    if side is None:  # no cameras, or cameras straight above or below the hand: any horizontal direction
+        side = _frame_with_z(up)[:, 0]
     eye = at + EYE_DISTANCE_M * (math.cos(math.radians(30)) * side + math.sin(math.radians(30)) * up)
 
     def rounded(v: np.ndarray) -> tuple[float, float, float]:

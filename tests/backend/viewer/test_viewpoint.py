@@ -71,3 +71,11 @@ def test_a_y_down_rig_records_a_scene():
     data = record_scene(SampleScene(vertices=None, faces=None, keypoints=_hand(np.array([0.0, 0.0, 0.5])),
                                     prediction=None, cameras=cameras, label="test"))
     assert len(data) > 100
+
+
+def test_without_cameras_the_view_is_z_up_and_still_looks_at_the_hand():
+    hand = _hand(np.array([0.1, 0.2, 0.3]))
+    view = viewpoint(hand, [], [])
+    at, eye = np.asarray(view.look_at), np.asarray(view.eye)
+    assert view.up == (0.0, 0.0, 1.0)
+    assert abs(np.linalg.norm(eye - at) - EYE_DISTANCE_M) < 1e-3 and eye[2] > at[2]

@@ -102,6 +102,20 @@ class Settings(BaseSettings):
         default="chroma_key", description="What a prediction's fit is compared with (its silhouette term and the "
         "heuristic's IoU) per view: 'chroma_key' = on views with a chroma-key mask, that mask cut at MVNet's "
         "predicted wrist (HandSegNet's mask elsewhere); 'handsegnet' = HandSegNet's masks (the paper).")
+    # The same three criteria on a pre-annotation's fit, the pretrained detector in MVNet's role: its lifted keypoints'
+    # confidences, the fit's IoU with the chroma-key cut, the fit against the lifted keypoints (every keypoint must be
+    # lifted). Chosen on tuning seeds 11, 23, 57 (docs/evaluation.md, "The detector's heuristic"); the fit leans on
+    # the silhouettes, so it lies further from the lifted points than a fit from MVNet does from MVNet's.
+    detector_heuristic: bool = Field(default=True, description="Accept pre-annotation fits by the detector's "
+                                     "heuristic (D^h of round 0); off: every detector fit waits for a person.")
+    detector_heuristic_min_mean_confidence: float = Field(default=0.5, ge=0, le=1, description="Mean must be above.")
+    detector_heuristic_min_keypoint_confidence: float = Field(default=0.0, ge=0, le=1, description="Each at least.")
+    detector_heuristic_min_mean_iou: float = Field(default=0.7, ge=0, le=1, description="Mean IoU, at least.")
+    detector_heuristic_low_iou: float = Field(default=0.5, ge=0, le=1, description="A view below this is 'low'.")
+    detector_heuristic_max_low_iou_views: int = Field(default=1, ge=0, le=1000, description="At most this many.")
+    detector_heuristic_max_mean_distance_m: float = Field(default=0.010, ge=0, le=1, description="Mean 3D distance.")
+    detector_heuristic_max_keypoint_distance_m: float = Field(default=0.025, ge=0, le=1,
+                                                              description="Each 3D distance.")
 
     # Reviewer queue policy (paper, "Manual Verification and Annotation").
     review_min_confidence_percentile: float = Field(default=50.0, ge=0, le=100)

@@ -24,7 +24,7 @@ from backend.services.rounds import preannotation
 from backend.services.rounds.preannotation import DEFAULT_REST, RESTS
 from backend.settings import get_settings
 from backend.simulation.annotator import AnnotatorConfig
-from backend.simulation.bootstrap import BootstrapConfig
+from backend.simulation.bootstrap import ROUND0_FRAMES, BootstrapConfig
 from backend.simulation.reviewer import ReviewerConfig
 from backend.simulation.runner import ServerOptions, run_simulation
 from workers.capture import CaptureError, read_capture
@@ -69,8 +69,10 @@ def detector_default() -> tuple[str, str | None]:
 
 
 def _heuristic_counts(report: dict[str, Any]) -> dict[str, Any]:
-    """The round job's heuristic summary (evaluated, accepted, by_kind); empty for a round without one."""
-    return (report.get("round_job") or {}).get("heuristic") or {}
+    """The round job's heuristic summary (evaluated, accepted, by_kind), or round 0's pre-annotation's (the
+    detector's heuristic: fits, evaluated, accepted); empty for a round without one."""
+    job = report.get("round_job") or ((report.get("preannotation") or {}).get("result") or {})
+    return job.get("heuristic") or {}
 
 
 def heuristic_share(report: dict[str, Any]) -> float | None:
@@ -82,12 +84,21 @@ def heuristic_share(report: dict[str, Any]) -> float | None:
 def heuristic_shares_cumulative(rounds: list[dict[str, Any]]) -> list[float | None]:
     """Per round, the heuristic's acceptances so far over the samples fitted in its first round (the pool the
     rounds share); None before that round. Round 2's share alone drops when round 1 took the easy samples; this
-    one does not (docs/benchmarks.md, "MVNet's readout window" in the loop)."""
+    one does not (docs/benchmarks.md, "MVNet's readout window" in the loop).
+
+    Where round 0's detector heuristic ran, the pool from round 1 on is round 0's evaluated fits that joined D_0
+    (at most |D_0|) plus round 1's evaluated fits (the samples not in D_0): every sample the machine fitted, each once;
+    an upper bound, so the share is never overstated."""
     shares: list[float | None] = []
     pool, accepted = None, 0
     for r in rounds:
         counts = _heuristic_counts(r)
-        if counts.get("evaluated") and pool is None:
+        if r["index"] == 0 and counts.get("evaluated"):
+            pool = counts["evaluated"]
+            round0_in_d0 = min(int(r.get("dataset_size") or 0), counts["evaluated"])
+        elif r["index"] == 1 and pool is not None and counts.get("evaluated") is not None:
+            pool = round0_in_d0 + counts["evaluated"]
+        elif counts.get("evaluated") and pool is None:
             pool = counts["evaluated"]
         accepted += counts.get("accepted", 0)
         shares.append(accepted / pool if pool else None)
@@ -166,6 +177,7 @@ def simulate(capture: Path, work: Path, plan: dict[str, Any], *, detector: bool,
     and `leave`: the progress bar's, over rounds. `audit_share` > 0: the server audits that share of each stream's
     accepts blind (two reviewers then, since nobody audits their own accepts); the summary's `label_quality`."""
     config = BootstrapConfig(rounds=plan["rounds"], detector=detector, round0_rest=plan["round0_rest"],
+                             round0_frames=plan.get("round0_frames", "all"),
                              annotator=annotator, reviewer=reviewer or ReviewerConfig(),
                              reviewers=2 if audit_share > 0 or gold_share > 0 else 1, audit_share=audit_share,
                              audit_seed=audit_seed, precision_target=precision_target, gold_labels=gold_labels,
@@ -210,7 +222,7 @@ def _detector_met(summary: dict[str, Any]) -> dict[str, bool]:
 
 def plan_for(*, quick: bool = False, width: int | None = None, frames: int | None = None, rounds: int | None = None,
              initial_every: int | None = None, round0_rest: str = DEFAULT_REST, train_steps: int | None = None,
-             handsegnet_steps: int | None = None) -> dict[str, Any]:
+             handsegnet_steps: int | None = None, round0_frames: str = "all") -> dict[str, Any]:
     """The run's plan: FULL or QUICK with these replaced (see `run`); ValueError naming a value out of range."""
 
     plan = dict(QUICK if quick else FULL)
@@ -233,6 +245,9 @@ def plan_for(*, quick: bool = False, width: int | None = None, frames: int | Non
     if round0_rest not in RESTS:
         raise ValueError(f"round0_rest must be one of {list(RESTS)}, not {round0_rest!r}")
     plan["round0_rest"] = round0_rest
+    if round0_frames not in ROUND0_FRAMES:
+        raise ValueError(f"round0_frames must be one of {list(ROUND0_FRAMES)}, not {round0_frames!r}")
+    plan["round0_frames"] = round0_frames
     for name, steps in (("train_steps", train_steps), ("handsegnet_steps", handsegnet_steps)):
         if steps is None:
             continue
@@ -249,7 +264,8 @@ def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = 
         frames: int | None = None, train_steps: int | None = None,
         handsegnet_steps: int | None = None, seed: int = SEED, audit_share: float = DEFAULT_AUDIT_SHARE,
         precision_target: float | None = None, reviewer_error_rate: float | None = None,
-        reviewer_accept_below_mm: float | None = None, gold_labels: int = 0, gold_share: float = 0.0) -> dict[str, Any]:
+        reviewer_accept_below_mm: float | None = None, gold_labels: int = 0, gold_share: float = 0.0,
+        round0_frames: str = "all") -> dict[str, Any]:
     """One run (`detector` "on" or "off") or both on the same capture and seed ("both"); None: both where the
     detector can run, else off. The record's top level is the run with the detector when it ran, else without.
     `width` (view width, pixels), `frames` (per sequence), `rounds` and `initial_every` (D_0's plan: every k-th
@@ -261,7 +277,9 @@ def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = 
     `seed`: the capture's and the simulated people's (and the audits' pick); `audit_share`, `precision_target`: the
     server's quality settings (issue 40; the record's `label_quality` per stream); `reviewer_error_rate` and
     `reviewer_accept_below_mm`: the simulated reviewers' (default 2 %, 8 mm); `gold_labels`, `gold_share`: labels
-    marked gold after D_0 and their share of the reviewers' tasks (`label_quality["gold"]`: agreement vs given)."""
+    marked gold after D_0 and their share of the reviewers' tasks (`label_quality["gold"]`: agreement vs given).
+    `round0_frames`: with the detector, the training frames pre-annotated in round 0 ("all", or "initial": the
+    initial set only)."""
     if not 0 <= audit_share <= 1:
         raise ValueError(f"audit_share must be in [0, 1], not {audit_share}")
     if precision_target is not None and not 0 < precision_target < 1:
@@ -276,7 +294,8 @@ def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = 
 
     started = time.perf_counter()
     plan = plan_for(quick=quick, width=width, frames=frames, rounds=rounds, initial_every=initial_every,
-                    round0_rest=round0_rest, train_steps=train_steps, handsegnet_steps=handsegnet_steps)
+                    round0_rest=round0_rest, train_steps=train_steps, handsegnet_steps=handsegnet_steps,
+                    round0_frames=round0_frames)
     default_mode, why_not = detector_default()
     mode = detector or default_mode
     if mode not in DETECTOR_MODES:

@@ -39,6 +39,7 @@ from workers.evaluation import summarise_errors
 log = logging.getLogger(__name__)
 
 STREAMS = ("heuristic", "manual", "annotated")
+ROUND0_FRAMES = ("all", "initial")  # with the detector: every training frame pre-annotated, or the initial set
 
 
 @dataclass(frozen=True)
@@ -66,6 +67,9 @@ class BootstrapConfig:
             pick: "keep" (they stay for round 1's MVNet, as the paper leaves the unpicked samples of every round
             and the issue routes round 0: only fits sent back are annotated) or "annotate" (annotators click
             them in round 0; D_0 is then at most half verified, since the policy picks from the median up).
+        round0_frames: with the detector, which training frames the admin pre-annotates in round 0: "all" (the
+            detector's heuristic accepts what it can, reviewers see the rest by the queue policy) or "initial" (the
+            initial set only, every k-th frame, as before issue 37's detector heuristic).
     """
 
     rounds: int = 4
@@ -80,6 +84,7 @@ class BootstrapConfig:
     project: str = "sim"
     detector: bool | None = False
     round0_rest: str = DEFAULT_REST
+    round0_frames: str = "all"
     audit_share: float = 0.0
     audit_seed: int = 0
     precision_target: float | None = None
@@ -89,6 +94,8 @@ class BootstrapConfig:
     def __post_init__(self) -> None:
         if self.round0_rest not in RESTS:
             raise ValueError(f"round0_rest must be one of {list(RESTS)}, not {self.round0_rest!r}")
+        if self.round0_frames not in ROUND0_FRAMES:
+            raise ValueError(f"round0_frames must be one of {list(ROUND0_FRAMES)}, not {self.round0_frames!r}")
         if not 0 <= self.rounds <= 50:
             raise ValueError(f"rounds must be in 0..50, not {self.rounds}")
         if not (1 <= self.annotators <= 100 and 1 <= self.reviewers <= 100):
@@ -244,12 +251,14 @@ class BootstrapSimulation:
         initial = [s["sample_id"] for s in samples if s["split"] == "train" and s["frame_index"] % initial_every == 0]
         if not initial:
             raise ValueError(f"{capture_dir}: no training frames for the initial set")
+        if self.detector_on and self.config.round0_frames == "all":
+            initial = [s["sample_id"] for s in samples if s["split"] == "train"]
         self.initial_set = initial if self.detector_on else self.admin.queue_for_annotation(initial)
         self.truth = GroundTruthIndex({project: read_capture(capture_dir, check_images=False)}, samples)
         return self._people(self.truth)
 
     def preannotate(self) -> dict[str, Any]:
-        """Round 0 with the detector: pre-annotate the initial set (the rest to the annotators); the final job."""
+        """Round 0 with the detector: pre-annotate the chosen frames (`round0_frames`); the final job."""
         launched = self.admin.preannotate(int(self.project_id), self.initial_set, rest=self.config.round0_rest)
         job = self.run_job(launched["job_id"])
         self.preannotation = {k: job.get(k) for k in ("id", "state", "message", "error", "result")}

@@ -31,6 +31,7 @@ from backend.services.errors import DomainError
 from backend.services.jobs import jobs
 from backend.services.jobs.jobs import JobStillRunningError
 from backend.services.review import precision_target
+from backend.services.review.verification import HeuristicThresholds
 from backend.settings import Settings
 from workers.capture.schema import CaptureError
 from workers.fitting.config import FitConfig, source_weights
@@ -264,6 +265,8 @@ def _record_all(ctx: WorkerContext, fitted: list[tuple[FitInput, Any]], config: 
     unstorable: list[tuple[FitInput, str]] = []
     with ctx.session_factory.begin() as session:
         thresholds = precision_target.thresholds_in_force(session, ctx.settings)  # the round's (issue 40)
+        detector_thresholds = (HeuristicThresholds.from_settings(ctx.settings, "detector_heuristic_")
+                               if ctx.settings.detector_heuristic else None)
         for fi, result, ious, diagnostics in rows:
             try:
                 with session.begin_nested():
@@ -271,7 +274,8 @@ def _record_all(ctx: WorkerContext, fitted: list[tuple[FitInput, Any]], config: 
                         session, fi.sample_id, params=result.theta.tolist(), keypoints_m=result.keypoints.tolist(),
                         view_ious=ious, diagnostics=diagnostics, inputs=json_safe(fi.inputs),
                         model_file=result.hand_model, thresholds=thresholds, job_id=fi.job_id,
-                        prediction_id=fi.prediction_id, vertices_m=result.vertices)
+                        prediction_id=fi.prediction_id, vertices_m=result.vertices,
+                        detector_thresholds=detector_thresholds)
                     session.flush()
                 summary.fitted.append(fit.id)
             except (DomainError, IntegrityError) as exc:  # cancelled, or recorded by a concurrent duplicate

@@ -170,23 +170,29 @@ def _to_annotators(session: Session, sample_ids: Sequence[int], from_state: Samp
 
 
 def route_fitted(ctx: WorkerContext, job_id: int, sample_ids: Sequence[int], rest: str) -> dict[str, int]:
-    """The job's samples 'fitted' from their detector fit: all ranked by the detector's confidence and offered
-    to the reviewers up to their capacity a round (`select_for_review`, the percentile never a cut here; with
+    """The job's samples 'fitted' from their detector fit (those the detector's heuristic did not accept): ranked by
+    the detector's confidence and offered to the reviewers up to their capacity a round (`select_for_review`; with
     `review_capacity_per_round` 0 the paper's fixed cut: from the median up, temporally spread); never flat
-    hands. The rest go to the annotators when `rest` is "annotate", else stay fitted for round 1."""
-    # Every detector fit is offered (ranked) up to the capacity: the percentile never cuts in round 0, whose D_0
-    # round 1 trains on; the fixed policy (capacity 0) stays as set.
-    policy = replace(ReviewPolicy.from_settings(ctx.settings), percentile_cut=False)
+    hands. The rest go to the annotators when `rest` is "annotate", else stay fitted for round 1.
+
+    The percentile cuts (as `review_percentile_cut` sets it) only once the heuristic gave D_0 enough labels to train
+    round 1 on (`round_min_training_samples`); until then every fit is offered, D_0 being all round 1 has."""
     with ctx.session_factory.begin() as session:
         rows: list[Sample] = []
         for part in _chunks(sample_ids):
-            rows += session.execute(select(Sample).where(Sample.id.in_(part), Sample.state == SampleState.fitted,
-                                                         Sample.current_fit_id.is_not(None))
+            rows += session.execute(select(Sample).where(Sample.id.in_(part), Sample.current_fit_id.is_not(None))
                                     .with_for_update()).scalars().all()
         fits = {}
         for part in _chunks([s.current_fit_id for s in rows]):
             fits.update({f.id: f for f in session.execute(select(Fit).where(Fit.id.in_(part))).scalars()})
-        mine = [s for s in rows if (fits[s.current_fit_id].inputs or {}).get("preannotate_job_id") == job_id]
+        ours = [s for s in rows if (fits[s.current_fit_id].inputs or {}).get("preannotate_job_id") == job_id]
+        verdicts = [fits[s.current_fit_id].heuristic for s in ours if fits[s.current_fit_id].heuristic]
+        heuristic = {"fits": len(ours), "evaluated": len(verdicts),
+                     "accepted": sum(bool(v.get("accepted")) for v in verdicts)}
+        policy = ReviewPolicy.from_settings(ctx.settings)
+        if heuristic["accepted"] < ctx.settings.round_min_training_samples:
+            policy = replace(policy, percentile_cut=False)
+        mine = [s for s in ours if s.state == SampleState.fitted]
         candidates = [Candidate(s.id, s.sequence_id, s.time_s, s.confidence, s.pose_distance or 0.0) for s in mine]
         queued: dict[int, list[float]] = {}
         for sequence_id, time_s in session.execute(select(Sample.sequence_id, Sample.time_s)
@@ -199,7 +205,8 @@ def route_fitted(ctx: WorkerContext, job_id: int, sample_ids: Sequence[int], res
             elif rest == "annotate":
                 transition(session, sample, SampleState.needs_annotation, None,
                            reason="pre-annotation: not picked for review; annotators correct the detector's fit")
-    return {"to_review": len(picked), "fitted_to_annotators": (len(mine) - len(picked)) if rest == "annotate" else 0}
+    return {"to_review": len(picked), "fitted_to_annotators": (len(mine) - len(picked)) if rest == "annotate" else 0,
+            "heuristic": heuristic}
 
 
 def _settle(ctx: WorkerContext, job_id: int, sample_ids: Sequence[int], rest: str, *, cancel_fits: bool

@@ -1,11 +1,13 @@
 """Recording machine output: MVNet/HandSegNet predictions and hand-model fits.
 
 Called by the workers (the worker issue wraps each in a Celery task that calls one of these); a new fit
-runs the heuristic when the sample has a prediction, and routes the sample on from there.
+runs the heuristic when the sample has a prediction (or, for a pre-annotation's fit, the detector's heuristic), and
+routes the sample on from there.
 """
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -26,9 +28,15 @@ from backend.services.errors import ConflictError, InvalidInputError
 from backend.services.jobs import fit_samples, jobs
 from backend.services.leases import queues
 from backend.services.review import agreement, label_audits
-from backend.services.review.verification import HeuristicThresholds, heuristic_verdict
+from backend.services.review.verification import HeuristicThresholds, detector_verdict, heuristic_verdict
 from backend.services.rounds import rounds
 from workers.handmodel.params import NUM_PARAMS, HandParams
+
+log = logging.getLogger(__name__)
+
+# A pre-annotation fit's source (workers.tasks.detection_inputs.SOURCE, tested equal): not imported, since that
+# module loads OpenCV and the detector's helpers, which recording a fit does not need.
+DETECTOR_SOURCE = "detector"
 
 NUM_KEYPOINTS = 21
 
@@ -97,11 +105,13 @@ def queue_fit(session: Session, queue: jobs.JobQueue, sample_id: int, *, source:
 def record_fit(session: Session, sample_id: int, *, params: Sequence[float], keypoints_m: Sequence[Sequence[float]],
                view_ious: Mapping[int, float], diagnostics: dict[str, Any], inputs: dict[str, Any],
                model_file: str, thresholds: HeuristicThresholds, job_id: int | None = None,
-               prediction_id: int | None = None, vertices_m: np.ndarray | None = None) -> Fit:
+               prediction_id: int | None = None, vertices_m: np.ndarray | None = None,
+               detector_thresholds: HeuristicThresholds | None = None) -> Fit:
     """Store a fit of a sample in 'fitting' and route it: heuristic accept (D^h) when a prediction passes
-    all criteria; straight to review when fitted from annotations; else 'fitted', awaiting the reviewer
-    queue policy. `vertices_m` (V, 3) metres, world frame: the fitted mesh as the worker posed it, stored
-    with the fit so the API shows it without posing the hand again (float32)."""
+    all criteria, or a pre-annotation's fit passes them with the detector in MVNet's role (`detector_thresholds`;
+    None: detector fits are never accepted without a person); straight to review when fitted from annotations;
+    else 'fitted', awaiting the reviewer queue policy. `vertices_m` (V, 3) metres, world frame: the fitted mesh as
+    the worker posed it, stored with the fit so the API shows it without posing the hand again (float32)."""
     theta = _finite_array(params, (NUM_PARAMS,), "params")
     kp = _finite_array(keypoints_m, (NUM_KEYPOINTS, 3), "keypoints_m")
     vertices = None
@@ -137,16 +147,28 @@ def record_fit(session: Session, sample_id: int, *, params: Sequence[float], key
     if job_id is not None:
         jobs.finish(session, job_id, JobState.succeeded, result={"fit_id": fit.id})
 
+    verdict, estimator = None, "mvnet"
+    detection = inputs.get("detection") if inputs.get("source") == DETECTOR_SOURCE else None
     if prediction is not None and ious:
         verdict = heuristic_verdict(prediction.confidences, ious.values(), prediction.keypoints_m, fit.keypoints_m,
                                     thresholds)
+    elif detector_thresholds is not None and ious and isinstance(detection, dict):
+        estimator = DETECTOR_SOURCE
+        try:
+            verdict = detector_verdict(detection.get("confidence"), ious.values(), detection.get("points_world"),
+                                       fit.keypoints_m, detector_thresholds)
+        except (TypeError, ValueError) as exc:  # a malformed stored detection: a person looks instead
+            log.warning("fit %s: detector heuristic not applied: %s", fit.id, exc)
+    if verdict is not None:
         fit.heuristic = {"accepted": verdict.accepted, "failed": list(verdict.failed), **verdict.metrics,
-                         "iou_reference": iou_reference(inputs)}
+                         "iou_reference": iou_reference(inputs), "estimator": estimator}
         if verdict.accepted:
             transition(session, sample, SampleState.accepted, None, reason="heuristic")
             round_ = rounds.open_round(session, None)
             session.add(Decision(sample_id=sample_id, fit_id=fit.id, round_id=round_.id, by_heuristic=True,
-                                 decision=DecisionKind.accept, reason="heuristic: all criteria met"))
+                                 decision=DecisionKind.accept,
+                                 reason=f"heuristic ({'detector' if estimator == DETECTOR_SOURCE else 'MVNet'}): "
+                                        "all criteria met"))
             rounds.add_member(session, round_, sample_id, fit.id, Stream.heuristic)
             label_audits.schedule(session, round_, sample_id, fit.id, Stream.heuristic, None)
     elif inputs.get("submission_ids") and not agreement.route(session, sample, fit):  # issue 40's second looks

@@ -29,6 +29,10 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
             "keep", "--round0-rest", help="With the detector, the initial set's samples the review policy does "
             "not pick: keep (left for round 1's MVNet, as the paper leaves every round's unpicked samples; only fits "
             "sent back are annotated) or annotate (clicked in round 0)."),
+        round0_frames: str = typer.Option(
+            "all", "--round0-frames", help="With the detector, the training frames pre-annotated in round 0: all "
+            "(its heuristic accepts what it can; reviewers see the rest by the queue policy) or initial (the initial "
+            "set only, every k-th frame)."),
         train_steps: int | None = typer.Option(
             None, "--train-steps", min=1, help="Each network trains this many steps a round instead of for the time "
             "budgets: runs then repeat exactly (to compare variants); default: the budgets, as users run."),
@@ -69,7 +73,7 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
                          handsegnet_steps=handsegnet_steps, seed=seed, audit_share=audit_share,
                          precision_target=precision_target, reviewer_error_rate=reviewer_error_rate,
                          reviewer_accept_below_mm=reviewer_accept_below_mm, gold_labels=gold_labels,
-                         gold_share=gold_share)
+                         gold_share=gold_share, round0_frames=round0_frames)
         except ValueError as exc:
             typer.echo(f"error: {exc}", err=True)
             raise typer.Exit(code=2) from exc

@@ -29,16 +29,9 @@ class HeuristicThresholds:
     max_keypoint_distance_m: float = 0.010  # every keypoint distance at most
 
     @classmethod
-    def from_settings(cls, settings: Settings) -> HeuristicThresholds:
-        return cls(
-            min_mean_confidence=settings.heuristic_min_mean_confidence,
-            min_keypoint_confidence=settings.heuristic_min_keypoint_confidence,
-            min_mean_iou=settings.heuristic_min_mean_iou,
-            low_iou=settings.heuristic_low_iou,
-            max_low_iou_views=settings.heuristic_max_low_iou_views,
-            max_mean_distance_m=settings.heuristic_max_mean_distance_m,
-            max_keypoint_distance_m=settings.heuristic_max_keypoint_distance_m,
-        )
+    def from_settings(cls, settings: Settings, prefix: str = "heuristic_") -> HeuristicThresholds:
+        """The settings' thresholds: `prefix` "heuristic_" (MVNet's fits) or "detector_heuristic_" (detector fits)."""
+        return cls(**{name: getattr(settings, prefix + name) for name in cls.__dataclass_fields__})
 
 
 @dataclass(frozen=True)
@@ -96,6 +89,29 @@ def heuristic_verdict(confidences: Sequence[float], view_ious: Iterable[float], 
     metrics = {"mean_confidence": mean_conf, "min_confidence": float(conf.min()), "mean_iou": mean_iou,
                "low_iou_views": float(low_views), "mean_distance_m": mean_dist, "max_distance_m": max_dist}
     return HeuristicResult(accepted=not failed, failed=tuple(failed), metrics=metrics)
+
+
+def detector_verdict(confidence: Sequence[float | None], view_ious: Iterable[float],
+                     lifted_m: Sequence[Sequence[float | None]], fitted_m: Sequence[Sequence[float]],
+                     thresholds: HeuristicThresholds) -> HeuristicResult:
+    """The three criteria on a fit made from the pretrained detector (pre-annotation), the detector's lift in
+    MVNet's role. A keypoint the detector did not lift (None / NaN: fewer than two views agreed) fails the fit.
+
+    Args:
+        confidence: (21,) the lifted keypoints' confidences in [0, 1] (workers.detector LiftedKeypoints).
+        view_ious: (C,) IoU between the fitted model's mask and the view's chroma-key mask cut at the wrist.
+        lifted_m: (21, 3) the detector's keypoints lifted over the views, metres, world frame.
+        fitted_m: (21, 3) keypoints of the fitted hand model, metres, world frame.
+    """
+    conf = np.array(confidence, dtype=np.float64)  # None -> NaN
+    lifted = np.array(lifted_m, dtype=np.float64)
+    if lifted.ndim != 2 or lifted.shape[1] != 3 or conf.shape != (lifted.shape[0],):
+        raise ValueError(f"lifted keypoints must be (K, 3) with (K,) confidences, got {lifted.shape}, {conf.shape}")
+    missing = int((~np.isfinite(lifted).all(1) | ~np.isfinite(conf)).sum())
+    if missing:
+        return HeuristicResult(False, (f"{missing} keypoints not lifted by the detector (every one is needed)",),
+                               {"keypoints_not_lifted": float(missing)})
+    return heuristic_verdict(conf, view_ious, lifted, fitted_m, thresholds)
 
 
 @dataclass(frozen=True)

@@ -41,3 +41,14 @@ def test_the_cumulative_share_counts_every_round_s_acceptances_against_the_first
     rows = side_by_side_rows({"rounds": rounds})
     assert [r["heuristic_share"] for r in rows] == [None, 33 / 176, 8 / 133]
     assert [r["heuristic_share_cumulative"] for r in rows] == [None, 33 / 176, 41 / 176]
+
+
+def test_with_round_0s_detector_heuristic_the_pool_is_every_sample_the_machine_fitted_once():
+    """Round 0 pre-annotated 150 frames, the detector's heuristic took 60 and D_0 holds 90 of them; round 1 fitted the
+    110 samples not in D_0. The pool is 90 + 110 (never round 0's 150 again), so the share is not overstated."""
+    round0 = {**_round(0, None), "preannotation": {"result": {"heuristic": {"fits": 150, "evaluated": 150,
+                                                                             "accepted": 60}}}, "dataset_size": 90}
+    rounds = [round0, _round(1, {"evaluated": 110, "accepted": 20}), _round(2, {"evaluated": 80, "accepted": 10})]
+    rows = side_by_side_rows({"rounds": rounds})
+    assert [r["heuristic_share"] for r in rows] == [60 / 150, 20 / 110, 10 / 80]
+    assert [r["heuristic_share_cumulative"] for r in rows] == [60 / 150, 80 / 200, 90 / 200]

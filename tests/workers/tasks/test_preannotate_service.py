@@ -43,9 +43,11 @@ def world(tmp_path, capture_cache, monkeypatch, request):
     capture = tiny_capture(capture_cache, frames=4)
     url = request.getfixturevalue("database_url") if "database_url" in request.fixturenames else None
     # No time gap between picked frames, and reviewers' capacity for 2 of the 4: the confidence ranking alone
-    # decides who is reviewed.
+    # decides who is reviewed. The detector's heuristic is off here (these tests are about the routing); the tests
+    # that name it turn it on.
     settings = Settings(data_dir=tmp_path / "data", database_url=url, review_min_time_gap_s=0.0,
-                        review_min_pose_distance=0.0, review_capacity_per_round=2, **TEST_SETTINGS)
+                        review_min_pose_distance=0.0, review_capacity_per_round=2, detector_heuristic=False,
+                        **TEST_SETTINGS)
     project_id = prepare_database(settings, capture, queue_for_annotation=False)
     queue = InMemoryJobQueue()
     ctx = build_context(settings, job_queue=queue)
@@ -99,7 +101,7 @@ def test_preannotation_fits_every_sample_and_routes_them_by_the_review_policy(da
             assert fit.inputs["residual_reweighted"] is True  # fitted again, reweighted by the first fit's residuals
             # The capture's chroma-key masks lead the fit; the detector's keypoints weigh little against them.
             assert fit.inputs["mask_ids"] and fit.diagnostics["weights"]["kp2d"] == DETECTOR_KP2D_WEIGHT
-            assert fit.prediction_id is None and fit.heuristic is None  # round 0: reviewers first, no heuristic
+            assert fit.prediction_id is None and fit.heuristic is None  # the detector's heuristic is off here
             assert len(fit.inputs["detection"]["views"]) == 8 and fit.inputs["keypoints_2d"] > 8 * 21 // 2
         samples = session.execute(select(Sample).order_by(Sample.id)).scalars().all()
         for sample in samples:
@@ -222,6 +224,74 @@ def test_the_fixed_policy_stays_available(world):
     fake.outliers_by_frame = {0: 0, 1: 1, 2: 2, 3: 3}  # four different confidences
     result = preannotate.run_preannotation_job(ctx, _launch(ctx, queue, project_id, rest="annotate"))
     assert result["to_review"] == 2 and result["fitted_to_annotators"] == 2, result
+
+
+def _with_detector_heuristic(ctx, **thresholds):
+    ctx.settings = ctx.settings.model_copy(update={"detector_heuristic": True, **thresholds})
+
+
+def test_the_detectors_heuristic_accepts_fits_that_meet_it_into_round_0s_d_h(database_url, world):
+    """Thresholds every fit of the (fake) detector meets: all four are accepted without a person, as D^h of round 0,
+    each with a heuristic decision naming the detector, and the job counts them; nobody is asked to review."""
+    from backend.models.enums import Stream
+    from backend.models.review import Decision, Round, RoundMember
+
+    ctx, queue, project_id, fake = world
+    _with_detector_heuristic(ctx, detector_heuristic_min_mean_confidence=0.0, detector_heuristic_min_mean_iou=0.0,
+                             detector_heuristic_max_low_iou_views=8, detector_heuristic_max_mean_distance_m=1.0,
+                             detector_heuristic_max_keypoint_distance_m=1.0)
+    result = preannotate.run_preannotation_job(ctx, _launch(ctx, queue, project_id))
+    assert result["heuristic"] == {"fits": 4, "evaluated": 4, "accepted": 4}, result
+    assert result["to_review"] == 0, result
+    _, _, states = _counts(ctx)
+    assert states == {SampleState.accepted: 4}, states
+    with ctx.session_factory() as session:
+        fits = session.execute(select(Fit)).scalars().all()
+        assert all(f.heuristic["accepted"] and f.heuristic["estimator"] == "detector" for f in fits)
+        members = session.execute(select(RoundMember.stream, Round.index).join(Round)).all()
+        assert members == [(Stream.heuristic, 0)] * 4, members
+        reasons = session.execute(select(Decision.reason).where(Decision.by_heuristic.is_(True))).scalars().all()
+        assert reasons == ["heuristic (detector): all criteria met"] * 4
+
+
+def test_the_detectors_heuristic_leaves_what_fails_it_to_the_reviewers(world):
+    """Default thresholds against a fit whose keypoints the detector did not all lift, and thresholds no fit meets:
+    nothing is accepted, each fit says why, and the review policy routes the samples as without the heuristic."""
+    ctx, queue, project_id, fake = world
+    _with_detector_heuristic(ctx, detector_heuristic_min_mean_confidence=1.0)  # none is above 1
+    fake.outliers_by_frame = {0: 0, 1: 1, 2: 2, 3: 3}
+    result = preannotate.run_preannotation_job(ctx, _launch(ctx, queue, project_id, rest="annotate"))
+    assert result["heuristic"] == {"fits": 4, "evaluated": 4, "accepted": 0}, result
+    assert result["to_review"] == 2 and result["fitted_to_annotators"] == 2, result
+    with ctx.session_factory() as session:
+        for fit in session.execute(select(Fit)).scalars():
+            assert not fit.heuristic["accepted"]
+            assert any(r.startswith("mean confidence") for r in fit.heuristic["failed"]), fit.heuristic
+
+
+@pytest.mark.parametrize(("min_training", "to_review"), [(2, 1), (3, 2)])
+def test_once_the_heuristic_gave_d0_enough_labels_the_percentile_cuts_round_0s_review(world, monkeypatch,
+                                                                                      min_training, to_review):
+    """The heuristic accepts the two clean frames (recorded first). Where two labels are enough for round 1
+    (`round_min_training_samples` 2), only the other fits from the median up reach the reviewers (capacity for all),
+    the other stays fitted for round 1; where they are not (3), every fit is offered, as without the heuristic."""
+    from backend.services.review.verification import HeuristicResult
+    from workers.tasks import records
+
+    ctx, queue, project_id, fake = world
+    _with_detector_heuristic(ctx)
+    ctx.settings = ctx.settings.model_copy(update={"review_capacity_per_round": 1000, "review_percentile_cut": True,
+                                                   "round_min_training_samples": min_training})
+    fake.outliers_by_frame = {0: 0, 1: 0, 2: 2, 3: 3}  # frames 2 and 3: outlier views, lower confidences
+    verdicts = iter([True, True, False, False])
+    monkeypatch.setattr(records, "detector_verdict", lambda *a: HeuristicResult(next(verdicts), (), {}))
+    result = preannotate.run_preannotation_job(ctx, _launch(ctx, queue, project_id))
+    assert result["heuristic"] == {"fits": 4, "evaluated": 4, "accepted": 2}, result
+    assert result["to_review"] == to_review, result
+    with ctx.session_factory() as session:
+        states = {s.frame_index: s.state for s in session.execute(select(Sample)).scalars()}
+    assert states[0] == states[1] == SampleState.accepted and states[2] == SampleState.in_review, states
+    assert states[3] == (SampleState.fitted if to_review == 1 else SampleState.in_review), states
 
 
 def test_a_redelivered_job_records_nothing_twice(database_url, world):

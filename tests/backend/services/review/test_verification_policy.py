@@ -187,3 +187,29 @@ def test_capacity_comes_from_settings_and_zero_means_the_fixed_policy():
     assert ReviewPolicy.from_settings(Settings(review_percentile_cut=False)).percentile_cut is False
     with pytest.raises(ValueError, match="capacity"):
         ReviewPolicy(capacity=-1)
+
+
+def test_the_detectors_heuristic_needs_every_keypoint_lifted_then_applies_the_three_criteria():
+    from backend.services.review.verification import detector_verdict
+
+    t = HeuristicThresholds.from_settings(Settings(), "detector_heuristic_")
+    assert (t.min_mean_confidence, t.max_mean_distance_m, t.max_keypoint_distance_m) == (0.5, 0.010, 0.025)
+    lifted = [[0.0, 0.0, 0.0]] * 21
+    fitted = np.zeros((21, 3))
+    fitted[:, 0] += 0.008  # 8 mm off everywhere: within the detector's 10 mm, beyond MVNet's 5 mm
+    assert detector_verdict([0.6] * 21, [0.8] * 8, lifted, fitted, t).accepted
+    assert not heuristic_verdict([0.6] * 21, [0.8] * 8, lifted, fitted, T).accepted
+    one_missing = [*lifted[:20], [None, None, None]]
+    result = detector_verdict([0.6] * 20 + [None], [0.8] * 8, one_missing, fitted, t)
+    assert not result.accepted and result.failed == ("1 keypoints not lifted by the detector (every one is needed)",)
+    low = detector_verdict([0.45] * 21, [0.8] * 8, lifted, fitted, t)
+    assert not low.accepted and low.failed[0].startswith("mean confidence 0.450")
+    with pytest.raises(ValueError, match="lifted keypoints"):
+        detector_verdict([0.6] * 21, [0.8] * 8, [[0.0, 0.0]] * 21, fitted, t)
+
+
+def test_records_names_the_detector_source_as_the_pre_annotation_does():
+    from workers.tasks.detection_inputs import SOURCE
+    from workers.tasks.records import DETECTOR_SOURCE
+
+    assert DETECTOR_SOURCE == SOURCE

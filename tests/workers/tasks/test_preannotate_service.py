@@ -236,7 +236,7 @@ def test_the_detectors_heuristic_accepts_fits_that_meet_it_into_round_0s_d_h(dat
     from backend.models.enums import Stream
     from backend.models.review import Decision, Round, RoundMember
 
-    ctx, queue, project_id, fake = world
+    ctx, queue, project_id, _fake = world
     _with_detector_heuristic(ctx, detector_heuristic_min_mean_confidence=0.0, detector_heuristic_min_mean_iou=0.0,
                              detector_heuristic_max_low_iou_views=8, detector_heuristic_max_mean_distance_m=1.0,
                              detector_heuristic_max_keypoint_distance_m=1.0)

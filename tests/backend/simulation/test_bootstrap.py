@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 from sqlalchemy import text
 
+from backend.bench.sim import heuristic_shares_cumulative
 from backend.models.enums import JobState, Role
 from backend.services.captures.samples import views_of
 from backend.services.jobs import jobs
@@ -215,9 +216,11 @@ def test_a_timeout_keeps_the_rounds_measured_so_far(env_with, sqlite_url, captur
 
 
 def _detector_sim(env, capture_dir, monkeypatch, *, rounds: int = 1, accept_proposals_px: float | None = None,
-                  round0_rest: str = "annotate"):
+                  round0_rest: str = "annotate", round0_frames: str = "initial", detector_heuristic: bool = False):
     """The simulation with the detector on: the pre-annotation job runs in-process with the ground-truth fake.
-    Round 0's unpicked samples go to the annotators unless `round0_rest` is "keep" (the simulation's default)."""
+    Round 0's unpicked samples go to the annotators unless `round0_rest` is "keep" (the simulation's default).
+    By default the initial set alone is pre-annotated and the detector's heuristic is off (the routing is tested);
+    the simulation's defaults are "all" and on."""
     from backend.services.rounds import preannotation
     from tests.support.detector_fake import FakeDetector
     from workers.tasks import preannotate
@@ -229,12 +232,14 @@ def _detector_sim(env, capture_dir, monkeypatch, *, rounds: int = 1, accept_prop
     monkeypatch.setattr(preannotation, "detector_problem", lambda: None)
     admin = ApiClient(env.client, token_of(env, Role.admin))
     config = BootstrapConfig(rounds=rounds, annotators=1, reviewers=1, detector=True, round0_rest=round0_rest,
+                             round0_frames=round0_frames,
                              annotator=AnnotatorConfig(click_sigma_px=1.0, max_mask_corrections=0, seed=3,
                                                        accept_proposals_within_px=accept_proposals_px),
                              reviewer=ReviewerConfig(accept_below_mm=8.0, error_rate=0.0))
     sim = BootstrapSimulation(env.client, admin, config)
     workers = FakeWorkers(env, sim)
-    ctx = build_context(env.settings, job_queue=env.queue)
+    ctx = build_context(env.settings.model_copy(update={"detector_heuristic": detector_heuristic}),
+                        job_queue=env.queue)
 
     def run_job(job_id: int) -> dict:
         preannotate.run_preannotation_job(ctx, job_id)
@@ -286,6 +291,27 @@ def test_with_the_default_round_0_plan_d0_is_the_verified_detector_fits_alone(en
     assert summary["d0_verified_share"] == 1.0 and first["effort"]["submissions"] == 0
     states = {s["frame_index"]: s["state"] for s in admin.sample_index()["samples"] if s["split"] == "train"}
     assert states[3] == "fitted", states
+
+
+def test_by_default_every_training_frame_is_pre_annotated_and_the_detectors_heuristic_fills_d0(
+        env_with, sqlite_url, capture_dir, tmp_path, monkeypatch):
+    """The simulation's defaults: every training frame pre-annotated, the detector's heuristic on. The fake's clean
+    frames (every view agreeing) pass it and join D_0 as D^h without a person; the round's heuristic counts are
+    the pre-annotation's, and its share by round 0 is accepted over evaluated."""
+    env = env_with(sqlite_url, tmp_path / "data", review_min_time_gap_s=0.0, review_min_pose_distance=0.0,
+                   fit_global_iterations=15, fit_full_iterations=25)
+    sim, admin = _detector_sim(env, capture_dir, monkeypatch, rounds=0, round0_rest="keep", round0_frames="all",
+                               detector_heuristic=True)
+    summary = sim.run(capture_dir, initial_every=3)
+    assert summary["failure"] is None and summary["bookkeeping_ok"]
+    training = [s for s in admin.sample_index()["samples"] if s["split"] == "train"]
+    assert summary["initial_set"] == len(training) > 4
+    first = summary["rounds"][0]
+    counts = first["preannotation"]["result"]["heuristic"]
+    assert counts["evaluated"] == first["preannotation"]["result"]["fitted"] and counts["accepted"] > 0, counts
+    assert first["added"]["heuristic"] == counts["accepted"] == first["auto_accepted"]
+    assert first["auto_accept_precision"] == 1.0 and first["accepted_vertex_mm"] < 8.0
+    assert heuristic_shares_cumulative(summary["rounds"]) == [counts["accepted"] / counts["evaluated"]]
 
 
 def test_the_detector_run_is_refused_before_anything_is_imported_where_it_cannot_run(env_with, sqlite_url,

@@ -136,7 +136,8 @@ class Settings(BaseSettings):
     review_percentile_cut: bool = Field(
         default=True, description="With a capacity, rounds 1 on: the queue is filled only from the confidence "
         "percentile up (the rest waits for the next round's networks: a fit sent back costs an annotation); false: "
-        "the percentile only orders the candidates. Round 0's detector fits are all offered either way.")
+        "the percentile only orders the candidates. Round 0's detector fits are all offered until the detector's "
+        "heuristic has given D_0 round_min_training_samples labels.")
 
     # --- workers: Celery broker, job hand-off and robustness (docs/deployment.md) -----------------
     broker_url: str | None = Field(

@@ -222,8 +222,11 @@ class Helpers:
 
     @staticmethod
     def record_fit(env: Env, sample_id: int, *, prediction: dict | None = None, ious: float = 0.9,
-                   articulation: float = 1.0, offset_m: float = 0.0, from_clicks: bool = False) -> int:
-        """Record (as a worker would) a fit for a sample in 'fitting'; returns the fit id."""
+                   articulation: float = 1.0, offset_m: float = 0.0, from_clicks: bool = False,
+                   detection: dict | None = None) -> int:
+        """Record (as a worker would) a fit for a sample in 'fitting'; returns the fit id. `detection`: a
+        pre-annotation's fit from this detection record (points_world, confidence), judged by the detector's
+        heuristic at its default thresholds."""
         import numpy as np
 
         from backend.services.captures.samples import views_of
@@ -243,8 +246,10 @@ class Helpers:
             fit = records.record_fit(
                 session, sample_id, params=params, keypoints_m=(keypoints + offset_m).tolist(),
                 view_ious={v.id: ious for v in views}, diagnostics={"loss": 0.1},
-                inputs={"submission_ids": [1]} if from_clicks else {"prediction_id": prediction_id},
-                model_file="builtin", thresholds=HeuristicThresholds(), prediction_id=prediction_id)
+                inputs=({"submission_ids": [1]} if from_clicks else {"source": "detector", "detection": detection}
+                        if detection is not None else {"prediction_id": prediction_id}),
+                model_file="builtin", thresholds=HeuristicThresholds(), prediction_id=prediction_id,
+                detector_thresholds=HeuristicThresholds.from_settings(env.settings, "detector_heuristic_"))
             return fit.id
 
     @staticmethod

@@ -79,11 +79,14 @@ def _metrics(heuristic: dict[str, Any] | None) -> dict[str, float] | None:
 
 
 def evidence(session: Session) -> list[Evidence]:
-    """Audited labels and reviewers' decisions on fits from predictions, with the fits' heuristic metrics."""
+    """Audited labels and reviewers' decisions on fits from predictions, with the fits' heuristic metrics. Fits from
+    the detector (round 0's heuristic, its own thresholds) are not evidence for MVNet's thresholds: the same metric
+    means something else there."""
     out: list[Evidence] = []
     audit_decisions: set[int] = set()
     for row, heuristic in session.execute(select(LabelAudit, Fit.heuristic).join(Fit, Fit.id == LabelAudit.fit_id)
-                                          .where(LabelAudit.state == "done").order_by(LabelAudit.id)):
+                                          .where(LabelAudit.state == "done", Fit.prediction_id.is_not(None))
+                                          .order_by(LabelAudit.id)):
         if row.decision_id is not None:
             audit_decisions.add(row.decision_id)
         metrics = _metrics(heuristic)

@@ -242,3 +242,29 @@ def test_gold_labels_are_slipped_in_blind_and_measure_each_reviewers_agreement(e
                                                      headers=env.headers(Role.admin)).json()}
     assert (team[env.user_ids[Role.admin]]["gold_judged"], team[env.user_ids[Role.admin]]["gold_agreement"]) == (2, 0.5)
     assert team[env.user_ids[Role.reviewer]]["overturned"] == 0  # a gold look judges the looker, not the accepter
+
+
+def test_audits_of_the_detectors_accepts_are_no_evidence_for_mvnets_thresholds(env, h):
+    """Both heuristics' accepts are audited (D^h either way); only those of fits from predictions feed the precision
+    target's choice of MVNet's thresholds."""
+    import numpy as np
+
+    from backend.services.review import precision_target
+
+    _share(env, 1.0)
+    detector_id, mvnet_id = h.seed(env, frames=2, cameras=2, state="fitting")
+    lifted = np.linspace(0, 0.1, 63).reshape(21, 3).tolist()  # the fit's keypoints (h.record_fit's)
+    h.record_fit(env, detector_id, detection={"points_world": lifted, "confidence": [0.7] * 21})
+    h.record_fit(env, mvnet_id, prediction=GOOD)
+    for _ in range(2):
+        task = h.next_task(env, Role.reviewer, "review")
+        decided = env.client.post(f"/api/review/samples/{task['sample_id']}/decision", json={"decision": "accept"},
+                                  headers=env.headers(Role.reviewer))
+        assert decided.status_code == 201, decided.text
+    with env.session() as s:
+        reasons = s.execute(text("SELECT reason FROM decisions WHERE by_heuristic ORDER BY sample_id")).scalars().all()
+        audited = s.execute(text("SELECT count(*) FROM label_audits WHERE state = 'done'")).scalar_one()
+        evidence = precision_target.evidence(s)
+    assert reasons == ["heuristic (detector): all criteria met", "heuristic (MVNet): all criteria met"]
+    assert audited == 2
+    assert [e.source for e in evidence] == ["audit"] and evidence[0].metrics["mean_confidence"] == 0.9

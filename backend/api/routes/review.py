@@ -13,7 +13,8 @@ from backend.services.leases import queues
 from backend.services.review import label_audits, review
 
 router = APIRouter(prefix="/review", tags=["reviewer queue"])
-router.include_router(lease_routes(LeaseKind.review, ReviewerUser, ReviewDraftIn, "decision and reason"))
+router.include_router(lease_routes(LeaseKind.review, ReviewerUser, ReviewDraftIn, "decision and reason",
+                                   label_audits.retake))
 
 
 @router.post("/next", response_model=TaskPublic, responses={204: {"description": "The queue is empty."}})

@@ -45,6 +45,12 @@ def build_queue(session: Session, policy: ReviewPolicy, actor_id: int | None) ->
 def decide(session: Session, user: Actor, sample_id: int, decision: DecisionKind, reason: str,
            lease_token: str | None) -> tuple[Decision, Sample, Stream | None]:
     sample = queues.load_locked(session, sample_id)
+    if sample.state == SampleState.accepted and not (sample.leased_by_id == user.id
+                                                     and sample.lease_kind == LeaseKind.review):
+        # An audit's lease that lapsed and went to another reviewer (or was decided): what to do, not the state
+        # (which would tell the reviewer it was an accepted label).
+        raise ConflictError(f"sample {sample_id} was decided or given to someone else while your review lease had "
+                            "lapsed; ask for the next task")
     queues.check_lease(sample, user, LeaseKind.review, lease_token)
     if sample.current_fit_id is None:
         raise ConflictError(f"sample {sample_id} has no fit to verify")

@@ -242,3 +242,62 @@ def test_gold_labels_are_slipped_in_blind_and_measure_each_reviewers_agreement(e
                                                      headers=env.headers(Role.admin)).json()}
     assert (team[env.user_ids[Role.admin]]["gold_judged"], team[env.user_ids[Role.admin]]["gold_agreement"]) == (2, 0.5)
     assert team[env.user_ids[Role.reviewer]]["overturned"] == 0  # a gold look judges the looker, not the accepter
+
+
+def _lapse(env, sample_id: int) -> None:
+    from datetime import timedelta
+
+    from backend.db.base import utcnow
+
+    with env.session() as s, s.begin():
+        s.execute(text("UPDATE samples SET lease_expires_at = :t WHERE id = :i"),
+                  {"t": utcnow() - timedelta(seconds=1), "i": sample_id})
+
+
+def test_a_lapsed_audit_lease_is_retaken_and_decided(env, h):
+    _share(env, 1.0)
+    (sample_id,) = _heuristic_accepts(env, h, frames=1)
+    task = h.next_task(env, Role.reviewer, "review")
+    assert task["sample_id"] == sample_id
+    _lapse(env, sample_id)
+    late = env.client.post(f"/api/review/samples/{sample_id}/decision",
+                           json={"decision": "accept", "lease_token": task["lease_token"]},
+                           headers=env.headers(Role.reviewer))
+    assert late.status_code == 409 and "lease/retake" in late.json()["detail"], late.text  # says what to do
+    retaken = env.client.post(f"/api/review/samples/{sample_id}/lease/retake",
+                              json={"lease_token": task["lease_token"]}, headers=env.headers(Role.reviewer))
+    assert retaken.status_code == 200, retaken.text
+    assert retaken.json()["lease_token"] == task["lease_token"]  # nobody took it since: the same lease
+    done = env.client.post(f"/api/review/samples/{sample_id}/decision",
+                           json={"decision": "accept", "lease_token": task["lease_token"]},
+                           headers=env.headers(Role.reviewer))
+    assert done.status_code == 201, done.text
+    assert _quality(env)["streams"]["heuristic"]["audited"] == 1
+
+
+def test_a_lapsed_audit_comes_back_from_the_queue_to_the_reviewer_who_held_it(env, h):
+    _share(env, 1.0)
+    _heuristic_accepts(env, h, frames=3)
+    task = h.next_task(env, Role.reviewer, "review")
+    _lapse(env, task["sample_id"])
+    again = h.next_task(env, Role.reviewer, "review")
+    assert again["sample_id"] == task["sample_id"] and again["lease_token"] == task["lease_token"]
+
+
+def test_a_stale_audit_lease_is_refused_naming_what_to_do(env, h):
+    _share(env, 1.0)
+    (sample_id,) = _heuristic_accepts(env, h, frames=1)
+    task = h.next_task(env, Role.reviewer, "review")
+    _lapse(env, sample_id)
+    other = h.next_task(env, Role.admin, "review")  # another reviewer is given the lapsed audit and decides it
+    assert other["sample_id"] == sample_id
+    assert env.client.post(f"/api/review/samples/{sample_id}/decision", json={"decision": "accept"},
+                           headers=env.headers(Role.admin)).status_code == 201
+    for path, body in ((f"/api/review/samples/{sample_id}/lease/retake", {"lease_token": task["lease_token"]}),
+                       (f"/api/review/samples/{sample_id}/decision",
+                        {"decision": "accept", "lease_token": task["lease_token"]})):
+        refused = env.client.post(path, json=body, headers=env.headers(Role.reviewer))
+        assert refused.status_code == 409, refused.text
+        detail = refused.json()["detail"]
+        assert set(refused.json()) <= {"detail", "errors"}
+        assert "next task" in detail and "'accepted'" not in detail, detail  # what to do; blind: not the state

@@ -383,10 +383,15 @@ def _recount(session: Session, round_id: int | None) -> None:
 
 
 def decide(session: Session, user: Actor, sample: Sample, decision: DecisionKind, reason: str,
-           round_: Round) -> tuple[Decision, Sample, Stream | None]:
+           round_: Round) -> tuple[Decision, Sample, Stream | None, bool]:
     """The reviewer's decision on an audit they hold (services.review.review.decide hands it here for an accepted
-    sample): the verdict beside the label; a wrong label leaves the dataset. Returns what a review returns: the
-    decision row, the sample and the stream a regular accept would report (so the page cannot tell)."""
+    sample): the verdict beside the label; a wrong label leaves the dataset. Returns the decision row, the sample,
+    the stream a regular accept would report for an audit (so the page cannot tell), and whether it was a gold look.
+
+    A gold look is a test of the reviewer, not of the label (known right): the sample's state and label never move,
+    the verdict is the reviewer's answer ('correct': agreed), the stream None (nothing joined the dataset), and the
+    answer says so (`recorded_as` 'gold_answer' in the API): the look was blind until decided, and each reviewer sees
+    a gold label once, so saying it afterwards gives nothing away for later tasks."""
     row = open_audit(session, sample.id, user.id)
     if row is None:  # blind: the look is over, whatever the sample's state says
         raise ConflictError(f"sample {sample.id} was decided or withdrawn while your review lease had lapsed; ask "
@@ -402,7 +407,7 @@ def decide(session: Session, user: Actor, sample: Sample, decision: DecisionKind
     row.reason = reason
     if row.kind == "gold":  # a gold label is known right: the verdict is the reviewer's agreement, nothing moves
         row.verdict = "correct" if decision is DecisionKind.accept else "wrong"
-        stream: Stream | None = shown_stream if decision is DecisionKind.accept else None
+        stream: Stream | None = None
     elif decision is DecisionKind.accept:
         row.verdict = "correct"
         stream = shown_stream
@@ -424,8 +429,8 @@ def decide(session: Session, user: Actor, sample: Sample, decision: DecisionKind
     session.flush()
     row.decision_id = decision_row.id
     audit.record(session, user.id, "label_audit.decide", "sample", sample.id, label_audit_id=row.id,
-                 verdict=row.verdict, decision=decision.value)
-    return decision_row, sample, stream
+                 kind=row.kind, verdict=row.verdict, decision=decision.value)
+    return decision_row, sample, stream, row.kind == "gold"
 
 
 # --- the figures ------------------------------------------------------------------------------------------------------
@@ -497,11 +502,15 @@ def summary(session: Session) -> dict[str, Any]:
 
 def list_audits(session: Session) -> list[dict[str, Any]]:
     """Every audit with its label (sample, fit with its parameters, round index, stream), verdict and reason: what a
-    client that knows the truth (the simulation) compares with, including the labels audits took out."""
+    client that knows the truth (the simulation) compares with, including the labels audits took out. Gold looks
+    too (`kind` 'gold': the verdict is the reviewer's answer, 'wrong' = they rejected a label known right)."""
     rows = session.execute(select(LabelAudit, Round.index, Fit.params)
                            .join(Round, Round.id == LabelAudit.round_id, isouter=True)
                            .join(Fit, Fit.id == LabelAudit.fit_id, isouter=True).order_by(LabelAudit.id)).all()
-    return [{"id": a.id, "sample_id": a.sample_id, "round": index, "stream": a.stream, "state": a.state,
-             "verdict": a.verdict, "reason": a.reason, "by_heuristic": a.accepted_by_id is None and a.stream ==
-             Stream.heuristic.value, "fit": None if a.fit_id is None else {"id": a.fit_id, "params": params}}
+    return [{"id": a.id, "kind": a.kind, "sample_id": a.sample_id, "round": index, "stream": a.stream,
+             "state": a.state, "verdict": a.verdict, "reason": a.reason,
+             # Only an audit takes a label out; a gold look's 'wrong' is the reviewer's miss, the label stays.
+             "label_removed": a.kind == "audit" and a.verdict == "wrong",
+             "by_heuristic": a.accepted_by_id is None and a.stream == Stream.heuristic.value,
+             "fit": None if a.fit_id is None else {"id": a.fit_id, "params": params}}
             for a, index, params in rows]

@@ -301,3 +301,40 @@ def test_a_stale_audit_lease_is_refused_naming_what_to_do(env, h):
         detail = refused.json()["detail"]
         assert set(refused.json()) <= {"detail", "errors"}
         assert "next task" in detail and "'accepted'" not in detail, detail  # what to do; blind: not the state
+
+
+def test_a_rejected_gold_label_stays_gold_and_the_answers_say_so(env, h):
+    from backend.services.review import precision_target
+
+    _share(env, 0.0, gold_share=1.0)
+    (sample_id,) = _heuristic_accepts(env, h, frames=1)
+    marked = env.client.post("/api/admin/quality/gold", json={"sample_id": sample_id}, headers=env.headers(Role.admin))
+    assert marked.status_code == 201, marked.text
+    task = h.next_task(env, Role.reviewer, "review")
+    assert task["sample_id"] == sample_id and task["state"] == "in_review"  # blind until decided
+    response = env.client.post(f"/api/review/samples/{sample_id}/decision",
+                               json={"decision": "reject", "reason": "looks off", "lease_token": task["lease_token"]},
+                               headers=env.headers(Role.reviewer))
+    assert response.status_code == 201, response.text
+    answer = response.json()
+    # Explicit: the decision is the reviewer's answer to a gold label; the label and its state did not move, and
+    # nothing joined (or left) the dataset.
+    assert (answer["recorded_as"], answer["state"], answer["stream"]) == ("gold_answer", "accepted", None)
+    index = env.client.get("/api/admin/exports/samples", headers=env.headers(Role.admin)).json()["samples"]
+    assert [(s["sample_id"], s["state"], s["gold"]) for s in index] == [(sample_id, "accepted", True)]
+    assert h.count(env, "round_members") == 1
+    (look,) = env.client.get("/api/admin/quality/audits", headers=env.headers(Role.admin)).json()["audits"]
+    assert (look["kind"], look["verdict"], look["label_removed"]) == ("gold", "wrong", False)
+    # A reviewer's miss on a gold label is not evidence that the heuristic's labels are wrong.
+    with env.session() as s:
+        assert not any(e.wrong for e in precision_target.evidence(s))
+    assert _quality(env)["streams"]["heuristic"]["audited"] == 0
+
+
+def test_an_ordinary_decision_is_recorded_as_a_review(env, h):
+    ids = h.seed(env, frames=1, cameras=1, state="fitting")
+    h.record_fit(env, ids[0], from_clicks=True)
+    task = h.next_task(env, Role.reviewer, "review")
+    response = env.client.post(f"/api/review/samples/{task['sample_id']}/decision", json={"decision": "accept"},
+                               headers=env.headers(Role.reviewer))
+    assert response.status_code == 201 and response.json()["recorded_as"] == "review", response.text

@@ -13,7 +13,9 @@ from sqlalchemy.orm import Mapped, mapped_column
 
 from backend.db.base import Base, utcnow
 
-AGREEMENT_STATES = ("second_look", "done")  # second_look: waiting for another annotator's blind look
+# second_look: waiting for another annotator's blind look; single: picked, but annotated once (no other active
+# annotator to take the second look): the first look's fit is the label, reviewed as usual.
+AGREEMENT_STATES = ("second_look", "done", "single")
 
 
 class AgreementPair(Base):

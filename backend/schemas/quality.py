@@ -88,3 +88,7 @@ class QualitySummary(Public):
                                              "overall (services.review.agreement).")
     thresholds: dict[str, Any] | None = Field(default=None, description="The heuristic thresholds in use and why "
                                                                          "(services.review.precision_target).")
+    people: dict[str, Any] | None = Field(default=None, description="Per person: accept rate, seconds per sample "
+                                          "(annotators), overturned share, gold agreement, seconds per decision "
+                                          "(reviewers), in the current week against their earlier weeks and the team "
+                                          "median (services.statistics.team_statistics.quality_over_time).")

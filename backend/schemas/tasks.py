@@ -184,6 +184,12 @@ class DecisionPublic(Public):
     fit_id: int | None
     decision: DecisionKind
     reason: str
-    state: SampleState
-    stream: str | None
+    state: SampleState = Field(description="The sample's state after the decision (for a gold answer: unchanged).")
+    stream: str | None = Field(description="The dataset stream the label joined with this decision; null when "
+                                           "nothing joined (a reject, a send-back, a gold answer).")
     created_at: datetime
+    recorded_as: Literal["review", "gold_answer"] = Field(
+        default="review",
+        description="'review': the decision moved the sample as `state` says. 'gold_answer': the sample is a gold "
+                    "label (known right), a test of the reviewer: the decision is recorded as their answer to it "
+                    "(agreement with gold, per person) and the sample's state and label are unchanged.")

@@ -461,7 +461,9 @@ class BootstrapSimulation:
         stream accepted (those in the dataset and those audits took out), over the audited ones alone, and over the
         dataset as it is now; whether the interval holds the true share, and whether the precision target (the
         run's, else the issue's 2 %) is met on the true labels."""
-        audits = [a for a in self.admin.label_audits() if a["sample_id"] in self.truth and a["fit"]]
+        # Gold looks judge the reviewers, not the labels (a rejected gold label stays): audits only.
+        audits = [a for a in self.admin.label_audits()
+                  if a.get("kind", "audit") == "audit" and a["sample_id"] in self.truth and a["fit"]]
         estimates = self.admin.quality()["streams"]
         self._fit_errors([{"sample_id": a["sample_id"], "fit": a["fit"]} for a in audits])
         limit = self.config.auto_accept_max_mm

@@ -40,11 +40,39 @@ function agreementPart(a) {
     h("td", { class: "num pairs" }, String(f.pairs)), h("td", { class: "num px" }, px(f.mean_px)),
     h("td", { class: "num mm" }, mm(f.mean_mm)));
   return [h("h3", {}, "Agreement: samples annotated twice, blind"),
-    h("p", { class: "muted" }, `${a.pairs} pairs, ${a.waiting} waiting for a second look, ${a.disputed} disputed ` +
+    h("p", { class: "muted" }, `${a.pairs} pairs, ${a.waiting} waiting for a second look, ${a.single ?? 0} ` +
+      `annotated once (no other annotator to take a second look), ${a.disputed} disputed ` +
       `(fits over ${fmt(a.dispute_mm, 0)} mm apart: the review decides). ${a.method}.`),
     a.pairs ? h("table", { class: "table quality-agreement" },
       h("thead", {}, h("tr", {}, ["annotator", "pairs", "2D disagreement", "3D disagreement"].map((c) => h("th", {}, c)))),
       h("tbody", {}, row("all", a, "all"), a.people.map((p) => row(`user ${p.user_id}`, p, String(p.user_id))))) : null];
+}
+
+// Per person (services.statistics.team_statistics.quality_over_time): each figure this week beside the person's
+// earlier weeks and the team median, so a person is compared with themselves and with the team.
+const FIGURE_LABEL = { accept_rate: "accept rate", seconds_per_sample: "s per sample", overturned_rate: "overturned",
+  gold_agreement: "gold agreement", seconds_per_decision: "s per decision" };
+const figureValue = (name, v) => (v === null || v === undefined ? "–"
+  : name.startsWith("seconds") ? `${fmt(v, 1)} s` : pct(v));
+
+function peoplePart(p) {
+  if (!p || !p.people.length) return [];
+  const cell = (name, f) => `${figureValue(name, f.value)}${f.n ? ` (${f.n})` : ""}`;
+  const rows = p.people.flatMap((person) => p.figures.filter((f) => person.figures[f.name]).map((f) => {
+    const mine = person.figures[f.name];
+    return h("tr", { dataset: { user: String(person.user_id), figure: f.name } },
+      h("td", {}, person.full_name || person.email), h("td", { title: f.meaning }, FIGURE_LABEL[f.name] || f.name),
+      h("td", { class: "num current" }, cell(f.name, mine.current)),
+      h("td", { class: "num earlier" }, cell(f.name, mine.earlier)),
+      h("td", { class: "num median" }, figureValue(f.name, p.team_median[f.name].current)));
+  }));
+  return [h("h3", {}, "People over time"),
+    h("p", { class: "muted" }, `Week of ${p.current_week} against each person's earlier weeks and the team median ` +
+      `(in brackets: the units behind a figure). ${p.method}.`),
+    h("table", { class: "table quality-people" },
+      h("thead", {}, h("tr", {}, ["person", "figure", "this week", "earlier weeks", "team median (this week)"]
+        .map((c) => h("th", {}, c)))),
+      h("tbody", {}, rows))];
 }
 
 const HEAD = ["audited", "called wrong", "share wrong", "95 % interval (Wilson)", "pending"];
@@ -123,6 +151,7 @@ export class QualitySection {
           h("td", { class: "num" }, String(g.gold_agreed)), h("td", { class: "num" }, pct(g.agreement)),
           h("td", { class: "num" }, interval(g.agreement_ci95)))))) : h("p", { class: "muted" }, "No gold judged yet."),
       ...agreementPart(q.agreement),
+      ...peoplePart(q.people),
       t ? h("div", { class: "callout thresholds" }, h("strong", {}, "Heuristic thresholds: "), t.explanation) : null);
     this.section.dataset.ready = "quality";
   }

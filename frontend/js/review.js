@@ -196,7 +196,10 @@ class ReviewPage extends QueuePage {
       this.timer.mark("decide");
       this.queue.logActivity({ context: "review", sample_id: task.sample_id, decision_id: result.id,
         time_spent_s: Math.round(this.spentSeconds() * 1000) / 1000, actions: this.timer.actions });
-      toast(`sample ${task.sample_id}: ${decision}${result.stream ? ` (joins D as ${result.stream})` : ""}`, "ok", 2000);
+      // A gold label (known right) does not move: the decision was recorded as the reviewer's answer to it.
+      const effect = result.recorded_as === "gold_answer" ? " (a gold check: recorded as your answer; the label stays)"
+        : result.stream ? ` (joins D as ${result.stream})` : "";
+      toast(`sample ${task.sample_id}: ${decision}${effect}`, "ok", 2000);
       this.deciding = false;
       this.justDecided = true;
       const prefetched = Boolean(this.prepared);

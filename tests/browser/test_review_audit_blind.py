@@ -47,3 +47,9 @@ def test_an_audit_looks_like_any_review_task(live_stack, tab):
     assert page.inner_text(".quality-streams tr[data-stream=annotated] td.audited") == "1"
     assert page.inner_text(".quality-streams tr[data-stream=annotated] td.rate") == "0.0 %"
     assert page.locator(".quality-rounds tr[data-round='0'][data-stream=annotated]").count() == 1
+    # People over time: the reviewer's and the auditor's overturned share this week (one decision each, the audit
+    # agreed), beside the team median.
+    rows = page.locator(".quality-people tr[data-figure=overturned_rate]")
+    assert rows.count() == 2
+    assert rows.locator("td.current").all_inner_texts() == ["0.0 % (1)"] * 2
+    assert rows.locator("td.median").all_inner_texts() == ["0.0 %"] * 2

@@ -6,6 +6,7 @@ and the queue's user dependency and draft body are the factory's arguments, whic
 could not name.
 """
 
+from collections.abc import Callable
 from typing import Any
 
 from fastapi import APIRouter, Response
@@ -19,11 +20,14 @@ from backend.schemas.tasks import LeasePublic, LeaseRequest
 from backend.services.leases import drafts, queues
 
 
-def lease_routes(kind: LeaseKind, user_dep: Any, draft_body: type[Strict], draft_contents: str) -> APIRouter:
+def lease_routes(kind: LeaseKind, user_dep: Any, draft_body: type[Strict], draft_contents: str,
+                 retake_lease: Callable[..., queues.Lease] | None = None) -> APIRouter:
     """The shared routes under `/samples/{sample_id}` for the queue of `kind`.
 
     `user_dep` is the queue's role dependency (AnnotatorUser, ReviewerUser); `draft_body` the schema of its
     drafts; `draft_contents` what a draft holds, as the routes' descriptions say it ("your clicks and masks").
+    `retake_lease(session, user, sample_id, token, lease_seconds)`: the queue's own retake where it holds more than
+    its state's samples (review: blind audits of accepted labels); by default `queues.retake`.
     The handlers keep their names: the OpenAPI operation ids are made from them and the path.
     """
     router = APIRouter()
@@ -42,7 +46,10 @@ def lease_routes(kind: LeaseKind, user_dep: Any, draft_body: type[Strict], draft
     def retake(sample_id: Id, body: LeaseRequest, session: SessionDep, settings: SettingsDep,
                user: user_dep) -> LeasePublic:
         """Take a lapsed lease again while nobody else holds the sample (409 naming why otherwise)."""
-        lease = queues.retake(session, user, sample_id, kind, body.lease_token, settings.lease_seconds)
+        if retake_lease is None:
+            lease = queues.retake(session, user, sample_id, kind, body.lease_token, settings.lease_seconds)
+        else:
+            lease = retake_lease(session, user, sample_id, body.lease_token, settings.lease_seconds)
         return LeasePublic(sample_id=lease.sample_id, lease_token=lease.token, lease_expires_at=lease.expires_at)
 
     @router.get("/samples/{sample_id}/draft", response_model=DraftPublic,

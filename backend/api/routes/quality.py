@@ -9,6 +9,7 @@ from fastapi import APIRouter
 from backend.api.deps import AdminUser, SessionDep
 from backend.schemas.quality import GoldMark, GoldPublic, QualitySettingsIn, QualitySettingsPublic, QualitySummary
 from backend.services.review import agreement, label_audits, precision_target
+from backend.services.statistics.team_statistics import quality_over_time
 
 router = APIRouter(prefix="/admin/quality", tags=["admin: label quality"])
 
@@ -16,9 +17,10 @@ router = APIRouter(prefix="/admin/quality", tags=["admin: label quality"])
 @router.get("", response_model=QualitySummary)
 def quality(session: SessionDep, _admin: AdminUser) -> dict[str, Any]:
     """Per round and stream: labels audited blind, found wrong, the share and its Wilson 95 % interval; the
-    heuristic's thresholds the newest round chose and why."""
+    heuristic's thresholds the newest round chose and why; per person, their quality this week against their earlier
+    weeks and the team median."""
     return {**label_audits.summary(session), "thresholds": precision_target.current(session),
-            "agreement": agreement.summary(session)}
+            "agreement": agreement.summary(session), "people": quality_over_time(session)}
 
 
 @router.put("/settings", response_model=QualitySettingsPublic)

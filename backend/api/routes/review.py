@@ -13,7 +13,8 @@ from backend.services.leases import queues
 from backend.services.review import label_audits, review
 
 router = APIRouter(prefix="/review", tags=["reviewer queue"])
-router.include_router(lease_routes(LeaseKind.review, ReviewerUser, ReviewDraftIn, "decision and reason"))
+router.include_router(lease_routes(LeaseKind.review, ReviewerUser, ReviewDraftIn, "decision and reason",
+                                   label_audits.retake))
 
 
 @router.post("/next", response_model=TaskPublic, responses={204: {"description": "The queue is empty."}})
@@ -30,8 +31,10 @@ def next_task(session: SessionDep, settings: SettingsDep, user: ReviewerUser) ->
 
 @router.post("/samples/{sample_id}/decision", response_model=DecisionPublic, status_code=201)
 def decide(sample_id: Id, body: DecisionCreate, session: SessionDep, user: ReviewerUser) -> DecisionPublic:
-    """Accept, reject, or send back for annotation (with a reason) a sample whose review lease you hold."""
-    row, sample, stream = review.decide(session, user, sample_id, body.decision, body.reason, body.lease_token)
+    """Accept, reject, or send back for annotation (with a reason) a sample whose review lease you hold. On a gold
+    label (`recorded_as` 'gold_answer') the decision is your answer to it and the sample does not move."""
+    row, sample, stream, gold_answer = review.decide(session, user, sample_id, body.decision, body.reason,
+                                                     body.lease_token)
     return DecisionPublic(id=row.id, sample_id=sample_id, fit_id=row.fit_id, decision=row.decision,
                           reason=row.reason, state=sample.state, stream=stream.value if stream else None,
-                          created_at=row.created_at)
+                          created_at=row.created_at, recorded_as="gold_answer" if gold_answer else "review")

@@ -12,6 +12,7 @@ from backend.schemas.users import AccountLock, Unlocked, UserCreate, UserPublic,
 from backend.services import audit
 from backend.services.accounts import users
 from backend.services.accounts.login_limits import LoginLimiter
+from backend.services.review import agreement
 
 router = APIRouter(prefix="/admin/users", tags=["admin: users"])
 
@@ -28,8 +29,12 @@ def create_user(body: UserCreate, session: SessionDep, admin: AdminUser) -> User
 
 @router.patch("/{user_id}", response_model=UserPublic)
 def update_user(user_id: Id, body: UserUpdate, session: SessionDep, admin: AdminUser) -> User:
-    return users.update_user(session, user_id, admin.id, role=body.role, is_active=body.is_active,
+    user = users.update_user(session, user_id, admin.id, role=body.role, is_active=body.is_active,
                              password=body.password, full_name=body.full_name)
+    if body.is_active is False or body.role is not None:  # the last other annotator gone: no second look waits
+        session.flush()
+        agreement.release_stranded(session, admin.id)
+    return user
 
 
 @router.get("/locks", response_model=list[AccountLock])

@@ -6,6 +6,7 @@
                                +----- fit failed ----------+  |        |
                                +------------------------------|--------+----------- annotate
                                +-- no hand (annotator) --> rejected
+                               +-- agreement's first look, no second annotator left --> in_review
                                                               +-- refit (new predictions)
 
 No skipping: nothing reaches `accepted` without a fit, and only reviewers (or the heuristic) accept; an accepted
@@ -23,7 +24,9 @@ from backend.services.errors import ConflictError
 
 TRANSITIONS: dict[S, frozenset[S]] = {
     S.unlabeled: frozenset({S.needs_annotation, S.fitting}),
-    S.needs_annotation: frozenset({S.annotated, S.rejected}),  # rejected: an annotator saw no hand in it
+    # rejected: an annotator saw no hand in it; in_review: an agreement pair's first look, held for a second look
+    # nobody is left to take, goes to review with its fit (services.review.agreement.release_stranded).
+    S.needs_annotation: frozenset({S.annotated, S.rejected, S.in_review}),
     S.annotated: frozenset({S.fitting}),
     S.fitting: frozenset({S.fitted, S.needs_annotation}),
     S.fitted: frozenset({S.in_review, S.accepted, S.fitting, S.needs_annotation}),

@@ -13,6 +13,7 @@ from sqlalchemy.orm import Session
 from backend.models.capture import CameraCalibration, Project, Sample, Sequence, View
 from backend.models.enums import MaskKind
 from backend.models.fits import Fit, Prediction
+from backend.models.label_audit import GoldLabel
 from backend.models.labels import Mask
 from backend.models.review import Round, RoundMember
 from backend.services.errors import InvalidInputError, NotFoundError
@@ -76,18 +77,20 @@ def dataset(session: Session, up_to_round: int | None = None, project: str | Non
 
 def sample_index(session: Session, project: str | None = None) -> dict[str, Any]:
     """Every sample with its sequence's external id, frame, split and state: how a client maps the
-    server's ids to a capture's frames (e.g. to compare with ground truth)."""
+    server's ids to a capture's frames (e.g. to compare with ground truth); `gold`: an admin marked its label gold
+    (reviewers' decisions on it are their answers; it stays as it is)."""
     _check_project(session, project)
     query = (select(Sample.id, Sample.sequence_id, Sequence.external_id, Sample.frame_index, Sample.time_s,
                     Sample.split, Sample.state, Sample.current_fit_id, Sample.confidence, Project.name,
-                    Sequence.side)
+                    Sequence.side, GoldLabel.id.is_not(None))
              .join(Sequence, Sequence.id == Sample.sequence_id)
              .join(Project, Project.id == Sequence.project_id)
+             .join(GoldLabel, GoldLabel.sample_id == Sample.id, isouter=True)
              .order_by(Sample.id))
     if project is not None:
         query = query.where(Project.name == project)
     keys = ("sample_id", "sequence_id", "sequence", "frame_index", "time_s", "split", "state", "current_fit_id",
-            "confidence", "project", "side")
+            "confidence", "project", "side", "gold")
     samples = [dict(zip(keys, row, strict=True)) for row in session.execute(query)]
     return {"count": len(samples), "samples": samples}
 

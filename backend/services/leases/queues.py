@@ -185,9 +185,11 @@ def check_lease(sample: LeaseState, user: Actor, kind: LeaseKind, token: str | N
             raise ConflictError(f"sample {sample.id} is '{sample.state}', not in the {kind.value} queue")
         raise PermissionDeniedError(f"you hold no {kind.value} lease on sample {sample.id}; ask for the next task")
     if token is not None and sample.lease_token != token:
-        raise PermissionDeniedError(f"lease token does not match your lease on sample {sample.id}")
+        raise PermissionDeniedError(f"lease token does not match your lease on sample {sample.id}; use the token "
+                                    "your latest next task or retake returned")
     if sample.lease_expires_at is None or sample.lease_expires_at <= now:
-        raise LeaseExpiredError(f"your lease on sample {sample.id} expired; ask for the next task")
+        raise LeaseExpiredError(f"your lease on sample {sample.id} expired; take it again (POST /api/{kind.value}/"
+                                f"samples/{sample.id}/lease/retake) or ask for the next task")
 
 
 def renew(session: Session, user: Actor, sample_id: int, kind: LeaseKind, token: str | None,
@@ -199,17 +201,20 @@ def renew(session: Session, user: Actor, sample_id: int, kind: LeaseKind, token:
 
 
 def retake(session: Session, user: Actor, sample_id: int, kind: LeaseKind, token: str | None,
-           lease_seconds: int, now: datetime | None = None) -> Lease:
+           lease_seconds: int, now: datetime | None = None, *, in_queue: bool | None = None) -> Lease:
     """Take the lease on `sample_id` again after it lapsed (the server was unreachable, the laptop slept),
     so the work on screen can still be submitted: allowed while the sample is in the queue and nobody else
     holds a live lease on it. The token is kept when the lapsed lease was the caller's own and nobody took
     the sample since; otherwise (released, or another's lapsed lease) a new one is issued. A live own lease
     is renewed. `token` (the one the caller had) is only recorded in the audit row.
 
+    `in_queue`: the caller has decided whether the sample is this queue's work (a blind audit of an accepted label is
+    the review queue's: services.review.label_audits.retake); by default, its state is the queue's.
+
     ConflictError (409) naming why when the sample left the queue or another person holds it now."""
     now = now or utcnow()
     sample = load_locked(session, sample_id)
-    if sample.state != QUEUE_STATE[kind]:
+    if not (sample.state == QUEUE_STATE[kind] if in_queue is None else in_queue):
         raise ConflictError(f"sample {sample_id} is '{sample.state}' now, no longer in the {kind.value} queue")
     live = sample.lease_expires_at is not None and sample.lease_expires_at > now
     mine = sample.leased_by_id == user.id and sample.lease_kind == kind

@@ -14,6 +14,12 @@
 - The label: the fit with the lower mean 2D residual to its own clicks (the better-supported one; the first on a
   tie) becomes the sample's current fit and goes to review as every annotated fit does. Pairs whose fits lie more
   than DISPUTE_MM apart are marked disputed: that review is the third look that decides.
+- Nobody to take the second look: a sample is held only while another active user with the annotator role exists
+  (`others_to_annotate`; reviewers and admins may take a second look when they annotate, but a team whose only
+  annotator did the first would wait on people who mostly review). Otherwise the pair is recorded 'single' (picked,
+  annotated once) and the sample goes on as any annotated fit. A pair already waiting when the last other annotator
+  is deactivated or leaves the role (`release_stranded`, on that change and when the next fit is recorded) goes the
+  same way: the first look's fit is the label again, to review; unless someone holds the sample or has a draft of it.
 """
 
 from __future__ import annotations
@@ -22,16 +28,18 @@ import math
 from typing import Any
 
 import numpy as np
-from sqlalchemy import select
+from sqlalchemy import delete, select
 from sqlalchemy.orm import Session
 
 from backend.db.base import utcnow
 from backend.models.agreement import AgreementPair
 from backend.models.capture import Sample
-from backend.models.enums import FlagKind, SampleState, Visibility
+from backend.models.drafts import Draft
+from backend.models.enums import FlagKind, LeaseKind, Role, SampleState, Visibility
 from backend.models.fits import Fit
 from backend.models.flags import AnnotationFlag
 from backend.models.labels import Click, Submission
+from backend.models.users import User
 from backend.services import audit
 from backend.services.captures.state_machine import transition
 from backend.services.review.label_audits import QualityConfig, read_config, unit_hash
@@ -83,6 +91,54 @@ def better_fit(first: Fit, second: Fit) -> Fit:
     return second if _residual_px(second) < _residual_px(first) else first
 
 
+def others_to_annotate(session: Session, user_id: int | None) -> bool:
+    """Whether an active annotator other than `user_id` exists to take a second look."""
+    return session.execute(select(User.id).where(User.role == Role.annotator, User.is_active,
+                                                 User.id != (user_id if user_id is not None else -1))
+                           .limit(1)).first() is not None
+
+
+def release_stranded(session: Session, actor_id: int | None) -> list[int]:
+    """Pairs waiting for a second look that no other active annotator is left to take: the first look's fit is the
+    sample's label again and the sample goes to review, the pair ends 'single', and the first annotator's agreement
+    flag goes (the sample may come back to them if the review sends it back). A sample someone holds or has a draft
+    of is left waiting (that person's look is under way). Returns the released samples' ids."""
+    waiting = session.execute(select(AgreementPair).where(AgreementPair.state == "second_look")
+                              .order_by(AgreementPair.id)).scalars().all()
+    now = utcnow()
+    released: list[int] = []
+    for pair in waiting:
+        if others_to_annotate(session, pair.first_user_id):
+            continue
+        sample = session.execute(select(Sample).where(Sample.id == pair.sample_id)
+                                 .with_for_update(skip_locked=True)).scalar_one_or_none()
+        first_fit = session.get(Fit, pair.first_fit_id) if pair.first_fit_id is not None else None
+        if sample is None or sample.state != SampleState.needs_annotation or first_fit is None:
+            continue
+        held = sample.lease_expires_at is not None and sample.lease_expires_at > now
+        drafted = session.execute(select(Draft.id).where(Draft.sample_id == sample.id,
+                                                         Draft.kind == LeaseKind.annotate.value).limit(1)).first()
+        if held or drafted is not None:
+            continue
+        _single(pair, first_fit, now)
+        sample.current_fit_id = first_fit.id
+        sample.pose_distance = first_fit.pose_distance
+        session.execute(delete(AnnotationFlag).where(AnnotationFlag.sample_id == sample.id,
+                                                     AnnotationFlag.kind == FlagKind.agreement.value))
+        transition(session, sample, SampleState.in_review, actor_id,
+                   reason=f"agreement: no other annotator for a second look; the first look's fit {first_fit.id}")
+        audit.record(session, actor_id, "agreement.single", "sample", sample.id, agreement_id=pair.id,
+                     label_fit_id=first_fit.id, released=True)
+        released.append(sample.id)
+    return released
+
+
+def _single(pair: AgreementPair, fit: Fit, now: Any) -> None:
+    pair.state = "single"
+    pair.label_fit_id = fit.id
+    pair.decided_at = now
+
+
 def route(session: Session, sample: Sample, fit: Fit) -> bool:
     """Called where a fit of an annotator's submission is recorded, the sample in 'fitted': True when this routed the
     sample (a first look sent to another annotator, or a second look that made the pair's label and sent it to
@@ -94,8 +150,18 @@ def route(session: Session, sample: Sample, fit: Fit) -> bool:
     pair = session.execute(select(AgreementPair).where(AgreementPair.sample_id == sample.id)
                            .with_for_update()).scalar_one_or_none()
     if pair is None:
+        release_stranded(session, None)  # pairs left waiting when the last other annotator went
         config = read_config(session)
         if config.agreement_share <= 0 or not picked(config, sample.id):
+            return False
+        if not others_to_annotate(session, submission.user_id):  # nobody could take the second look: not held
+            pair = AgreementPair(sample_id=sample.id, state="second_look", first_user_id=submission.user_id,
+                                 first_submission_id=submission.id, first_fit_id=fit.id)
+            _single(pair, fit, utcnow())
+            session.add(pair)
+            session.flush()
+            audit.record(session, None, "agreement.single", "sample", sample.id, agreement_id=pair.id,
+                         label_fit_id=fit.id, released=False)
             return False
         pair = AgreementPair(sample_id=sample.id, state="second_look", first_user_id=submission.user_id,
                              first_submission_id=submission.id, first_fit_id=fit.id)
@@ -141,10 +207,12 @@ def _mean(values: list[float]) -> float | None:
 
 
 def summary(session: Session) -> dict[str, Any]:
-    """The agreement figures: pairs done and waiting, disputed; per keypoint (21) the mean 2D disagreement (px); the
-    mean 2D (px) and 3D (mm) disagreement overall and per person (each annotator's pairs, first or second look)."""
+    """The agreement figures: pairs done and waiting, disputed, single (annotated once: nobody to take the second
+    look); per keypoint (21) the mean 2D disagreement (px); the mean 2D (px) and 3D (mm) disagreement overall and per
+    person (each annotator's pairs, first or second look)."""
     pairs = session.execute(select(AgreementPair)).scalars().all()
     done = [p for p in pairs if p.state == "done"]
+    single = sum(1 for p in pairs if p.state == "single")
     per_keypoint: list[list[float]] = [[] for _ in range(NUM_KEYPOINTS)]
     people: dict[int, dict[str, list[float]]] = {}
     for p in done:
@@ -159,7 +227,8 @@ def summary(session: Session) -> dict[str, Any]:
             if p.disagreement_mm is not None:
                 cell["mm"].append(p.disagreement_mm)
     return {
-        "pairs": len(done), "waiting": len(pairs) - len(done), "disputed": sum(1 for p in done if p.disputed),
+        "pairs": len(done), "waiting": sum(1 for p in pairs if p.state == "second_look"), "single": single,
+        "disputed": sum(1 for p in done if p.disputed),
         "dispute_mm": DISPUTE_MM,
         "mean_px": _mean([p.mean_px for p in done if p.mean_px is not None]),
         "mean_mm": _mean([p.disagreement_mm for p in done if p.disagreement_mm is not None]),
@@ -168,5 +237,7 @@ def summary(session: Session) -> dict[str, Any]:
                    for user_id, c in sorted(people.items())],
         "method": "a picked sample is annotated again, blind, by another annotator; px: points both placed by hand "
                   "in the same view; mm: mean keypoint distance of the two fits; label: the fit with the lower "
-                  f"2D residual, reviewed as usual; over {DISPUTE_MM:g} mm apart: disputed, the review decides",
+                  f"2D residual, reviewed as usual; over {DISPUTE_MM:g} mm apart: disputed, the review decides; "
+                  "single: picked but annotated once, no other active annotator to take the second look (the "
+                  "first look reviewed as usual; in no figure)",
     }

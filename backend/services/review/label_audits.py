@@ -181,6 +181,51 @@ def _own_audit(session: Session, user: Actor, now: datetime, expires: datetime,
     return _lease(sample, expires)
 
 
+def _lapsed_audit(session: Session, user: Actor, now: datetime, expires: datetime,
+                  exclude_sample_id: int | None) -> queues.Lease | None:
+    """An audit whose lease this reviewer let lapse and nobody took since: theirs again first (with the same token),
+    as the queue gives back a sample they left a draft on, so the look on their screen can still be decided."""
+    query = (select(Sample).where(Sample.leased_by_id == user.id, Sample.lease_kind == LeaseKind.review.value,
+                                  Sample.lease_expires_at <= now, Sample.state == SampleState.accepted,
+                                  _open_to(user, Sample.id))
+             .order_by(Sample.id).limit(1).with_for_update(skip_locked=True))
+    if exclude_sample_id is not None:
+        query = query.where(Sample.id != exclude_sample_id)
+    sample = session.execute(query).scalar_one_or_none()
+    if sample is None:
+        return None
+    sample.lease_expires_at = expires
+    if sample.lease_token is None:
+        sample.lease_token = secrets.token_urlsafe(16)
+    audit.record(session, user.id, "lease.retake", "sample", sample.id, kind=LeaseKind.review.value, same_token=True)
+    return _lease(sample, expires)
+
+
+def _open_to(user: Actor, sample_id_col):
+    """The sample has a pending look this reviewer may decide: an audit of a label they did not accept, or their own
+    gold look."""
+    return select(LabelAudit.id).where(
+        LabelAudit.sample_id == sample_id_col, LabelAudit.state == "pending",
+        or_(and_(LabelAudit.kind == "audit",
+                 or_(LabelAudit.accepted_by_id.is_(None), LabelAudit.accepted_by_id != user.id)),
+            and_(LabelAudit.kind == "gold", LabelAudit.auditor_id == user.id))).exists()
+
+
+def retake(session: Session, user: Actor, sample_id: int, token: str | None, lease_seconds: int,
+           now: datetime | None = None) -> queues.Lease:
+    """The review queue's retake (services.leases.queues.retake) for audits too: an accepted sample whose pending look
+    this reviewer may decide is the review queue's work, so a lapsed audit lease is taken again like any other.
+    ConflictError naming what to do when the look was decided or withdrawn meanwhile (blind: not the sample's state)."""
+    sample = queues.load_locked(session, sample_id)
+    if sample.state != SampleState.accepted:
+        return queues.retake(session, user, sample_id, LeaseKind.review, token, lease_seconds, now)
+    open_to_user = session.execute(select(_open_to(user, sample_id))).scalar()
+    if not open_to_user:
+        raise ConflictError(f"sample {sample_id} was decided or withdrawn while your review lease had lapsed; ask "
+                            "for the next task")
+    return queues.retake(session, user, sample_id, LeaseKind.review, token, lease_seconds, now, in_queue=True)
+
+
 def _free_audit(session: Session, user: Actor, now: datetime, exclude_sample_id: int | None) -> LabelAudit | None:
     """The oldest pending audit a reviewer may take: its sample free, not a label this reviewer accepted."""
     query = (select(LabelAudit).join(Sample, Sample.id == LabelAudit.sample_id)
@@ -303,6 +348,9 @@ def next_review(session: Session, user: Actor, lease_seconds: int, regular: Call
     held = session.execute(select(func.count()).select_from(Sample).where(_live_review(user, now))).scalar_one()
     if held >= MAX_HELD:
         return None, False
+    lapsed = _lapsed_audit(session, user, now, expires, ahead_of)
+    if lapsed is not None:
+        return lapsed, True
     action = "lease.acquire" if ahead_of is None else "lease.prefetch"
     config = read_config(session)
     gold = _gold_due(session, user, config, now, ahead_of)
@@ -335,13 +383,19 @@ def _recount(session: Session, round_id: int | None) -> None:
 
 
 def decide(session: Session, user: Actor, sample: Sample, decision: DecisionKind, reason: str,
-           round_: Round) -> tuple[Decision, Sample, Stream | None]:
+           round_: Round) -> tuple[Decision, Sample, Stream | None, bool]:
     """The reviewer's decision on an audit they hold (services.review.review.decide hands it here for an accepted
-    sample): the verdict beside the label; a wrong label leaves the dataset. Returns what a review returns: the
-    decision row, the sample and the stream a regular accept would report (so the page cannot tell)."""
+    sample): the verdict beside the label; a wrong label leaves the dataset. Returns the decision row, the sample,
+    the stream a regular accept would report for an audit (so the page cannot tell), and whether it was a gold look.
+
+    A gold look is a test of the reviewer, not of the label (known right): the sample's state and label never move,
+    the verdict is the reviewer's answer ('correct': agreed), the stream None (nothing joined the dataset), and the
+    answer says so (`recorded_as` 'gold_answer' in the API): the look was blind until decided, and each reviewer sees
+    a gold label once, so saying it afterwards gives nothing away for later tasks."""
     row = open_audit(session, sample.id, user.id)
-    if row is None:
-        raise ConflictError(f"sample {sample.id} is 'accepted', not in the review queue")
+    if row is None:  # blind: the look is over, whatever the sample's state says
+        raise ConflictError(f"sample {sample.id} was decided or withdrawn while your review lease had lapsed; ask "
+                            "for the next task")
     if row.accepted_by_id is not None and row.accepted_by_id == user.id:
         raise ConflictError(f"sample {sample.id} is not yours to judge; ask for the next task")
     fit = session.get(Fit, row.fit_id) if row.fit_id is not None else None
@@ -353,7 +407,7 @@ def decide(session: Session, user: Actor, sample: Sample, decision: DecisionKind
     row.reason = reason
     if row.kind == "gold":  # a gold label is known right: the verdict is the reviewer's agreement, nothing moves
         row.verdict = "correct" if decision is DecisionKind.accept else "wrong"
-        stream: Stream | None = shown_stream if decision is DecisionKind.accept else None
+        stream: Stream | None = None
     elif decision is DecisionKind.accept:
         row.verdict = "correct"
         stream = shown_stream
@@ -375,8 +429,8 @@ def decide(session: Session, user: Actor, sample: Sample, decision: DecisionKind
     session.flush()
     row.decision_id = decision_row.id
     audit.record(session, user.id, "label_audit.decide", "sample", sample.id, label_audit_id=row.id,
-                 verdict=row.verdict, decision=decision.value)
-    return decision_row, sample, stream
+                 kind=row.kind, verdict=row.verdict, decision=decision.value)
+    return decision_row, sample, stream, row.kind == "gold"
 
 
 # --- the figures ------------------------------------------------------------------------------------------------------
@@ -448,11 +502,15 @@ def summary(session: Session) -> dict[str, Any]:
 
 def list_audits(session: Session) -> list[dict[str, Any]]:
     """Every audit with its label (sample, fit with its parameters, round index, stream), verdict and reason: what a
-    client that knows the truth (the simulation) compares with, including the labels audits took out."""
+    client that knows the truth (the simulation) compares with, including the labels audits took out. Gold looks
+    too (`kind` 'gold': the verdict is the reviewer's answer, 'wrong' = they rejected a label known right)."""
     rows = session.execute(select(LabelAudit, Round.index, Fit.params)
                            .join(Round, Round.id == LabelAudit.round_id, isouter=True)
                            .join(Fit, Fit.id == LabelAudit.fit_id, isouter=True).order_by(LabelAudit.id)).all()
-    return [{"id": a.id, "sample_id": a.sample_id, "round": index, "stream": a.stream, "state": a.state,
-             "verdict": a.verdict, "reason": a.reason, "by_heuristic": a.accepted_by_id is None and a.stream ==
-             Stream.heuristic.value, "fit": None if a.fit_id is None else {"id": a.fit_id, "params": params}}
+    return [{"id": a.id, "kind": a.kind, "sample_id": a.sample_id, "round": index, "stream": a.stream,
+             "state": a.state, "verdict": a.verdict, "reason": a.reason,
+             # Only an audit takes a label out; a gold look's 'wrong' is the reviewer's miss, the label stays.
+             "label_removed": a.kind == "audit" and a.verdict == "wrong",
+             "by_heuristic": a.accepted_by_id is None and a.stream == Stream.heuristic.value,
+             "fit": None if a.fit_id is None else {"id": a.fit_id, "params": params}}
             for a, index, params in rows]

@@ -89,6 +89,8 @@ def evidence(session: Session) -> list[Evidence]:
                                           .order_by(LabelAudit.id)):
         if row.decision_id is not None:
             audit_decisions.add(row.decision_id)
+        if row.kind != "audit":  # a gold look judges the reviewer: the label is known right, whatever they said
+            continue
         metrics = _metrics(heuristic)
         if metrics is not None:
             out.append(Evidence(metrics, row.verdict == "wrong", "audit"))

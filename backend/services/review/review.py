@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
@@ -42,9 +44,25 @@ def build_queue(session: Session, policy: ReviewPolicy, actor_id: int | None) ->
     return picked
 
 
+class Decided(NamedTuple):
+    """What a reviewer's decision did: the decision row, the sample after it, the stream the label joined (None when
+    nothing joined), and whether the decision was an answer to a gold label (which moves nothing)."""
+
+    decision: Decision
+    sample: Sample
+    stream: Stream | None
+    gold_answer: bool = False
+
+
 def decide(session: Session, user: Actor, sample_id: int, decision: DecisionKind, reason: str,
-           lease_token: str | None) -> tuple[Decision, Sample, Stream | None]:
+           lease_token: str | None) -> Decided:
     sample = queues.load_locked(session, sample_id)
+    if sample.state == SampleState.accepted and not (sample.leased_by_id == user.id
+                                                     and sample.lease_kind == LeaseKind.review):
+        # An audit's lease that lapsed and went to another reviewer (or was decided): what to do, not the state
+        # (which would tell the reviewer it was an accepted label).
+        raise ConflictError(f"sample {sample_id} was decided or given to someone else while your review lease had "
+                            "lapsed; ask for the next task")
     queues.check_lease(sample, user, LeaseKind.review, lease_token)
     if sample.current_fit_id is None:
         raise ConflictError(f"sample {sample_id} has no fit to verify")
@@ -52,7 +70,8 @@ def decide(session: Session, user: Actor, sample_id: int, decision: DecisionKind
     stream: Stream | None = None
     round_ = rounds.open_round(session, user.id)
     if sample.state == SampleState.accepted:  # a blind audit of an accepted label (issue 40)
-        return label_audits.decide(session, user, sample, decision, reason, round_)
+        row, sample, stream, gold = label_audits.decide(session, user, sample, decision, reason, round_)
+        return Decided(row, sample, stream, gold)
     if decision is DecisionKind.accept:
         transition(session, sample, SampleState.accepted, user.id, reason=reason or "verified")
         # D^l: fits that used annotators' clicks; D^m: fits from predictions that a human verified.
@@ -71,4 +90,4 @@ def decide(session: Session, user: Actor, sample_id: int, decision: DecisionKind
     session.flush()
     audit.record(session, user.id, "decision.create", "sample", sample_id, decision=decision.value,
                  reason=reason, stream=stream.value if stream else None)
-    return row, sample, stream
+    return Decided(row, sample, stream)

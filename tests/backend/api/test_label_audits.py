@@ -268,3 +268,99 @@ def test_audits_of_the_detectors_accepts_are_no_evidence_for_mvnets_thresholds(e
     assert reasons == ["heuristic (detector): all criteria met", "heuristic (MVNet): all criteria met"]
     assert audited == 2
     assert [e.source for e in evidence] == ["audit"] and evidence[0].metrics["mean_confidence"] == 0.9
+
+
+def _lapse(env, sample_id: int) -> None:
+    from datetime import timedelta
+
+    from backend.db.base import utcnow
+
+    with env.session() as s, s.begin():
+        s.execute(text("UPDATE samples SET lease_expires_at = :t WHERE id = :i"),
+                  {"t": utcnow() - timedelta(seconds=1), "i": sample_id})
+
+
+def test_a_lapsed_audit_lease_is_retaken_and_decided(env, h):
+    _share(env, 1.0)
+    (sample_id,) = _heuristic_accepts(env, h, frames=1)
+    task = h.next_task(env, Role.reviewer, "review")
+    assert task["sample_id"] == sample_id
+    _lapse(env, sample_id)
+    late = env.client.post(f"/api/review/samples/{sample_id}/decision",
+                           json={"decision": "accept", "lease_token": task["lease_token"]},
+                           headers=env.headers(Role.reviewer))
+    assert late.status_code == 409 and "lease/retake" in late.json()["detail"], late.text  # says what to do
+    retaken = env.client.post(f"/api/review/samples/{sample_id}/lease/retake",
+                              json={"lease_token": task["lease_token"]}, headers=env.headers(Role.reviewer))
+    assert retaken.status_code == 200, retaken.text
+    assert retaken.json()["lease_token"] == task["lease_token"]  # nobody took it since: the same lease
+    done = env.client.post(f"/api/review/samples/{sample_id}/decision",
+                           json={"decision": "accept", "lease_token": task["lease_token"]},
+                           headers=env.headers(Role.reviewer))
+    assert done.status_code == 201, done.text
+    assert _quality(env)["streams"]["heuristic"]["audited"] == 1
+
+
+def test_a_lapsed_audit_comes_back_from_the_queue_to_the_reviewer_who_held_it(env, h):
+    _share(env, 1.0)
+    _heuristic_accepts(env, h, frames=3)
+    task = h.next_task(env, Role.reviewer, "review")
+    _lapse(env, task["sample_id"])
+    again = h.next_task(env, Role.reviewer, "review")
+    assert again["sample_id"] == task["sample_id"] and again["lease_token"] == task["lease_token"]
+
+
+def test_a_stale_audit_lease_is_refused_naming_what_to_do(env, h):
+    _share(env, 1.0)
+    (sample_id,) = _heuristic_accepts(env, h, frames=1)
+    task = h.next_task(env, Role.reviewer, "review")
+    _lapse(env, sample_id)
+    other = h.next_task(env, Role.admin, "review")  # another reviewer is given the lapsed audit and decides it
+    assert other["sample_id"] == sample_id
+    assert env.client.post(f"/api/review/samples/{sample_id}/decision", json={"decision": "accept"},
+                           headers=env.headers(Role.admin)).status_code == 201
+    for path, body in ((f"/api/review/samples/{sample_id}/lease/retake", {"lease_token": task["lease_token"]}),
+                       (f"/api/review/samples/{sample_id}/decision",
+                        {"decision": "accept", "lease_token": task["lease_token"]})):
+        refused = env.client.post(path, json=body, headers=env.headers(Role.reviewer))
+        assert refused.status_code == 409, refused.text
+        detail = refused.json()["detail"]
+        assert set(refused.json()) <= {"detail", "errors"}
+        assert "next task" in detail and "'accepted'" not in detail, detail  # what to do; blind: not the state
+
+
+def test_a_rejected_gold_label_stays_gold_and_the_answers_say_so(env, h):
+    from backend.services.review import precision_target
+
+    _share(env, 0.0, gold_share=1.0)
+    (sample_id,) = _heuristic_accepts(env, h, frames=1)
+    marked = env.client.post("/api/admin/quality/gold", json={"sample_id": sample_id}, headers=env.headers(Role.admin))
+    assert marked.status_code == 201, marked.text
+    task = h.next_task(env, Role.reviewer, "review")
+    assert task["sample_id"] == sample_id and task["state"] == "in_review"  # blind until decided
+    response = env.client.post(f"/api/review/samples/{sample_id}/decision",
+                               json={"decision": "reject", "reason": "looks off", "lease_token": task["lease_token"]},
+                               headers=env.headers(Role.reviewer))
+    assert response.status_code == 201, response.text
+    answer = response.json()
+    # Explicit: the decision is the reviewer's answer to a gold label; the label and its state did not move, and
+    # nothing joined (or left) the dataset.
+    assert (answer["recorded_as"], answer["state"], answer["stream"]) == ("gold_answer", "accepted", None)
+    index = env.client.get("/api/admin/exports/samples", headers=env.headers(Role.admin)).json()["samples"]
+    assert [(s["sample_id"], s["state"], s["gold"]) for s in index] == [(sample_id, "accepted", True)]
+    assert h.count(env, "round_members") == 1
+    (look,) = env.client.get("/api/admin/quality/audits", headers=env.headers(Role.admin)).json()["audits"]
+    assert (look["kind"], look["verdict"], look["label_removed"]) == ("gold", "wrong", False)
+    # A reviewer's miss on a gold label is not evidence that the heuristic's labels are wrong.
+    with env.session() as s:
+        assert not any(e.wrong for e in precision_target.evidence(s))
+    assert _quality(env)["streams"]["heuristic"]["audited"] == 0
+
+
+def test_an_ordinary_decision_is_recorded_as_a_review(env, h):
+    ids = h.seed(env, frames=1, cameras=1, state="fitting")
+    h.record_fit(env, ids[0], from_clicks=True)
+    task = h.next_task(env, Role.reviewer, "review")
+    response = env.client.post(f"/api/review/samples/{task['sample_id']}/decision", json={"decision": "accept"},
+                               headers=env.headers(Role.reviewer))
+    assert response.status_code == 201 and response.json()["recorded_as"] == "review", response.text

@@ -44,3 +44,24 @@ def test_upgrade_downgrade_upgrade(empty_url):
     engine.dispose()
     upgrade(empty_url)
     assert current(empty_url) == _head()
+
+
+def _agreement_states_check(url: str) -> str:
+    engine = create_engine(url)
+    with engine.connect() as conn:
+        if conn.dialect.name == "sqlite":
+            sql = conn.exec_driver_sql("SELECT sql FROM sqlite_master WHERE name = 'agreement_pairs'").scalar_one()
+        else:
+            sql = conn.exec_driver_sql("SELECT pg_get_constraintdef(oid) FROM pg_constraint "
+                                       "WHERE conname = 'ck_agreement_pairs_state_valid'").scalar_one()
+    engine.dispose()
+    return sql
+
+
+def test_0015_lets_an_agreement_pair_end_single_and_back(empty_url):
+    upgrade(empty_url, "0014_agreement")
+    assert "'single'" not in _agreement_states_check(empty_url)
+    upgrade(empty_url)
+    assert "'single'" in _agreement_states_check(empty_url)
+    downgrade(empty_url, "0014_agreement")
+    assert "'single'" not in _agreement_states_check(empty_url) and "'done'" in _agreement_states_check(empty_url)

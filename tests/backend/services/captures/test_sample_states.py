@@ -18,7 +18,7 @@ def test_allowed(a, b):
 
 @pytest.mark.parametrize(("a", "b"), [
     (S.unlabeled, S.accepted), (S.needs_annotation, S.accepted), (S.annotated, S.accepted),
-    (S.fitting, S.accepted), (S.needs_annotation, S.in_review), (S.annotated, S.fitted),
+    (S.fitting, S.accepted), (S.needs_annotation, S.fitted), (S.annotated, S.fitted),
     (S.rejected, S.accepted), (S.unlabeled, S.in_review), (S.accepted, S.in_review), (S.accepted, S.fitting),
 ])
 def test_no_skipping(a, b):

@@ -53,6 +53,14 @@ def _state(env, sample_id: int) -> tuple[str, int | None]:
         return tuple(s.execute(text("SELECT state, current_fit_id FROM samples WHERE id = :i"), {"i": sample_id}).one())
 
 
+def _second_annotator(env) -> int:
+    """Another active annotator: a sample is held for a second look only while someone else may take it."""
+    response = env.client.post("/api/admin/users", json={"email": "second@example.org", "password": "a long password 2",
+                                                         "role": "annotator"}, headers=env.headers(Role.admin))
+    assert response.status_code == 201, response.text
+    return response.json()["id"]
+
+
 def _agreement(env) -> dict:
     response = env.client.get("/api/admin/quality", headers=env.headers(Role.admin))
     assert response.status_code == 200, response.text
@@ -61,6 +69,7 @@ def _agreement(env) -> dict:
 
 def test_a_picked_sample_goes_blind_to_another_annotator_and_its_disagreement_is_measured(env, h):
     _share(env, 1.0)
+    _second_annotator(env)
     (sample_id,) = h.seed(env, frames=1, cameras=2, state="needs_annotation")
     task, first_submission = _submit(env, h, Role.annotator)
     assert task["sample_id"] == sample_id
@@ -103,6 +112,7 @@ def test_a_picked_sample_goes_blind_to_another_annotator_and_its_disagreement_is
 
 def test_fits_further_apart_than_the_threshold_are_disputed_and_the_lower_residual_is_the_label(env, h):
     _share(env, 1.0)
+    _second_annotator(env)
     (sample_id,) = h.seed(env, frames=1, cameras=1, state="needs_annotation")
     _, first_submission = _submit(env, h, Role.annotator)
     first_fit = _fit(env, sample_id, first_submission, offset_mm=0.0, residual_px=1.5)
@@ -150,3 +160,33 @@ def test_an_out_of_range_share_is_refused_naming_the_field(env, share):
     response = env.client.put("/api/admin/quality/settings", json={"agreement_share": share},
                               headers=env.headers(Role.admin))
     assert response.status_code == 422 and "agreement_share" in response.text
+
+
+def test_with_no_other_annotator_a_picked_sample_is_not_held_and_goes_to_review(env, h):
+    # The team's only annotator (the reviewer and admin may annotate, but are not the team's annotators).
+    _share(env, 1.0)
+    (sample_id,) = h.seed(env, frames=1, cameras=1, state="needs_annotation")
+    _, submission = _submit(env, h, Role.annotator)
+    fit = _fit(env, sample_id, submission, offset_mm=0.0, residual_px=1.0)
+    assert _state(env, sample_id) == ("in_review", fit)  # an ordinary annotated sample, their fit the label
+    figures = _agreement(env)
+    assert (figures["pairs"], figures["waiting"], figures["single"]) == (0, 0, 1)  # picked, not annotated twice
+    with env.session() as s:
+        assert s.execute(text("SELECT count(*) FROM annotation_flags")).scalar_one() == 0  # nothing keeps it from them
+
+
+def test_a_sample_waiting_for_a_second_look_is_released_when_no_other_annotator_is_left(env, h):
+    _share(env, 1.0)
+    second = _second_annotator(env)
+    (sample_id,) = h.seed(env, frames=1, cameras=1, state="needs_annotation")
+    _, submission = _submit(env, h, Role.annotator)
+    first_fit = _fit(env, sample_id, submission, offset_mm=0.0, residual_px=1.0)
+    assert _state(env, sample_id) == ("needs_annotation", None) and _agreement(env)["waiting"] == 1
+    gone = env.client.patch(f"/api/admin/users/{second}", json={"is_active": False}, headers=env.headers(Role.admin))
+    assert gone.status_code == 200, gone.text
+    # Nothing the first annotator did is lost: their fit is the label, on its way to review.
+    assert _state(env, sample_id) == ("in_review", first_fit)
+    figures = _agreement(env)
+    assert (figures["pairs"], figures["waiting"], figures["single"]) == (0, 0, 1)
+    task = h.next_task(env, Role.reviewer, "review")
+    assert task["sample_id"] == sample_id and task["fit"]["id"] == first_fit

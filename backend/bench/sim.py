@@ -161,27 +161,30 @@ def _simulate(capture: Path, work: Path, plan: dict[str, Any], detector: bool,
     people_seed = 0 if quality["seed"] == SEED else quality["seed"]
     given = {k: quality[k] for k in ("error_rate", "accept_below_mm") if quality.get(k) is not None}
     reviewer = ReviewerConfig(**given, seed=people_seed)
+    clicks = {k: quality[k] for k in ("click_sigma_px", "swap_probability") if quality.get(k) is not None}
     return simulate(capture, work, plan, detector=detector,
-                    annotator=AnnotatorConfig(accept_proposals_within_px=accept_proposals_px, seed=people_seed),
+                    annotator=AnnotatorConfig(**clicks, accept_proposals_within_px=accept_proposals_px,
+                                              seed=people_seed),
                     reviewer=reviewer, audit_share=quality["audit_share"], audit_seed=quality["seed"],
                     precision_target=quality["precision_target"], gold_labels=quality["gold_labels"],
-                    gold_share=quality["gold_share"])
+                    gold_share=quality["gold_share"], agreement_share=quality.get("agreement_share", 0.0))
 
 
 def simulate(capture: Path, work: Path, plan: dict[str, Any], *, detector: bool, annotator: AnnotatorConfig,
              reviewer: ReviewerConfig | None = None, label: str | None = None, leave: bool = True,
              audit_share: float = 0.0, audit_seed: int = 0, precision_target: float | None = None,
-             gold_labels: int = 0, gold_share: float = 0.0) -> dict[str, Any]:
+             gold_labels: int = 0, gold_share: float = 0.0, agreement_share: float = 0.0) -> dict[str, Any]:
     """One bootstrap simulation of `plan` (see `plan_for`) on the capture, in `work`, with these simulated people;
     the summary (`BootstrapSimulation.summary`, with a `stopped` where a round could not start or finish). `label`
     and `leave`: the progress bar's, over rounds. `audit_share` > 0: the server audits that share of each stream's
-    accepts blind (two reviewers then, since nobody audits their own accepts); the summary's `label_quality`."""
+    accepts blind (two reviewers then, since nobody audits their own accepts); `agreement_share` > 0: that share of
+    annotated samples is annotated twice, blind; the summary's `label_quality`."""
     config = BootstrapConfig(rounds=plan["rounds"], detector=detector, round0_rest=plan["round0_rest"],
                              round0_frames=plan.get("round0_frames", "all"),
                              annotator=annotator, reviewer=reviewer or ReviewerConfig(),
                              reviewers=2 if audit_share > 0 or gold_share > 0 else 1, audit_share=audit_share,
                              audit_seed=audit_seed, precision_target=precision_target, gold_labels=gold_labels,
-                             gold_share=gold_share)
+                             gold_share=gold_share, agreement_share=agreement_share)
     label = label or f"bootstrap, detector {'on' if detector else 'off'}"
     with tqdm(total=plan["rounds"] + 1, unit="round", desc=label, file=sys.stderr, leave=leave) as bar:
         def on_round(report) -> None:
@@ -265,7 +268,8 @@ def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = 
         handsegnet_steps: int | None = None, seed: int = SEED, audit_share: float = DEFAULT_AUDIT_SHARE,
         precision_target: float | None = None, reviewer_error_rate: float | None = None,
         reviewer_accept_below_mm: float | None = None, gold_labels: int = 0, gold_share: float = 0.0,
-        round0_frames: str = "all") -> dict[str, Any]:
+        round0_frames: str = "all", agreement_share: float = 0.0, click_sigma_px: float | None = None,
+        swap_probability: float | None = None) -> dict[str, Any]:
     """One run (`detector` "on" or "off") or both on the same capture and seed ("both"); None: both where the
     detector can run, else off. The record's top level is the run with the detector when it ran, else without.
     `width` (view width, pixels), `frames` (per sequence), `rounds` and `initial_every` (D_0's plan: every k-th
@@ -279,7 +283,9 @@ def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = 
     `reviewer_accept_below_mm`: the simulated reviewers' (default 2 %, 8 mm); `gold_labels`, `gold_share`: labels
     marked gold after D_0 and their share of the reviewers' tasks (`label_quality["gold"]`: agreement vs given).
     `round0_frames`: with the detector, the training frames pre-annotated in round 0 ("all", or "initial": the
-    initial set only)."""
+    initial set only). `agreement_share`: annotated samples annotated twice, blind (issue 40); `click_sigma_px`,
+    `swap_probability`: the simulated annotators' (default 2 px, 5 %), which `label_quality["agreement"]` compares
+    the measured disagreement with."""
     if not 0 <= audit_share <= 1:
         raise ValueError(f"audit_share must be in [0, 1], not {audit_share}")
     if precision_target is not None and not 0 < precision_target < 1:
@@ -288,9 +294,12 @@ def run(*, quick: bool = False, emit_json: bool = True, work_dir: Path | None = 
         raise ValueError(f"seed must be in 0..2147483647, not {seed}")
     if not 0 <= gold_share <= 1 or not 0 <= gold_labels <= 10_000:
         raise ValueError(f"gold_share must be in [0, 1] and gold_labels in 0..10000, not {gold_share}, {gold_labels}")
+    if not 0 <= agreement_share <= 1:
+        raise ValueError(f"agreement_share must be in [0, 1], not {agreement_share}")
     quality = {"audit_share": audit_share, "precision_target": precision_target, "seed": seed,
-               "gold_labels": gold_labels, "gold_share": gold_share,
-               "error_rate": reviewer_error_rate, "accept_below_mm": reviewer_accept_below_mm}
+               "gold_labels": gold_labels, "gold_share": gold_share, "agreement_share": agreement_share,
+               "error_rate": reviewer_error_rate, "accept_below_mm": reviewer_accept_below_mm,
+               "click_sigma_px": click_sigma_px, "swap_probability": swap_probability}
 
     started = time.perf_counter()
     plan = plan_for(quick=quick, width=width, frames=frames, rounds=rounds, initial_every=initial_every,

@@ -16,6 +16,7 @@ every MVNet prediction with the ground truth.
 from __future__ import annotations
 
 import logging
+import math
 import secrets
 import time
 from collections.abc import Callable
@@ -63,6 +64,8 @@ class BootstrapConfig:
         gold_labels, gold_share: after D_0, the admin marks up to this many accepted labels gold (truly right: under
             half the reviewers' accept limit), slipped into the reviewers' queues at `gold_share`; their agreement is
             compared with what they were given (1 - their error rate).
+        agreement_share: the share of annotated samples the server has annotated twice, blind (issue 40); the run's
+            `label_quality["agreement"]` compares the 2D disagreement with the annotators' click noise.
         round0_rest: with the detector, what happens to the initial set's samples the review policy does not
             pick: "keep" (they stay for round 1's MVNet, as the paper leaves the unpicked samples of every round
             and the issue routes round 0: only fits sent back are annotated) or "annotate" (annotators click
@@ -90,6 +93,7 @@ class BootstrapConfig:
     precision_target: float | None = None
     gold_labels: int = 0
     gold_share: float = 0.0
+    agreement_share: float = 0.0
 
     def __post_init__(self) -> None:
         if self.round0_rest not in RESTS:
@@ -100,6 +104,8 @@ class BootstrapConfig:
             raise ValueError(f"rounds must be in 0..50, not {self.rounds}")
         if not (1 <= self.annotators <= 100 and 1 <= self.reviewers <= 100):
             raise ValueError("annotators and reviewers must each be in 1..100")
+        if not 0 <= self.agreement_share <= 1:
+            raise ValueError(f"agreement_share must be in [0, 1], not {self.agreement_share}")
         if not (0 <= self.audit_share <= 1 and 0 <= self.gold_share <= 1):
             raise ValueError(f"audit_share and gold_share must be in [0, 1], not {self.audit_share}, {self.gold_share}")
         if not 0 <= self.gold_labels <= 10_000:
@@ -244,7 +250,8 @@ class BootstrapSimulation:
         self.admin.set_quality(audit_share=self.config.audit_share, audit_seed=self.config.audit_seed,
                                precision_target=self.config.precision_target,
                                auditor_error_rate=min(self.config.reviewer.error_rate, 0.49),
-                               gold_share=self.config.gold_share, agreement_share=0.0)
+                               gold_share=self.config.gold_share,
+                               agreement_share=self.config.agreement_share)
         imported = self.admin.import_capture(str(capture_dir), project, queue_for_annotation=False)
         self.project_id = int(imported["project_id"])
         samples = self.admin.sample_index(project=project)["samples"]
@@ -496,4 +503,20 @@ class BootstrapSimulation:
         out["gold"] = [{**g, "given_agreement": given, "ci_holds_given": None if g["agreement_ci95"] is None
                         else bool(g["agreement_ci95"][0] <= given <= g["agreement_ci95"][1])}
                        for g in self.admin.quality()["gold"]]
+        out["agreement"] = self._agreement_against_given(self.admin.quality()["agreement"])
         return out
+
+    def _agreement_against_given(self, figures: dict[str, Any]) -> dict[str, Any]:
+        """The server's agreement figures beside what the annotators were given: two clicks with Gaussian noise of
+        sigma px per coordinate lie sigma * sqrt(pi) apart on average (their difference has sigma * sqrt(2) per
+        coordinate; a Rayleigh distance's mean). Swapped fingertips add far larger distances: the comparison holds
+        for people who swap none (`swap_probability` 0); with swaps it is shown, not judged."""
+        sigma = self.config.annotator.click_sigma_px
+        given = sigma * math.sqrt(math.pi)
+        ci = figures.get("keypoint_px_ci95")
+        judged = ci is not None and self.config.annotator.swap_probability == 0
+        return {"pairs": figures.get("pairs"), "single": figures.get("single"), "waiting": figures.get("waiting"),
+                "keypoint_px_mean": figures.get("keypoint_px_mean"), "keypoint_px_ci95": ci,
+                "mean_mm": figures.get("mean_mm"), "given_click_sigma_px": sigma,
+                "given_swap_probability": self.config.annotator.swap_probability, "given_px_mean": given,
+                "ci_holds_given": bool(ci[0] <= given <= ci[1]) if judged else None}

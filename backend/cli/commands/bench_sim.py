@@ -53,6 +53,12 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
             "error (default 8 mm)."),
         gold_labels: int = typer.Option(0, "--gold-labels", min=0, max=10_000, help="After D_0 the admin marks this "
                                         "many truly right accepted labels gold (default 0)."),
+        agreement_share: float = typer.Option(0.0, "--agreement-share", min=0.0, max=1.0, help="Share of annotated "
+                                              "samples annotated twice, blind, by another annotator (default 0)."),
+        click_sigma_px: float | None = typer.Option(None, "--click-sigma-px", min=0.0, max=100.0,
+                                                    help="Simulated annotators' click noise per coordinate (2 px)."),
+        swap_probability: float | None = typer.Option(None, "--swap-probability", min=0.0, max=1.0,
+                                                      help="Simulated annotators' fingertip swaps per view (0.05)."),
         gold_share: float = typer.Option(0.0, "--gold-share", min=0.0, max=1.0, help="Share of the reviewers' tasks "
                                          "that are gold labels (default 0)."),
     ) -> None:
@@ -73,7 +79,8 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
                          handsegnet_steps=handsegnet_steps, seed=seed, audit_share=audit_share,
                          precision_target=precision_target, reviewer_error_rate=reviewer_error_rate,
                          reviewer_accept_below_mm=reviewer_accept_below_mm, gold_labels=gold_labels,
-                         gold_share=gold_share, round0_frames=round0_frames)
+                         gold_share=gold_share, round0_frames=round0_frames, agreement_share=agreement_share,
+                         click_sigma_px=click_sigma_px, swap_probability=swap_probability)
         except ValueError as exc:
             typer.echo(f"error: {exc}", err=True)
             raise typer.Exit(code=2) from exc

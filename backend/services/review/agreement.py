@@ -206,6 +206,16 @@ def _mean(values: list[float]) -> float | None:
     return round(sum(values) / len(values), 4) if values else None
 
 
+def _interval(values: list[float]) -> list[float] | None:
+    """A 95 % interval of the mean (normal approximation); None under two values."""
+    if len(values) < 2:
+        return None
+    mean = sum(values) / len(values)
+    sd = math.sqrt(sum((v - mean) ** 2 for v in values) / (len(values) - 1))
+    half = 1.96 * sd / math.sqrt(len(values))
+    return [round(mean - half, 4), round(mean + half, 4)]
+
+
 def summary(session: Session) -> dict[str, Any]:
     """The agreement figures: pairs done and waiting, disputed, single (annotated once: nobody to take the second
     look); per keypoint (21) the mean 2D disagreement (px); the mean 2D (px) and 3D (mm) disagreement overall and per
@@ -226,8 +236,12 @@ def summary(session: Session) -> dict[str, Any]:
                 cell["px"].append(p.mean_px)
             if p.disagreement_mm is not None:
                 cell["mm"].append(p.disagreement_mm)
+    cells = [d for values in per_keypoint for d in values]
     return {
         "pairs": len(done), "waiting": sum(1 for p in pairs if p.state == "second_look"), "single": single,
+        # Over every (pair, keypoint): its mean and a 95 % interval (normal; the cells are many and, for people
+        # clicking independently, independent), to compare with the click noise people are known to have.
+        "keypoint_px_mean": _mean(cells), "keypoint_px_ci95": _interval(cells),
         "disputed": sum(1 for p in done if p.disputed),
         "dispute_mm": DISPUTE_MM,
         "mean_px": _mean([p.mean_px for p in done if p.mean_px is not None]),

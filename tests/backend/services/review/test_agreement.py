@@ -100,6 +100,8 @@ def test_a_picked_sample_goes_blind_to_another_annotator_and_its_disagreement_is
     figures = _agreement(env)
     assert (figures["pairs"], figures["waiting"], figures["disputed"]) == (1, 0, 0)
     assert figures["mean_px"] == pytest.approx(3.0) and figures["mean_mm"] == pytest.approx(4.0)
+    # Every (pair, keypoint) cell is 3 px: the mean is 3, and its interval has no width.
+    assert figures["keypoint_px_mean"] == pytest.approx(3.0) and figures["keypoint_px_ci95"] == pytest.approx([3, 3])
     clicked = set(task["keypoints_to_click"])
     assert all(figures["per_keypoint_px"][k] == pytest.approx(3.0) for k in clicked)
     assert all(figures["per_keypoint_px"][k] is None for k in set(range(21)) - clicked)
@@ -190,3 +192,32 @@ def test_a_sample_waiting_for_a_second_look_is_released_when_no_other_annotator_
     assert (figures["pairs"], figures["waiting"], figures["single"]) == (0, 0, 1)
     task = h.next_task(env, Role.reviewer, "review")
     assert task["sample_id"] == sample_id and task["fit"]["id"] == first_fit
+
+
+def test_the_interval_of_the_disagreement_is_normal_over_the_cells_and_absent_under_two():
+    from backend.services.review.agreement import _interval
+
+    assert _interval([]) is None and _interval([2.0]) is None
+    low, high = _interval([1.0, 2.0, 3.0, 4.0])
+    half = 1.96 * (5 / 3) ** 0.5 / 2  # sd of 1..4 is sqrt(5/3); n = 4
+    assert (low, high) == pytest.approx((2.5 - half, 2.5 + half), abs=1e-4)
+
+
+def test_the_simulation_judges_the_agreement_against_the_click_noise_only_without_swaps():
+    from types import SimpleNamespace
+
+    from backend.simulation.annotator import AnnotatorConfig
+    from backend.simulation.bootstrap import BootstrapConfig, BootstrapSimulation
+
+    def judged(swap: float, ci: list[float] | None) -> dict:
+        sim = SimpleNamespace(config=BootstrapConfig(annotator=AnnotatorConfig(click_sigma_px=2.0,
+                                                                                swap_probability=swap)))
+        figures = {"pairs": 12, "single": 0, "waiting": 0, "keypoint_px_mean": 3.6, "keypoint_px_ci95": ci}
+        return BootstrapSimulation._agreement_against_given(sim, figures)
+
+    given = 2.0 * 3.141592653589793 ** 0.5  # 3.545 px
+    assert judged(0.0, [3.3, 3.9])["given_px_mean"] == pytest.approx(given)
+    assert judged(0.0, [3.3, 3.9])["ci_holds_given"] is True
+    assert judged(0.0, [3.6, 3.9])["ci_holds_given"] is False
+    assert judged(0.05, [3.3, 3.9])["ci_holds_given"] is None  # swaps: shown, not judged
+    assert judged(0.0, None)["ci_holds_given"] is None

@@ -77,15 +77,18 @@ class Team:
         self.annotation_attempts: Counter[int] = Counter()
 
     def annotate_all(self, round_index: int, work: TeamWork, limit: int | None = None) -> int:
-        """Annotators take tasks in turn until the queue is empty (or `limit` submissions)."""
-        done, turn = 0, 0
-        while limit is None or done < limit:
+        """Annotators take tasks in turn until none of them gets one (or `limit` submissions): a sample waiting for an
+        agreement's second look is never handed to its first annotator, so one may find nothing while another can."""
+        done, turn, idle = 0, 0, 0
+        while (limit is None or done < limit) and idle < len(self.annotators):
             give_up = frozenset(s for s, n in self.annotation_attempts.items() if n >= self.max_annotation_passes)
             outcome = self.annotators[turn % len(self.annotators)].annotate_next(
                 round_index, give_up, frozenset(self.annotation_attempts))
             turn += 1
             if outcome is None:
-                break
+                idle += 1
+                continue
+            idle = 0
             self.annotation_attempts[outcome.sample_id] += 1
             work.annotations.append(outcome)
             done += 1

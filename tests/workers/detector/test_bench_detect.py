@@ -34,6 +34,12 @@ def test_bench_detect_reports_every_key(tmp_path: Path, monkeypatch: pytest.Monk
     # Detections on the rendered hand are not noise: a few px at 320 px, millimetres in 3D.
     assert record["kp2d_median_frac"] < 0.3 and record["kp3d_median_mm"] < 40
     assert (tmp_path / "handloop-bench-cache").is_dir()
+    # The detector's heuristic judged every fit as the worker does; its counts add up.
+    h = printed["detector_heuristic"]
+    assert h["fits"] == record["fits"] and 0 <= h["accepted"] <= h["fits"]
+    assert 0 <= h["accepted_over_10mm"] <= h["accepted_over_8mm"] <= h["accepted"]
+    assert (h["accepted_vertex_mean_mm"] is None) == (h["accepted"] == 0)
+    assert printed["settings"]["detector_heuristic_thresholds"]["max_mean_distance_m"] == 0.010
 
 
 def test_bench_detect_without_model_files_is_a_clear_error(tmp_path: Path) -> None:

@@ -173,7 +173,8 @@ class AdminPage {
       this.preannotate(Number(project.value), rest.value); } },
     project, rest,
     h("button", { type: "submit", class: "preannotate-button", disabled: !p.available || !candidates.length,
-      title: p.available ? "detector -> triangulation -> fit; the fits go to the reviewers first" : p.reason },
+      title: p.available ? "detector -> triangulation -> fit; fits that pass the detector's heuristic are accepted (D^h), "
+        + "the reviewers see the others" : p.reason },
     "Pre-annotate with the detector (round 0)"),
     h("span", { class: "muted" }, !p.available ? `detector unavailable: ${p.reason}`
       : busy || (candidates.length ? "" : "no unlabeled samples")));
@@ -462,5 +463,10 @@ function phaseSteps(job) {
 function jobMessage(job) {
   if (job.error) return job.error;
   if (!FINAL.has(job.state)) return job.message || "";
+  const r = job.result, taken = r?.heuristic;
+  if (job.state === "succeeded" && job.kind === "preannotate" && r) {  // what round 0 made of it, at a glance
+    return `done: ${r.fitted ?? 0} fitted, ${taken ? `${taken.accepted} accepted by the detector's heuristic, ` : ""}`
+      + `${r.to_review ?? 0} to review`;
+  }
   return job.state === "succeeded" ? "done" : job.state;
 }

@@ -61,6 +61,14 @@ def _overturned(by_sample: dict[int, list[Any]], gold_looks: set[int]) -> list[A
     return out
 
 
+def _human_decisions(session: Session) -> list[Any]:
+    """People's decisions (not the heuristic's), oldest first: id, sample_id, fit_id, user_id, decision, created_at."""
+    return list(session.execute(select(Decision.id, Decision.sample_id, Decision.fit_id, Decision.user_id,
+                                       Decision.decision, Decision.created_at)
+                                .where(Decision.user_id.is_not(None), Decision.by_heuristic.is_(False))
+                                .order_by(Decision.created_at, Decision.id)).all())
+
+
 def team_statistics(session: Session) -> list[dict[str, Any]]:
     """One row per user (by id) with the fields of the module docstring (zeros and None where they did
     nothing of a kind)."""
@@ -90,10 +98,7 @@ def team_statistics(session: Session) -> list[dict[str, Any]]:
         rows[user_id]["samples"] = len(sample_ids)
         rows[user_id]["seconds_per_sample"] = round(seconds[user_id] / len(sample_ids), 1)
 
-    decisions = session.execute(select(Decision.id, Decision.sample_id, Decision.fit_id, Decision.user_id,
-                                       Decision.decision, Decision.created_at)
-                                .where(Decision.user_id.is_not(None), Decision.by_heuristic.is_(False))
-                                .order_by(Decision.created_at, Decision.id)).all()
+    decisions = _human_decisions(session)
     by_sample: dict[int, list[Any]] = defaultdict(list)
     for d in decisions:
         by_sample[d.sample_id].append(d)
@@ -161,10 +166,7 @@ def work_items(session: Session) -> list[Work]:
     items: list[Work] = []
     submissions = session.execute(select(Submission.id, Submission.user_id, Submission.sample_id,
                                          Submission.time_spent_s, Submission.created_at)).all()
-    decisions = session.execute(select(Decision.id, Decision.sample_id, Decision.fit_id, Decision.user_id,
-                                       Decision.decision, Decision.created_at)
-                                .where(Decision.user_id.is_not(None), Decision.by_heuristic.is_(False))
-                                .order_by(Decision.created_at, Decision.id)).all()
+    decisions = _human_decisions(session)
     by_sample: dict[int, list[Any]] = defaultdict(list)
     for d in decisions:
         by_sample[d.sample_id].append(d)

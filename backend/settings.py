@@ -116,6 +116,11 @@ class Settings(BaseSettings):
     detector_heuristic_max_mean_distance_m: float = Field(default=0.010, ge=0, le=1, description="Mean 3D distance.")
     detector_heuristic_max_keypoint_distance_m: float = Field(default=0.025, ge=0, le=1,
                                                               description="Each 3D distance.")
+    # Rounds >= 1: a fit from MVNet's prediction that fails the paper's heuristic, judged by the same thresholds
+    # against the detector's lift its pre-annotation left. MVNet and the detector share no input but the images, so
+    # their agreement is stronger evidence than round 0's (whose fit was made from the lift); docs/evaluation.md.
+    cross_heuristic: bool = Field(default=True, description="Accept a fit from MVNet's prediction that agrees with "
+                                  "the detector's lift by the detector's heuristic thresholds; off: only the paper's.")
 
     # Reviewer queue policy (paper, "Manual Verification and Annotation").
     review_min_confidence_percentile: float = Field(default=50.0, ge=0, le=100)

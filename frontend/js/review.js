@@ -634,7 +634,7 @@ class ReviewPage extends QueuePage {
         h("dt", {}, "mean IoU"), h("dd", {}, fmt(fit.mean_iou, 3)),
         ...residualFacts(fit),
         pred ? [h("dt", {}, "MVNet"), h("dd", {}, `${pred.mvnet_version}, confidence ${fmt(pred.mean_confidence, 2)}`)] : null,
-        heur ? [h("dt", {}, "heuristic"), h("dd", {}, heur.accepted ? "passed" : `failed: ${(heur.failed || []).join(", ")}`)] : null),
+        heur ? [h("dt", {}, "heuristic"), h("dd", {}, heurText(heur))] : null),
       this.reason ? this.reasonBox() : h("div", { class: "decide" },
         h("button", { class: "accept", onclick: () => { this.keyAt = performance.now(); this.decide("accept"); } }, "Accept (A)"),
         h("button", { class: "reject", onclick: () => this.openReason("reject") }, "Reject (R)"),
@@ -704,6 +704,12 @@ function handCrop(projected, info, margin = 0.35, minFraction = 0.2) {
   const hh = Math.max((y1 - y0) * (1 + 2 * margin), info.height * minFraction);
   const cx = (x0 + x1) / 2, cy = (y0 + y1) / 2;
   return [cx - w / 2, cy - hh / 2, cx + w / 2, cy + hh / 2];
+}
+
+// The heuristic's verdict in words; "mvnet+detector": the paper's criteria failed, the detector's lift agreed.
+function heurText(heur) {
+  if (!heur.accepted) return `failed: ${(heur.failed || []).join(", ")}`;
+  return heur.estimator === "mvnet+detector" ? "passed against the detector's lift" : "passed";
 }
 
 // The fit's residuals, the points placed by hand apart from those accepted from proposals (a fit lands near

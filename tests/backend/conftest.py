@@ -226,7 +226,8 @@ class Helpers:
                    detection: dict | None = None) -> int:
         """Record (as a worker would) a fit for a sample in 'fitting'; returns the fit id. `detection`: a
         pre-annotation's fit from this detection record (points_world, confidence), judged by the detector's
-        heuristic at its default thresholds."""
+        heuristic at its default thresholds (as is a later fit from a prediction against it, when the settings'
+        `cross_heuristic` is on)."""
         import numpy as np
 
         from backend.services.captures.samples import views_of
@@ -249,7 +250,9 @@ class Helpers:
                 inputs=({"submission_ids": [1]} if from_clicks else {"source": "detector", "detection": detection}
                         if detection is not None else {"prediction_id": prediction_id}),
                 model_file="builtin", thresholds=HeuristicThresholds(), prediction_id=prediction_id,
-                detector_thresholds=HeuristicThresholds.from_settings(env.settings, "detector_heuristic_"))
+                detector_thresholds=HeuristicThresholds.from_settings(env.settings, "detector_heuristic_"),
+                cross_thresholds=(HeuristicThresholds.from_settings(env.settings, "detector_heuristic_")
+                                  if env.settings.cross_heuristic else None))
             return fit.id
 
     @staticmethod

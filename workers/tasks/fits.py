@@ -265,8 +265,9 @@ def _record_all(ctx: WorkerContext, fitted: list[tuple[FitInput, Any]], config: 
     unstorable: list[tuple[FitInput, str]] = []
     with ctx.session_factory.begin() as session:
         thresholds = precision_target.thresholds_in_force(session, ctx.settings)  # the round's (issue 40)
-        detector_thresholds = (HeuristicThresholds.from_settings(ctx.settings, "detector_heuristic_")
-                               if ctx.settings.detector_heuristic else None)
+        detector = HeuristicThresholds.from_settings(ctx.settings, "detector_heuristic_")
+        detector_thresholds = detector if ctx.settings.detector_heuristic else None
+        cross_thresholds = detector if ctx.settings.cross_heuristic else None
         for fi, result, ious, diagnostics in rows:
             try:
                 with session.begin_nested():
@@ -275,7 +276,7 @@ def _record_all(ctx: WorkerContext, fitted: list[tuple[FitInput, Any]], config: 
                         view_ious=ious, diagnostics=diagnostics, inputs=json_safe(fi.inputs),
                         model_file=result.hand_model, thresholds=thresholds, job_id=fi.job_id,
                         prediction_id=fi.prediction_id, vertices_m=result.vertices,
-                        detector_thresholds=detector_thresholds)
+                        detector_thresholds=detector_thresholds, cross_thresholds=cross_thresholds)
                     session.flush()
                 summary.fitted.append(fit.id)
             except (DomainError, IntegrityError) as exc:  # cancelled, or recorded by a concurrent duplicate

@@ -28,7 +28,12 @@ from backend.services.errors import ConflictError, InvalidInputError
 from backend.services.jobs import fit_samples, jobs
 from backend.services.leases import queues
 from backend.services.review import agreement, label_audits
-from backend.services.review.verification import HeuristicThresholds, detector_verdict, heuristic_verdict
+from backend.services.review.verification import (
+    HeuristicResult,
+    HeuristicThresholds,
+    detector_verdict,
+    heuristic_verdict,
+)
 from backend.services.rounds import rounds
 from workers.handmodel.params import NUM_PARAMS, HandParams
 
@@ -37,6 +42,10 @@ log = logging.getLogger(__name__)
 # A pre-annotation fit's source (workers.tasks.detection_inputs.SOURCE, tested equal): not imported, since that
 # module loads OpenCV and the detector's helpers, which recording a fit does not need.
 DETECTOR_SOURCE = "detector"
+# Which estimator a heuristic verdict took its keypoints from (fit.heuristic["estimator"]): MVNet's prediction (the
+# paper's), the detector's lift for a pre-annotation's fit, or the detector's lift for a fit from MVNet's prediction.
+MVNET, CROSS = "mvnet", "mvnet+detector"
+ESTIMATOR_NAMES = {MVNET: "MVNet", DETECTOR_SOURCE: "detector", CROSS: "MVNet's fit against the detector's lift"}
 
 NUM_KEYPOINTS = 21
 
@@ -106,12 +115,15 @@ def record_fit(session: Session, sample_id: int, *, params: Sequence[float], key
                view_ious: Mapping[int, float], diagnostics: dict[str, Any], inputs: dict[str, Any],
                model_file: str, thresholds: HeuristicThresholds, job_id: int | None = None,
                prediction_id: int | None = None, vertices_m: np.ndarray | None = None,
-               detector_thresholds: HeuristicThresholds | None = None) -> Fit:
+               detector_thresholds: HeuristicThresholds | None = None,
+               cross_thresholds: HeuristicThresholds | None = None) -> Fit:
     """Store a fit of a sample in 'fitting' and route it: heuristic accept (D^h) when a prediction passes
     all criteria, or a pre-annotation's fit passes them with the detector in MVNet's role (`detector_thresholds`;
     None: detector fits are never accepted without a person); straight to review when fitted from annotations;
     else 'fitted', awaiting the reviewer queue policy. `vertices_m` (V, 3) metres, world frame: the fitted mesh as
-    the worker posed it, stored with the fit so the API shows it without posing the hand again (float32)."""
+    the worker posed it, stored with the fit so the API shows it without posing the hand again (float32).
+    `cross_thresholds`: a fit from a prediction that fails the paper's heuristic is accepted when it passes these
+    against the detector's lift left by the sample's pre-annotation (None: never)."""
     theta = _finite_array(params, (NUM_PARAMS,), "params")
     kp = _finite_array(keypoints_m, (NUM_KEYPOINTS, 3), "keypoints_m")
     vertices = None
@@ -147,34 +159,59 @@ def record_fit(session: Session, sample_id: int, *, params: Sequence[float], key
     if job_id is not None:
         jobs.finish(session, job_id, JobState.succeeded, result={"fit_id": fit.id})
 
-    verdict, estimator = None, "mvnet"
+    verdict, estimator, cross = None, MVNET, None
     detection = inputs.get("detection") if inputs.get("source") == DETECTOR_SOURCE else None
     if prediction is not None and ious:
         verdict = heuristic_verdict(prediction.confidences, ious.values(), prediction.keypoints_m, fit.keypoints_m,
                                     thresholds)
+        if not verdict.accepted and cross_thresholds is not None:
+            cross = _cross_verdict(session, fit, ious, cross_thresholds)
+            estimator = CROSS if cross is not None and cross.accepted else MVNET
     elif detector_thresholds is not None and ious and isinstance(detection, dict):
         estimator = DETECTOR_SOURCE
-        try:
-            verdict = detector_verdict(detection.get("confidence"), ious.values(), detection.get("points_world"),
-                                       fit.keypoints_m, detector_thresholds)
-        except (TypeError, ValueError) as exc:  # a malformed stored detection: a person looks instead
-            log.warning("fit %s: detector heuristic not applied: %s", fit.id, exc)
+        verdict = _detector_verdict_of(fit, detection, ious, detector_thresholds)
     if verdict is not None:
-        fit.heuristic = {"accepted": verdict.accepted, "failed": list(verdict.failed), **verdict.metrics,
-                         "iou_reference": iou_reference(inputs), "estimator": estimator}
-        if verdict.accepted:
+        fit.heuristic = {"accepted": verdict.accepted or estimator == CROSS, "failed": list(verdict.failed),
+                         **verdict.metrics, "iou_reference": iou_reference(inputs), "estimator": estimator}
+        if cross is not None:
+            fit.heuristic["cross"] = {"accepted": cross.accepted, "failed": list(cross.failed), **cross.metrics}
+        if fit.heuristic["accepted"]:
             transition(session, sample, SampleState.accepted, None, reason="heuristic")
             round_ = rounds.open_round(session, None)
             session.add(Decision(sample_id=sample_id, fit_id=fit.id, round_id=round_.id, by_heuristic=True,
-                                 decision=DecisionKind.accept,
-                                 reason=f"heuristic ({'detector' if estimator == DETECTOR_SOURCE else 'MVNet'}): "
-                                        "all criteria met"))
+                                 decision=DecisionKind.accept, reason=f"heuristic ({ESTIMATOR_NAMES[estimator]}): "
+                                                                      "all criteria met"))
             rounds.add_member(session, round_, sample_id, fit.id, Stream.heuristic)
             label_audits.schedule(session, round_, sample_id, fit.id, Stream.heuristic, None)
     elif inputs.get("submission_ids") and not agreement.route(session, sample, fit):  # issue 40's second looks
         transition(session, sample, SampleState.in_review, None, reason="fitted from annotations")
     audit.record(session, None, "fit.create", "sample", sample_id, fit_id=fit.id, state=sample.state)
     return fit
+
+
+def _detector_verdict_of(fit: Fit, detection: dict[str, Any], ious: Mapping[int, float],
+                         thresholds: HeuristicThresholds) -> HeuristicResult | None:
+    """The detector's heuristic on `fit` against a stored detection; None when the detection is malformed."""
+    try:
+        return detector_verdict(detection.get("confidence"), ious.values(), detection.get("points_world"),
+                                fit.keypoints_m, thresholds)
+    except (TypeError, ValueError) as exc:  # a malformed stored detection: a person looks instead
+        log.warning("fit %s: detector heuristic not applied: %s", fit.id, exc)
+        return None
+
+
+def _cross_verdict(session: Session, fit: Fit, ious: Mapping[int, float], thresholds: HeuristicThresholds
+                   ) -> HeuristicResult | None:
+    """The detector's heuristic on a fit from MVNet's prediction, against the lift the sample's pre-annotation left
+    (its latest detector fit's detection); None when the sample has none. The fit and the lift come from two
+    estimators that share no input but the images, so their agreement is evidence the paper's heuristic, which
+    compares a fit with the prediction it was fitted to, does not have."""
+    for inputs in session.scalars(select(Fit.inputs).where(Fit.sample_id == fit.sample_id, Fit.id != fit.id)
+                                  .order_by(Fit.id.desc())):
+        detection = (inputs or {}).get("detection") if (inputs or {}).get("source") == DETECTOR_SOURCE else None
+        if isinstance(detection, dict):
+            return _detector_verdict_of(fit, detection, ious, thresholds)
+    return None
 
 
 def iou_reference(inputs: dict[str, Any]) -> str:

@@ -121,6 +121,19 @@ class Settings(BaseSettings):
     # their agreement is stronger evidence than round 0's (whose fit was made from the lift); docs/evaluation.md.
     cross_heuristic: bool = Field(default=True, description="Accept a fit from MVNet's prediction that agrees with "
                                   "the detector's lift by the detector's heuristic thresholds; off: only the paper's.")
+    # Rounds >= 1, when that fails too: the pre-annotation's own fit judged by the paper's criteria with MVNet's
+    # prediction as the estimate; passing, the sample is accepted with that fit (workers.tasks.cross_checks). Chosen
+    # on tuning seed 11 (docs/evaluation.md, "Cross-estimator checks"): MVNet's confidences are not yet a filter.
+    earlier_fit_check: bool = Field(default=True, description="Accept a sample with its pre-annotation's fit when "
+                                    "MVNet's prediction agrees with it; off: never.")
+    earlier_fit_check_min_mean_confidence: float = Field(default=0.5, ge=0, le=1, description="Mean must be above.")
+    earlier_fit_check_min_keypoint_confidence: float = Field(default=0.0, ge=0, le=1, description="Each at least.")
+    earlier_fit_check_min_mean_iou: float = Field(default=0.6, ge=0, le=1, description="Mean IoU, at least.")
+    earlier_fit_check_low_iou: float = Field(default=0.5, ge=0, le=1, description="A view below this is 'low'.")
+    earlier_fit_check_max_low_iou_views: int = Field(default=2, ge=0, le=1000, description="At most this many.")
+    earlier_fit_check_max_mean_distance_m: float = Field(default=0.008, ge=0, le=1, description="Mean 3D distance.")
+    earlier_fit_check_max_keypoint_distance_m: float = Field(default=1.0, ge=0, le=1,
+                                                             description="Each 3D distance (1 m: no limit).")
 
     # Reviewer queue policy (paper, "Manual Verification and Annotation").
     review_min_confidence_percentile: float = Field(default=50.0, ge=0, le=100)

@@ -223,11 +223,11 @@ class Helpers:
     @staticmethod
     def record_fit(env: Env, sample_id: int, *, prediction: dict | None = None, ious: float = 0.9,
                    articulation: float = 1.0, offset_m: float = 0.0, from_clicks: bool = False,
-                   detection: dict | None = None) -> int:
+                   detection: dict | None = None, fit_keypoints_m: list | None = None) -> int:
         """Record (as a worker would) a fit for a sample in 'fitting'; returns the fit id. `detection`: a
         pre-annotation's fit from this detection record (points_world, confidence), judged by the detector's
-        heuristic at its default thresholds (as is a later fit from a prediction against it, when the settings'
-        `cross_heuristic` is on)."""
+        heuristic at its default thresholds (as is a later fit from a prediction against it, and it against the
+        prediction, when the settings' `cross_heuristic` and `earlier_fit_check` are on)."""
         import numpy as np
 
         from backend.services.captures.samples import views_of
@@ -245,14 +245,17 @@ class Helpers:
             params = [0.0] * 61
             params[10] = articulation
             fit = records.record_fit(
-                session, sample_id, params=params, keypoints_m=(keypoints + offset_m).tolist(),
+                session, sample_id, params=params,
+                keypoints_m=fit_keypoints_m if fit_keypoints_m is not None else (keypoints + offset_m).tolist(),
                 view_ious={v.id: ious for v in views}, diagnostics={"loss": 0.1},
                 inputs=({"submission_ids": [1]} if from_clicks else {"source": "detector", "detection": detection}
                         if detection is not None else {"prediction_id": prediction_id}),
                 model_file="builtin", thresholds=HeuristicThresholds(), prediction_id=prediction_id,
                 detector_thresholds=HeuristicThresholds.from_settings(env.settings, "detector_heuristic_"),
                 cross_thresholds=(HeuristicThresholds.from_settings(env.settings, "detector_heuristic_")
-                                  if env.settings.cross_heuristic else None))
+                                  if env.settings.cross_heuristic else None),
+                earlier_fit_thresholds=(HeuristicThresholds.from_settings(env.settings, "earlier_fit_check_")
+                                        if env.settings.earlier_fit_check else None))
             return fit.id
 
     @staticmethod

@@ -268,6 +268,8 @@ def _record_all(ctx: WorkerContext, fitted: list[tuple[FitInput, Any]], config: 
         detector = HeuristicThresholds.from_settings(ctx.settings, "detector_heuristic_")
         detector_thresholds = detector if ctx.settings.detector_heuristic else None
         cross_thresholds = detector if ctx.settings.cross_heuristic else None
+        earlier_fit_thresholds = (HeuristicThresholds.from_settings(ctx.settings, "earlier_fit_check_")
+                                  if ctx.settings.earlier_fit_check else None)
         for fi, result, ious, diagnostics in rows:
             try:
                 with session.begin_nested():
@@ -276,7 +278,8 @@ def _record_all(ctx: WorkerContext, fitted: list[tuple[FitInput, Any]], config: 
                         view_ious=ious, diagnostics=diagnostics, inputs=json_safe(fi.inputs),
                         model_file=result.hand_model, thresholds=thresholds, job_id=fi.job_id,
                         prediction_id=fi.prediction_id, vertices_m=result.vertices,
-                        detector_thresholds=detector_thresholds, cross_thresholds=cross_thresholds)
+                        detector_thresholds=detector_thresholds, cross_thresholds=cross_thresholds,
+                        earlier_fit_thresholds=earlier_fit_thresholds)
                     session.flush()
                 summary.fitted.append(fit.id)
             except (DomainError, IntegrityError) as exc:  # cancelled, or recorded by a concurrent duplicate

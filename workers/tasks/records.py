@@ -28,24 +28,20 @@ from backend.services.errors import ConflictError, InvalidInputError
 from backend.services.jobs import fit_samples, jobs
 from backend.services.leases import queues
 from backend.services.review import agreement, label_audits
-from backend.services.review.verification import (
-    HeuristicResult,
-    HeuristicThresholds,
-    detector_verdict,
-    heuristic_verdict,
-)
+from backend.services.review.verification import HeuristicResult, HeuristicThresholds, heuristic_verdict
 from backend.services.rounds import rounds
 from workers.handmodel.params import NUM_PARAMS, HandParams
+from workers.tasks import cross_checks
+from workers.tasks.cross_checks import DETECTOR_SOURCE
 
 log = logging.getLogger(__name__)
 
-# A pre-annotation fit's source (workers.tasks.detection_inputs.SOURCE, tested equal): not imported, since that
-# module loads OpenCV and the detector's helpers, which recording a fit does not need.
-DETECTOR_SOURCE = "detector"
-# Which estimator a heuristic verdict took its keypoints from (fit.heuristic["estimator"]): MVNet's prediction (the
-# paper's), the detector's lift for a pre-annotation's fit, or the detector's lift for a fit from MVNet's prediction.
-MVNET, CROSS = "mvnet", "mvnet+detector"
-ESTIMATOR_NAMES = {MVNET: "MVNet", DETECTOR_SOURCE: "detector", CROSS: "MVNet's fit against the detector's lift"}
+# Which estimates a heuristic verdict compared (fit.heuristic["estimator"]): MVNet's fit and prediction (the paper's),
+# a pre-annotation's fit and the detector's lift, MVNet's fit and the lift (CROSS), the pre-annotation's fit and
+# MVNet's prediction (EARLIER_FIT: the sample is accepted with the pre-annotation's fit); workers.tasks.cross_checks.
+MVNET, CROSS, EARLIER_FIT = "mvnet", "mvnet+detector", "detector+mvnet"
+ESTIMATOR_NAMES = {MVNET: "MVNet", DETECTOR_SOURCE: "detector", CROSS: "MVNet's fit against the detector's lift",
+                   EARLIER_FIT: "the pre-annotation's fit against MVNet's prediction"}
 
 NUM_KEYPOINTS = 21
 
@@ -116,14 +112,17 @@ def record_fit(session: Session, sample_id: int, *, params: Sequence[float], key
                model_file: str, thresholds: HeuristicThresholds, job_id: int | None = None,
                prediction_id: int | None = None, vertices_m: np.ndarray | None = None,
                detector_thresholds: HeuristicThresholds | None = None,
-               cross_thresholds: HeuristicThresholds | None = None) -> Fit:
+               cross_thresholds: HeuristicThresholds | None = None,
+               earlier_fit_thresholds: HeuristicThresholds | None = None) -> Fit:
     """Store a fit of a sample in 'fitting' and route it: heuristic accept (D^h) when a prediction passes
     all criteria, or a pre-annotation's fit passes them with the detector in MVNet's role (`detector_thresholds`;
     None: detector fits are never accepted without a person); straight to review when fitted from annotations;
     else 'fitted', awaiting the reviewer queue policy. `vertices_m` (V, 3) metres, world frame: the fitted mesh as
     the worker posed it, stored with the fit so the API shows it without posing the hand again (float32).
-    `cross_thresholds`: a fit from a prediction that fails the paper's heuristic is accepted when it passes these
-    against the detector's lift left by the sample's pre-annotation (None: never)."""
+    A fit from a prediction that fails the paper's heuristic is accepted when it passes `cross_thresholds` against the
+    detector's lift left by the sample's pre-annotation; else the sample is accepted with that pre-annotation's fit
+    when it passes `earlier_fit_thresholds` against MVNet's prediction (None: that check is off;
+    workers.tasks.cross_checks)."""
     theta = _finite_array(params, (NUM_PARAMS,), "params")
     kp = _finite_array(keypoints_m, (NUM_KEYPOINTS, 3), "keypoints_m")
     vertices = None
@@ -159,59 +158,70 @@ def record_fit(session: Session, sample_id: int, *, params: Sequence[float], key
     if job_id is not None:
         jobs.finish(session, job_id, JobState.succeeded, result={"fit_id": fit.id})
 
-    verdict, estimator, cross = None, MVNET, None
-    detection = inputs.get("detection") if inputs.get("source") == DETECTOR_SOURCE else None
+    estimator, label = MVNET, fit
+    detection = cross_checks.detection_of(fit)
     if prediction is not None and ious:
         verdict = heuristic_verdict(prediction.confidences, ious.values(), prediction.keypoints_m, fit.keypoints_m,
                                     thresholds)
-        if not verdict.accepted and cross_thresholds is not None:
-            cross = _cross_verdict(session, fit, ious, cross_thresholds)
-            estimator = CROSS if cross is not None and cross.accepted else MVNET
-    elif detector_thresholds is not None and ious and isinstance(detection, dict):
+        fit.heuristic = _record(verdict, inputs, MVNET)
+        if not verdict.accepted:
+            estimator, label = _cross_check(session, fit, prediction, ious, cross_thresholds, earlier_fit_thresholds)
+    elif detector_thresholds is not None and ious and detection is not None:
         estimator = DETECTOR_SOURCE
-        verdict = _detector_verdict_of(fit, detection, ious, detector_thresholds)
-    if verdict is not None:
-        fit.heuristic = {"accepted": verdict.accepted or estimator == CROSS, "failed": list(verdict.failed),
-                         **verdict.metrics, "iou_reference": iou_reference(inputs), "estimator": estimator}
-        if cross is not None:
-            fit.heuristic["cross"] = {"accepted": cross.accepted, "failed": list(cross.failed), **cross.metrics}
-        if fit.heuristic["accepted"]:
-            transition(session, sample, SampleState.accepted, None, reason="heuristic")
-            round_ = rounds.open_round(session, None)
-            session.add(Decision(sample_id=sample_id, fit_id=fit.id, round_id=round_.id, by_heuristic=True,
-                                 decision=DecisionKind.accept, reason=f"heuristic ({ESTIMATOR_NAMES[estimator]}): "
-                                                                      "all criteria met"))
-            rounds.add_member(session, round_, sample_id, fit.id, Stream.heuristic)
-            label_audits.schedule(session, round_, sample_id, fit.id, Stream.heuristic, None)
-    elif inputs.get("submission_ids") and not agreement.route(session, sample, fit):  # issue 40's second looks
+        verdict = cross_checks.against_lift(fit, detection, ious, detector_thresholds)
+        if verdict is not None:
+            fit.heuristic = _record(verdict, inputs, DETECTOR_SOURCE)
+    if fit.heuristic is not None and fit.heuristic["accepted"]:
+        if label is not fit:  # the pre-annotation's fit is the label
+            sample.current_fit_id, sample.pose_distance = label.id, label.pose_distance
+        transition(session, sample, SampleState.accepted, None, reason="heuristic")
+        round_ = rounds.open_round(session, None)
+        session.add(Decision(sample_id=sample_id, fit_id=label.id, round_id=round_.id, by_heuristic=True,
+                             decision=DecisionKind.accept, reason=f"heuristic ({ESTIMATOR_NAMES[estimator]}): "
+                                                                  "all criteria met"))
+        rounds.add_member(session, round_, sample_id, label.id, Stream.heuristic)
+        label_audits.schedule(session, round_, sample_id, label.id, Stream.heuristic, None)
+    elif fit.heuristic is None and inputs.get("submission_ids") and not agreement.route(session, sample, fit):
+        # issue 40's second looks
         transition(session, sample, SampleState.in_review, None, reason="fitted from annotations")
     audit.record(session, None, "fit.create", "sample", sample_id, fit_id=fit.id, state=sample.state)
     return fit
 
 
-def _detector_verdict_of(fit: Fit, detection: dict[str, Any], ious: Mapping[int, float],
-                         thresholds: HeuristicThresholds) -> HeuristicResult | None:
-    """The detector's heuristic on `fit` against a stored detection; None when the detection is malformed."""
-    try:
-        return detector_verdict(detection.get("confidence"), ious.values(), detection.get("points_world"),
-                                fit.keypoints_m, thresholds)
-    except (TypeError, ValueError) as exc:  # a malformed stored detection: a person looks instead
-        log.warning("fit %s: detector heuristic not applied: %s", fit.id, exc)
-        return None
+def _record(verdict: HeuristicResult, inputs: dict[str, Any], estimator: str) -> dict[str, Any]:
+    """fit.heuristic: the verdict, its metrics (what the precision target learns from), what the IoU compared."""
+    return {"accepted": verdict.accepted, "failed": list(verdict.failed), **verdict.metrics,
+            "iou_reference": iou_reference(inputs), "estimator": estimator}
 
 
-def _cross_verdict(session: Session, fit: Fit, ious: Mapping[int, float], thresholds: HeuristicThresholds
-                   ) -> HeuristicResult | None:
-    """The detector's heuristic on a fit from MVNet's prediction, against the lift the sample's pre-annotation left
-    (its latest detector fit's detection); None when the sample has none. The fit and the lift come from two
-    estimators that share no input but the images, so their agreement is evidence the paper's heuristic, which
-    compares a fit with the prediction it was fitted to, does not have."""
-    for inputs in session.scalars(select(Fit.inputs).where(Fit.sample_id == fit.sample_id, Fit.id != fit.id)
-                                  .order_by(Fit.id.desc())):
-        detection = (inputs or {}).get("detection") if (inputs or {}).get("source") == DETECTOR_SOURCE else None
-        if isinstance(detection, dict):
-            return _detector_verdict_of(fit, detection, ious, thresholds)
-    return None
+def _cross_check(session: Session, fit: Fit, prediction: Prediction, ious: Mapping[int, float],
+                 cross_thresholds: HeuristicThresholds | None, earlier_fit_thresholds: HeuristicThresholds | None
+                 ) -> tuple[str, Fit]:
+    """After the paper's heuristic failed MVNet's `fit`: the two cross-estimator checks against the sample's
+    pre-annotation (workers.tasks.cross_checks), each recorded in fit.heuristic ("cross", "earlier_fit"). Returns
+    the estimator that accepted and the fit to label the sample with, or (MVNET, fit) when neither did."""
+    earlier = (cross_checks.pre_annotation_fit(session, fit)
+               if cross_thresholds is not None or earlier_fit_thresholds is not None else None)
+    if earlier is None:
+        return MVNET, fit
+    record = dict(fit.heuristic)
+    outcome: tuple[str, Fit] = (MVNET, fit)
+    cross = (cross_checks.fit_against_lift(earlier, fit, ious, cross_thresholds)
+             if cross_thresholds is not None else None)
+    if cross is not None:
+        record["cross"] = {"accepted": cross.accepted, "failed": list(cross.failed), **cross.metrics}
+        if cross.accepted:
+            outcome = (CROSS, fit)
+    if outcome[0] == MVNET and earlier_fit_thresholds is not None:
+        other = cross_checks.earlier_fit_against_prediction(earlier, prediction, earlier_fit_thresholds)
+        if other is not None:
+            record["earlier_fit"] = {"accepted": other.accepted, "failed": list(other.failed), "fit_id": earlier.id,
+                                     **other.metrics}
+            if other.accepted:
+                outcome = (EARLIER_FIT, earlier)
+    record["accepted"], record["estimator"] = outcome[0] != MVNET, outcome[0]
+    fit.heuristic = record
+    return outcome
 
 
 def iou_reference(inputs: dict[str, Any]) -> str:

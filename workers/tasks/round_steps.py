@@ -34,7 +34,7 @@ from backend.services.review.verification import ReviewPolicy, heuristic_verdict
 from workers.tasks import round_progress
 from workers.tasks.context import WorkerContext
 from workers.tasks.inference import PREDICTABLE
-from workers.tasks.records import CROSS, iou_reference
+from workers.tasks.records import CROSS, EARLIER_FIT, iou_reference
 from workers.tasks.training import NETS, checkpoint_of, version_of
 
 log = logging.getLogger(__name__)
@@ -161,11 +161,12 @@ def plan_inference(ctx: WorkerContext, round_job_id: int) -> InferencePlan | Non
 
 
 class _HeuristicCounts:
-    """Fits, those evaluated (a fit without view IoUs is not), accepted (of them against the detector's lift:
-    `cross`), and failures by criterion of the paper's heuristic."""
+    """Fits, those evaluated (a fit without view IoUs is not), accepted (of them by a cross-estimator check: `cross`,
+    MVNet's fit against the detector's lift; `earlier_fit`, the pre-annotation's fit against MVNet's prediction), and
+    failures by criterion of the paper's heuristic."""
 
     def __init__(self) -> None:
-        self.fits = self.evaluated = self.accepted = self.cross = 0
+        self.fits = self.evaluated = self.accepted = self.cross = self.earlier_fit = 0
         self.reasons: dict[str, int] = {}
 
     def add(self, record: dict[str, Any] | None) -> None:
@@ -175,12 +176,14 @@ class _HeuristicCounts:
         self.evaluated += 1
         self.accepted += bool(record.get("accepted"))
         self.cross += bool(record.get("accepted")) and record.get("estimator") == CROSS
+        self.earlier_fit += bool(record.get("accepted")) and record.get("estimator") == EARLIER_FIT
         for reason in record.get("failed", []):
             key = _criterion(reason)
             self.reasons[key] = self.reasons.get(key, 0) + 1
 
     def summary(self) -> dict[str, Any]:
         return {"fits": self.fits, "evaluated": self.evaluated, "accepted": self.accepted, "cross": self.cross,
+                "earlier_fit": self.earlier_fit,
                 "failures": dict(sorted(self.reasons.items(), key=lambda kv: -kv[1])[:8])}
 
 

@@ -276,7 +276,7 @@ def test_once_the_heuristic_gave_d0_enough_labels_the_percentile_cuts_round_0s_r
     (`round_min_training_samples` 2), only the other fits from the median up reach the reviewers (capacity for all),
     the other stays fitted for round 1; where they are not (3), every fit is offered, as without the heuristic."""
     from backend.services.review.verification import HeuristicResult
-    from workers.tasks import records
+    from workers.tasks import cross_checks
 
     ctx, queue, project_id, fake = world
     _with_detector_heuristic(ctx)
@@ -284,7 +284,7 @@ def test_once_the_heuristic_gave_d0_enough_labels_the_percentile_cuts_round_0s_r
                                                    "round_min_training_samples": min_training})
     fake.outliers_by_frame = {0: 0, 1: 0, 2: 2, 3: 3}  # frames 2 and 3: outlier views, lower confidences
     verdicts = iter([True, True, False, False])
-    monkeypatch.setattr(records, "detector_verdict", lambda *a: HeuristicResult(next(verdicts), (), {}))
+    monkeypatch.setattr(cross_checks, "detector_verdict", lambda *a: HeuristicResult(next(verdicts), (), {}))
     result = preannotate.run_preannotation_job(ctx, _launch(ctx, queue, project_id))
     assert result["heuristic"] == {"fits": 4, "evaluated": 4, "accepted": 2}, result
     assert result["to_review"] == to_review, result

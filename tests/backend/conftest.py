@@ -232,7 +232,7 @@ class Helpers:
 
         from backend.services.captures.samples import views_of
         from backend.services.review.verification import HeuristicThresholds
-        from workers.tasks import records
+        from workers.tasks import cross_checks, records
 
         with env.session() as session, session.begin():
             prediction_id = None
@@ -252,10 +252,8 @@ class Helpers:
                         if detection is not None else {"prediction_id": prediction_id}),
                 model_file="builtin", thresholds=HeuristicThresholds(), prediction_id=prediction_id,
                 detector_thresholds=HeuristicThresholds.from_settings(env.settings, "detector_heuristic_"),
-                cross_thresholds=(HeuristicThresholds.from_settings(env.settings, "detector_heuristic_")
-                                  if env.settings.cross_heuristic else None),
-                earlier_fit_thresholds=(HeuristicThresholds.from_settings(env.settings, "earlier_fit_check_")
-                                        if env.settings.earlier_fit_check else None))
+                cross_thresholds=cross_checks.thresholds_from_settings(env.settings)[0],
+                earlier_fit_thresholds=cross_checks.thresholds_from_settings(env.settings)[1])
             return fit.id
 
     @staticmethod

@@ -13,6 +13,7 @@ Only a pre-annotation fit no person decided on takes part: a reviewer's judgemen
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Mapping
 from typing import Any
@@ -28,12 +29,22 @@ from backend.services.review.verification import (
     detector_verdict,
     heuristic_verdict,
 )
+from backend.settings import Settings
 
 log = logging.getLogger(__name__)
 
 # A pre-annotation fit's source (workers.tasks.detection_inputs.SOURCE, tested equal): not imported, since that
 # module loads OpenCV and the detector's helpers, which recording a fit does not need.
 DETECTOR_SOURCE = "detector"
+
+
+def thresholds_from_settings(settings: Settings) -> tuple[HeuristicThresholds | None, HeuristicThresholds | None]:
+    """(MVNet's fit against the lift, the pre-annotation's fit against MVNet's prediction) thresholds; None where the
+    settings turn that check off. The first are the detector's heuristic's with its own mean distance."""
+    cross = dataclasses.replace(HeuristicThresholds.from_settings(settings, "detector_heuristic_"),
+                                max_mean_distance_m=settings.cross_heuristic_max_mean_distance_m)
+    earlier = HeuristicThresholds.from_settings(settings, "earlier_fit_check_")
+    return (cross if settings.cross_heuristic else None), (earlier if settings.earlier_fit_check else None)
 
 
 def detection_of(fit: Fit) -> dict[str, Any] | None:

@@ -36,7 +36,7 @@ from backend.settings import Settings
 from workers.capture.schema import CaptureError
 from workers.fitting.config import FitConfig, source_weights
 from workers.fitting.inputs import FitInputError
-from workers.tasks import records
+from workers.tasks import cross_checks, records
 from workers.tasks.context import WorkerContext
 from workers.tasks.detection_inputs import SOURCE as DETECTOR_SOURCE
 from workers.tasks.fit_sources import fit_input
@@ -265,11 +265,9 @@ def _record_all(ctx: WorkerContext, fitted: list[tuple[FitInput, Any]], config: 
     unstorable: list[tuple[FitInput, str]] = []
     with ctx.session_factory.begin() as session:
         thresholds = precision_target.thresholds_in_force(session, ctx.settings)  # the round's (issue 40)
-        detector = HeuristicThresholds.from_settings(ctx.settings, "detector_heuristic_")
-        detector_thresholds = detector if ctx.settings.detector_heuristic else None
-        cross_thresholds = detector if ctx.settings.cross_heuristic else None
-        earlier_fit_thresholds = (HeuristicThresholds.from_settings(ctx.settings, "earlier_fit_check_")
-                                  if ctx.settings.earlier_fit_check else None)
+        detector_thresholds = (HeuristicThresholds.from_settings(ctx.settings, "detector_heuristic_")
+                               if ctx.settings.detector_heuristic else None)
+        cross_thresholds, earlier_fit_thresholds = cross_checks.thresholds_from_settings(ctx.settings)
         for fi, result, ious, diagnostics in rows:
             try:
                 with session.begin_nested():

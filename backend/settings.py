@@ -127,7 +127,7 @@ class Settings(BaseSettings):
                                                        "MVNet's fit from the lift, at most.")
     # Rounds >= 1, checked first: the pre-annotation's own fit judged by the paper's criteria with MVNet's
     # prediction as the estimate; passing, the sample is accepted with that fit (workers.tasks.cross_checks). Chosen
-    # on tuning seed 11 (docs/evaluation.md, "Cross-estimator checks"): MVNet's confidences are not yet a filter.
+    # on tuning seeds 11 and 57 (docs/evaluation.md, "Cross-estimator checks").
     earlier_fit_check: bool = Field(default=True, description="Accept a sample with its pre-annotation's fit when "
                                     "MVNet's prediction agrees with it; off: never.")
     earlier_fit_check_min_mean_confidence: float = Field(default=0.5, ge=0, le=1, description="Mean must be above.")
@@ -138,6 +138,8 @@ class Settings(BaseSettings):
     earlier_fit_check_max_mean_distance_m: float = Field(default=0.008, ge=0, le=1, description="Mean 3D distance.")
     earlier_fit_check_max_keypoint_distance_m: float = Field(default=1.0, ge=0, le=1,
                                                              description="Each 3D distance (1 m: no limit).")
+    earlier_fit_check_min_lift_confidence: float = Field(default=0.4, ge=0, le=1, description="The detector's lift "
+                                                         "the earlier fit was made from: mean confidence above.")
 
     # Reviewer queue policy (paper, "Manual Verification and Annotation").
     review_min_confidence_percentile: float = Field(default=50.0, ge=0, le=100)

@@ -16,8 +16,10 @@ from __future__ import annotations
 import dataclasses
 import logging
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
@@ -38,12 +40,22 @@ log = logging.getLogger(__name__)
 DETECTOR_SOURCE = "detector"
 
 
-def thresholds_from_settings(settings: Settings) -> tuple[HeuristicThresholds | None, HeuristicThresholds | None]:
+@dataclass(frozen=True)
+class EarlierFitThresholds:
+    """The paper's criteria for the pre-annotation's fit against MVNet's prediction, and the lift it was made from:
+    its mean confidence must be above `min_lift_confidence` (both estimators sure of themselves)."""
+
+    fit: HeuristicThresholds
+    min_lift_confidence: float
+
+
+def thresholds_from_settings(settings: Settings) -> tuple[HeuristicThresholds | None, EarlierFitThresholds | None]:
     """(MVNet's fit against the lift, the pre-annotation's fit against MVNet's prediction) thresholds; None where the
     settings turn that check off. The first are the detector's heuristic's with its own mean distance."""
     cross = dataclasses.replace(HeuristicThresholds.from_settings(settings, "detector_heuristic_"),
                                 max_mean_distance_m=settings.cross_heuristic_max_mean_distance_m)
-    earlier = HeuristicThresholds.from_settings(settings, "earlier_fit_check_")
+    earlier = EarlierFitThresholds(HeuristicThresholds.from_settings(settings, "earlier_fit_check_"),
+                                   settings.earlier_fit_check_min_lift_confidence)
     return (cross if settings.cross_heuristic else None), (earlier if settings.earlier_fit_check else None)
 
 
@@ -85,12 +97,20 @@ def fit_against_lift(earlier: Fit, fit: Fit, ious: Mapping[int, float], threshol
     return None if detection is None else against_lift(fit, detection, ious, thresholds)
 
 
-def earlier_fit_against_prediction(earlier: Fit, prediction: Prediction, thresholds: HeuristicThresholds
+def earlier_fit_against_prediction(earlier: Fit, prediction: Prediction, thresholds: EarlierFitThresholds
                                    ) -> HeuristicResult | None:
     """The paper's three criteria on the pre-annotation's fit with MVNet's prediction as the estimate: MVNet's
-    confidences, the earlier fit's view IoUs (against the chroma-key cut), its keypoints against MVNet's; None when
-    the earlier fit has no view IoUs."""
-    if not earlier.view_ious:
+    confidences, the earlier fit's view IoUs (against the chroma-key cut), its keypoints against MVNet's; and the
+    lift's mean confidence. None when the earlier fit has no view IoUs or lift."""
+    detection = detection_of(earlier)
+    if not earlier.view_ious or detection is None:
         return None
-    return heuristic_verdict(prediction.confidences, earlier.view_ious.values(), prediction.keypoints_m,
-                             earlier.keypoints_m, thresholds)
+    verdict = heuristic_verdict(prediction.confidences, earlier.view_ious.values(), prediction.keypoints_m,
+                                earlier.keypoints_m, thresholds.fit)
+    lifted = np.array(detection.get("confidence") or [], dtype=np.float64)  # None -> NaN: not lifted
+    # rounded as heuristic_verdict rounds its means: 21 x 0.4 averages to 0.4 exactly, not 0.4000000000000001
+    lift_confidence = round(float(np.nanmean(lifted)), 12) if np.isfinite(lifted).any() else 0.0
+    failed = list(verdict.failed)
+    if not lift_confidence > thresholds.min_lift_confidence:
+        failed.append(f"the lift's mean confidence {lift_confidence:.3f} is not above {thresholds.min_lift_confidence}")
+    return HeuristicResult(not failed, tuple(failed), {**verdict.metrics, "lift_confidence": lift_confidence})

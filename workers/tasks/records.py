@@ -113,7 +113,7 @@ def record_fit(session: Session, sample_id: int, *, params: Sequence[float], key
                prediction_id: int | None = None, vertices_m: np.ndarray | None = None,
                detector_thresholds: HeuristicThresholds | None = None,
                cross_thresholds: HeuristicThresholds | None = None,
-               earlier_fit_thresholds: HeuristicThresholds | None = None) -> Fit:
+               earlier_fit_thresholds: cross_checks.EarlierFitThresholds | None = None) -> Fit:
     """Store a fit of a sample in 'fitting' and route it: heuristic accept (D^h) when a prediction passes
     all criteria, or a pre-annotation's fit passes them with the detector in MVNet's role (`detector_thresholds`;
     None: detector fits are never accepted without a person); straight to review when fitted from annotations;
@@ -195,7 +195,8 @@ def _record(verdict: HeuristicResult, inputs: dict[str, Any], estimator: str) ->
 
 
 def _cross_check(session: Session, fit: Fit, prediction: Prediction, ious: Mapping[int, float],
-                 cross_thresholds: HeuristicThresholds | None, earlier_fit_thresholds: HeuristicThresholds | None
+                 cross_thresholds: HeuristicThresholds | None,
+                 earlier_fit_thresholds: cross_checks.EarlierFitThresholds | None
                  ) -> tuple[str, Fit]:
     """After the paper's heuristic failed MVNet's `fit`: the two cross-estimator checks against the sample's
     pre-annotation (workers.tasks.cross_checks), the pre-annotation's fit against MVNet's prediction first, then MVNet's

@@ -88,10 +88,10 @@ def test_without_a_pre_annotation_or_with_the_settings_off_only_the_papers_heuri
 FAR_LIFT = (np.asarray(LIFTED) + 0.03).tolist()  # 30 mm off in each axis: the detector's heuristic fails on it
 
 
-def _far_lift_pre_annotation(env, h, sample_id: int) -> int:
+def _far_lift_pre_annotation(env, h, sample_id: int, lift_confidence: float = 0.7) -> int:
     """A pre-annotation fit on the helper's keypoints (MVNet's prediction, too) made from a lift far from it: its
     own heuristic fails on the distance; back in 'fitting' for a later round."""
-    fit_id = h.record_fit(env, sample_id, detection={"points_world": FAR_LIFT, "confidence": [0.7] * 21})
+    fit_id = h.record_fit(env, sample_id, detection={"points_world": FAR_LIFT, "confidence": [lift_confidence] * 21})
     assert not _heuristic(env, fit_id)["accepted"]
     h.set_state(env, [sample_id], "fitting")
     return fit_id
@@ -158,3 +158,13 @@ def test_the_lift_check_is_stricter_than_the_detectors_own(env, h):
     assert not cross["accepted"] and abs(cross["mean_distance_m"] - 0.0053 * np.sqrt(3)) < 1e-9
     assert cross["failed"] == ["mean 3D distance 9.18 mm exceeds 8 mm"]
     assert env.settings.detector_heuristic_max_mean_distance_m > cross["mean_distance_m"]
+
+
+def test_a_pre_annotation_fit_from_an_unsure_lift_is_not_taken_however_mvnet_agrees(env, h):
+    (sample_id,) = h.seed(env, frames=1, cameras=2, state="fitting")
+    _far_lift_pre_annotation(env, h, sample_id, lift_confidence=0.4)  # not above the default 0.4
+    fit_id = h.record_fit(env, sample_id, prediction=UNSURE_MVNET, offset_m=0.01)
+    earlier = _heuristic(env, fit_id)["earlier_fit"]
+    assert not earlier["accepted"] and earlier["mean_distance_m"] == 0.0 and earlier["lift_confidence"] == 0.4
+    assert earlier["failed"] == ["the lift's mean confidence 0.400 is not above 0.4"]
+    assert _state(env, sample_id) == "fitted"

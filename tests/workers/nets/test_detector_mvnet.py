@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import torch
 
+from tests.support.training import BY_STEPS_S
 from workers.capture.reader import load_frame_images, load_ground_truth
 from workers.detector import DetectorUnavailableError
 from workers.detector.keypoint_offsets import KeypointOffsets, PoseCorrection
@@ -157,8 +158,8 @@ BIAS_M = np.array([0.03, 0.0, 0.0])
 def trained_on_biased_detections(tiny_capture, tiny_frames, tmp_path_factory):
     detections = perfect_detections(tiny_frames, tiny_capture.cameras, shift_m=BIAS_M)
     dataset = build_mvnet_dataset(tiny_capture, tiny_frames, TINY_DETECTOR, detections=detections)
-    result = train_mvnet(dataset, TINY_DETECTOR, budget_s=300, checkpoint_dir=tmp_path_factory.mktemp("det"),
-                         max_steps=150, seed=2)
+    result = train_mvnet(dataset, TINY_DETECTOR, budget_s=BY_STEPS_S,
+                         checkpoint_dir=tmp_path_factory.mktemp("det"), max_steps=150, seed=2)
     return dataset, result
 
 
@@ -303,7 +304,8 @@ def test_likelihood_volume_is_one_at_the_keypoint_and_falls_off_with_reprojectio
 def test_maps_only_network_learns_the_detectors_bias_and_round_trips(tiny_capture, tiny_frames, tmp_path):
     detections = perfect_detections(tiny_frames, tiny_capture.cameras, shift_m=BIAS_M)
     dataset = build_mvnet_dataset(tiny_capture, tiny_frames, TINY_AGREEMENT, detections=detections)
-    result = train_mvnet(dataset, TINY_AGREEMENT, budget_s=300, checkpoint_dir=tmp_path, max_steps=150, seed=2)
+    result = train_mvnet(dataset, TINY_AGREEMENT, budget_s=BY_STEPS_S, checkpoint_dir=tmp_path, max_steps=150,
+                         seed=2)
     torch.manual_seed(2)
     trained_mm, untrained_mm = _error_mm(result.model, dataset), _error_mm(MVNet(TINY_AGREEMENT).eval(), dataset)
     assert untrained_mm > 0.8 * 1000 * np.linalg.norm(BIAS_M), untrained_mm
@@ -362,7 +364,7 @@ def test_learned_keypoint_offsets_move_the_maps_and_travel_with_the_weights(tiny
                               detector_scores=dataset.detector_scores)
     assert 1000 * np.linalg.norm(pred.keypoints_3d - moved, axis=-1).mean() < 0.2 * 1000 * config.voxel_m
     assert 1000 * np.linalg.norm(pred.keypoints_3d - truth, axis=-1).mean() > 20
-    result = train_mvnet(dataset, config, budget_s=300, checkpoint_dir=tmp_path, max_steps=2, seed=2)
+    result = train_mvnet(dataset, config, budget_s=BY_STEPS_S, checkpoint_dir=tmp_path, max_steps=2, seed=2)
     model, meta = load_model(result.checkpoint, "mvnet")
     assert meta["config_digest"] == config_digest(config) != config_digest(TINY_DETECTOR)
     np.testing.assert_allclose(model.keypoint_offsets().offsets_m, offsets.offsets_m, atol=1e-8)

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import torch
 
+from tests.support.training import BY_STEPS_S
 from workers.capture.reader import load_frame_images, load_ground_truth
 from workers.nets.checkpoints import CheckpointError, load_model, round_dir
 from workers.nets.configs import get_config
@@ -21,6 +22,8 @@ from workers.nets.train import train_handsegnet, train_mvnet
 # cpu-small's architecture without augmentation: the network must memorise two frames.
 OVERFIT = replace(get_config("cpu-small").mvnet, center_jitter_m=0.0, cut_paste_prob=0.0, color_jitter=0.0,
                   crop_rotation_deg=0.0, crop_scale=0.0, train_views=0, batch_frames=2)
+# The overfit fixture (1,000 steps, about a minute on a quiet core) ran past 600 s on a machine loaded four-fold.
+pytestmark = pytest.mark.timeout(1800)
 
 
 @pytest.fixture(scope="module")
@@ -28,7 +31,7 @@ def overfit(tiny_capture, tiny_frames, tmp_path_factory):
     dataset = build_mvnet_dataset(tiny_capture, tiny_frames, OVERFIT)
     ckpt = round_dir(tmp_path_factory.mktemp("ckpt"), 0)
     # ~1000 steps bring two frames to ~10 mm (400 left them at ~33 mm); about a minute on one core.
-    result = train_mvnet(dataset, OVERFIT, budget_s=600, checkpoint_dir=ckpt, max_steps=1000, seed=1)
+    result = train_mvnet(dataset, OVERFIT, budget_s=BY_STEPS_S, checkpoint_dir=ckpt, max_steps=1000, seed=1)
     return dataset, result
 
 
@@ -111,7 +114,7 @@ def test_handsegnet_learns_and_predicts_masks(tiny_capture, tiny_frames, tmp_pat
                      color_jitter=0.0)
     dataset = build_handseg_dataset(tiny_capture, tiny_frames)
     assert len(dataset) == 8 * len(tiny_frames)
-    result = train_handsegnet(dataset, config, budget_s=120, checkpoint_dir=tmp_path, max_steps=400)
+    result = train_handsegnet(dataset, config, budget_s=BY_STEPS_S, checkpoint_dir=tmp_path, max_steps=400)
     cameras = list(tiny_capture.cameras)
     views = load_frame_images(tiny_frames[0], cameras)
     masks = predict_masks(result.model, views, cameras)

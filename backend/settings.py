@@ -127,9 +127,12 @@ class Settings(BaseSettings):
                                                        "MVNet's fit from the lift, at most.")
     # Rounds >= 1, checked first: the pre-annotation's own fit judged by the paper's criteria with MVNet's
     # prediction as the estimate; passing, the sample is accepted with that fit (workers.tasks.cross_checks). Chosen
-    # on tuning seeds 11 and 57 (docs/evaluation.md, "Cross-estimator checks").
-    earlier_fit_check: bool = Field(default=True, description="Accept a sample with its pre-annotation's fit when "
-                                    "MVNet's prediction agrees with it; off: never.")
+    # on tuning seeds 11 and 57, then judged by the matrix: on unseen seed 7741, 3 of its 5 accepts were over 10 mm
+    # (lifts of mean confidence 0.48, just under the detector's 0.5), so it is off until re-chosen on tuning seeds
+    # (docs/evaluation.md, "Cross-estimator checks").
+    earlier_fit_check: bool = Field(default=False, description="Accept a sample with its pre-annotation's fit when "
+                                    "MVNet's prediction agrees with it (off by default: it failed the precision "
+                                    "target on an unseen capture); off: never.")
     earlier_fit_check_min_mean_confidence: float = Field(default=0.5, ge=0, le=1, description="Mean must be above.")
     earlier_fit_check_min_keypoint_confidence: float = Field(default=0.0, ge=0, le=1, description="Each at least.")
     earlier_fit_check_min_mean_iou: float = Field(default=0.6, ge=0, le=1, description="Mean IoU, at least.")

@@ -176,7 +176,8 @@ def test_a_pre_annotation_fit_from_an_unsure_lift_is_not_taken_however_mvnet_agr
 
 
 def test_by_default_the_pre_annotation_fit_is_not_taken_however_mvnet_agrees(env, h):
-    """Off by default (on unseen seed 7741 most of its accepts were wrong): the sample waits for a reviewer."""
+    """Off by default (on one of the matrix's unseen seeds most of its accepts were wrong): the sample waits for a
+    reviewer."""
     (sample_id,) = h.seed(env, frames=1, cameras=2, state="fitting")
     _far_lift_pre_annotation(env, h, sample_id)
     heuristic = _heuristic(env, h.record_fit(env, sample_id, prediction=UNSURE_MVNET, offset_m=0.01))

@@ -125,10 +125,6 @@ class Settings(BaseSettings):
     # from the lift (docs/evaluation.md, "Cross-estimator checks").
     cross_heuristic_max_mean_distance_m: float = Field(default=0.008, ge=0, le=1, description="Mean 3D distance of "
                                                        "MVNet's fit from the lift, at most.")
-    # Rounds >= 1: fits from MVNet's prediction also weigh the detector's 2D keypoints of the sample's pre-annotation
-    # (workers.tasks.detection_inputs.with_detector_keypoints); such fits skip the lift check (not independent of it).
-    prediction_fit_detector_keypoints: bool = Field(default=False, description="Fit MVNet's prediction together with "
-                                                    "the pretrained detector's 2D keypoints where round 0 left them.")
     # Rounds >= 1, checked first: the pre-annotation's own fit judged by the paper's criteria with MVNet's
     # prediction as the estimate; passing, the sample is accepted with that fit (workers.tasks.cross_checks). Chosen
     # on tuning seeds 11 and 57, then judged by the matrix: on unseen seed 7741, 3 of its 5 accepts were over 10 mm

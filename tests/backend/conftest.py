@@ -223,13 +223,11 @@ class Helpers:
     @staticmethod
     def record_fit(env: Env, sample_id: int, *, prediction: dict | None = None, ious: float = 0.9,
                    articulation: float = 1.0, offset_m: float = 0.0, from_clicks: bool = False,
-                   detection: dict | None = None, fit_keypoints_m: list | None = None,
-                   extra_inputs: dict | None = None) -> int:
+                   detection: dict | None = None, fit_keypoints_m: list | None = None) -> int:
         """Record (as a worker would) a fit for a sample in 'fitting'; returns the fit id. `detection`: a
         pre-annotation's fit from this detection record (points_world, confidence), judged by the detector's
         heuristic at its default thresholds (as is a later fit from a prediction against it, and it against the
-        prediction, when the settings' `cross_heuristic` and `earlier_fit_check` are on). `extra_inputs`: more of
-        the fit's inputs."""
+        prediction, when the settings' `cross_heuristic` and `earlier_fit_check` are on)."""
         import numpy as np
 
         from backend.services.captures.samples import views_of
@@ -251,7 +249,7 @@ class Helpers:
                 keypoints_m=fit_keypoints_m if fit_keypoints_m is not None else (keypoints + offset_m).tolist(),
                 view_ious={v.id: ious for v in views}, diagnostics={"loss": 0.1},
                 inputs=({"submission_ids": [1]} if from_clicks else {"source": "detector", "detection": detection}
-                        if detection is not None else {"prediction_id": prediction_id}) | (extra_inputs or {}),
+                        if detection is not None else {"prediction_id": prediction_id}),
                 model_file="builtin", thresholds=HeuristicThresholds(), prediction_id=prediction_id,
                 detector_thresholds=HeuristicThresholds.from_settings(env.settings, "detector_heuristic_"),
                 cross_thresholds=cross_checks.thresholds_from_settings(env.settings)[0],

@@ -7,16 +7,13 @@ of every fit job (workers.tasks.fit_sources), which reads them back.
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from backend.models.enums import MaskKind
-from backend.models.fits import Fit
 from backend.models.jobs import Job
 from workers.detector.handedness import lifted_side
 from workers.detector.types import DetectorInputError, LiftedKeypoints
@@ -147,38 +144,3 @@ def fit_input_from_detection(ctx: WorkerContext, session: Session, job: Job, fra
               "keypoints_2d": int((observations.click_weights > 0).sum()), "detection": record,
               "detector_confidence": record.get("frame_confidence")}
     return FitInput(job.id, frame.sample_id, SOURCE, rig, frame.view_ids, observations, inputs, round_id=job.round_id)
-
-
-def latest_detection(session: Session, sample_id: int) -> tuple[int, dict[str, Any]] | None:
-    """(fit id, detection record) of the sample's newest pre-annotation fit; None when it has none."""
-    for fit in session.scalars(select(Fit).where(Fit.sample_id == sample_id).order_by(Fit.id.desc())):
-        inputs = fit.inputs or {}
-        if inputs.get("source") == SOURCE and isinstance(inputs.get("detection"), dict):
-            return fit.id, inputs["detection"]
-    return None
-
-
-def with_detector_keypoints(session: Session, fit_input: FitInput) -> FitInput:
-    """A fit from MVNet's prediction that also weighs the detector's 2D keypoints its pre-annotation left
-    (setting `prediction_fit_detector_keypoints`), with the paper's later-round weights (w2D = 50, w3D = 1000):
-    MVNet trained on a few dozen labels is often centimetres off where the pretrained detector is not, and one fit
-    of both, with the silhouettes, settles between them. Unchanged where the sample has no usable detection.
-    The fit's inputs name the detection's fit ("detector_keypoints"), so the lift check, which needs the two
-    estimators apart, skips it."""
-    found = latest_detection(session, fit_input.sample_id)
-    if found is None:
-        return fit_input
-    fit_id, record = found
-    if [int(v) for v in record.get("view_ids", [])] != list(fit_input.view_ids):
-        return fit_input  # the views changed since the detection: it no longer lines up
-    try:
-        detected = observations_from_detection(record, fit_input.rig.cameras, None)
-    except InputError:
-        return fit_input  # a malformed stored detection: MVNet's prediction alone, as without the setting
-    used = int((detected.click_weights > 0).sum())
-    if used == 0:
-        return fit_input
-    observations = dataclasses.replace(fit_input.observations, clicks_px=detected.clicks_px,
-                                       click_weights=detected.click_weights, points_source=SOURCE)
-    inputs = {**fit_input.inputs, "detector_keypoints": {"fit_id": fit_id, "keypoints_2d": used}}
-    return dataclasses.replace(fit_input, observations=observations, inputs=inputs)

@@ -9,7 +9,7 @@ from sqlalchemy.orm import Session
 
 from backend.models.jobs import Job
 from workers.tasks.context import WorkerContext
-from workers.tasks.detection_inputs import fit_input_from_detection, with_detector_keypoints
+from workers.tasks.detection_inputs import fit_input_from_detection
 from workers.tasks.inputs import (
     FitInput,
     InputError,
@@ -36,8 +36,6 @@ def fit_input(ctx: WorkerContext, session: Session, job: Job, frames: dict[int, 
     source = str((job.payload or {}).get("source", "annotation"))
     if source == "prediction":
         fi = from_prediction(ctx, session, job, frame, rig)
-        if ctx.settings.prediction_fit_detector_keypoints:
-            fi = with_detector_keypoints(session, fi)
     elif source == "detector":
         fi = fit_input_from_detection(ctx, session, job, frame, rig)
     else:

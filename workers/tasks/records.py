@@ -217,8 +217,7 @@ def _cross_check(session: Session, fit: Fit, prediction: Prediction, ious: Mappi
                                  **other.metrics}
         if other.accepted:
             outcome = (EARLIER_FIT, earlier)
-    # A fit that weighed the detector's keypoints is not independent of the lift: no cross-check against it.
-    if outcome[0] == MVNET and cross_thresholds is not None and not (fit.inputs or {}).get("detector_keypoints"):
+    if outcome[0] == MVNET and cross_thresholds is not None:
         cross = cross_checks.fit_against_lift(earlier, fit, ious, cross_thresholds)
         if cross is not None:
             record["cross"] = {"accepted": cross.accepted, "failed": list(cross.failed), **cross.metrics}

@@ -5,8 +5,6 @@ the Celery task calls the service."""
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 from sqlalchemy import func, select
@@ -24,10 +22,8 @@ from backend.settings import Settings
 from tests.support.detector_fake import FakeDetector
 from tests.support.live_stack import TEST_SETTINGS, fresh_postgres, prepare_database, tiny_capture
 from workers.fitting.config import DETECTOR_KP2D_WEIGHT
-from workers.fitting.inputs import FrameObservations
 from workers.tasks import detection_inputs, preannotate
 from workers.tasks.context import build_context
-from workers.tasks.inputs import FitInput, load_frames, rig_of
 
 MISSING = "the hand landmark model file is missing: install it with scripts/fetch_models.sh"
 
@@ -558,31 +554,3 @@ def test_a_sequence_whose_hands_look_like_the_other_side_is_noted(tmp_path, capt
         assert "left hand in 3 of 3 frames" in note and "a right hand was asked for" in note
     finally:
         ctx.session_factory.kw["bind"].dispose()
-
-
-def test_a_fit_from_mvnets_prediction_takes_the_detectors_keypoints_its_pre_annotation_left(world):
-    """`prediction_fit_detector_keypoints`: MVNet's 3D keypoints stay; the detector's inlier 2D keypoints of the
-    sample's newest pre-annotation fit are added, and the fit's inputs name that fit. A sample never pre-annotated
-    keeps MVNet's prediction alone."""
-    ctx, queue, project_id, _ = world
-    preannotate.run_preannotation_job(ctx, _launch(ctx, queue, project_id, rest="keep"))
-    with ctx.session_factory() as session:
-        detected = session.execute(select(Fit).order_by(Fit.id.desc()).limit(1)).scalar_one()
-        rig = rig_of(ctx, session, project_id)
-        frame = load_frames(ctx, session, [detected.sample_id])[detected.sample_id]
-        C = len(rig.cameras)
-        mvnet = FrameObservations(np.full((C, 21, 2), np.nan), np.zeros((C, 21)),
-                                  keypoints_3d=np.zeros((21, 3)), keypoint_3d_weights=np.full(21, 0.9))
-        alone = FitInput(0, detected.sample_id, "prediction", rig, frame.view_ids, mvnet, {"source": "prediction"})
-        fused = detection_inputs.with_detector_keypoints(session, alone)
-        expected = detection_inputs.observations_from_detection(detected.inputs["detection"], rig.cameras, None)
-        used = int((expected.click_weights > 0).sum())
-        assert used > C * 21 // 2
-        np.testing.assert_array_equal(fused.observations.click_weights, expected.click_weights)
-        np.testing.assert_array_equal(fused.observations.clicks_px, expected.clicks_px)
-        assert fused.observations.keypoints_3d is mvnet.keypoints_3d and fused.source == "prediction"
-        assert fused.inputs == {"source": "prediction", "detector_keypoints": {"fit_id": detected.id,
-                                                                              "keypoints_2d": used}}
-        fused.observations.validate(rig.cameras)  # what the fit engine checks first
-        never = dataclasses.replace(alone, sample_id=detected.sample_id + 1000)
-        assert detection_inputs.with_detector_keypoints(session, never) is never

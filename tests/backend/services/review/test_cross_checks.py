@@ -183,15 +183,3 @@ def test_by_default_the_pre_annotation_fit_is_not_taken_however_mvnet_agrees(env
     heuristic = _heuristic(env, h.record_fit(env, sample_id, prediction=UNSURE_MVNET, offset_m=0.01))
     assert not heuristic["accepted"] and "earlier_fit" not in heuristic, heuristic
     assert _state(env, sample_id) == "fitted"
-
-
-def test_a_fit_that_weighed_the_detectors_keypoints_is_not_checked_against_the_lift(env, h):
-    """Such a fit (setting `prediction_fit_detector_keypoints`) was pulled towards the detector: its agreement with the
-    lift is no second opinion, so only the paper's heuristic judges it."""
-    (sample_id,) = h.seed(env, frames=1, cameras=2, state="fitting")
-    _preannotated(env, h, sample_id)
-    fit_id = h.record_fit(env, sample_id, prediction=UNSURE_MVNET, offset_m=0.004,  # as the first test: accepted there
-                          extra_inputs={"detector_keypoints": {"fit_id": 1, "keypoints_2d": 42}})
-    heuristic = _heuristic(env, fit_id)
-    assert not heuristic["accepted"] and heuristic["estimator"] == "mvnet" and "cross" not in heuristic, heuristic
-    assert _state(env, sample_id) == "fitted"

@@ -160,6 +160,13 @@ class Settings(BaseSettings):
         "'The review queue'). Samples already in review count against it. 0 (the default until the sim-matrix "
         "measures the capacity policy on unseen seeds: on quick plans it added 3x the labels at fewer labels per "
         "human hour at 320 px): the fixed policy (percentile cut and time gap as filters).")
+    preannotation_review_capacity: int | None = Field(
+        default=None, ge=0, le=1_000_000, description="Round 0's own review capacity: the detector's fits the "
+        "reviewers can verify in the pre-annotation (0: the fixed policy), ranked as `review_capacity_per_round` "
+        "ranks; unset: as the later rounds (review_capacity_per_round). Separate because round 0's confident detector "
+        "fits are mostly right (tuning seed 11: 122 of 143 within the reviewers' 8 mm) while MVNet's fits of the "
+        "next rounds, sent back for clicks when wrong, cost far more a label (docs/evaluation.md, 'The review "
+        "queue').")
     review_percentile_cut: bool = Field(
         default=True, description="With a capacity, rounds 1 on: the queue is filled only from the confidence "
         "percentile up (the rest waits for the next round's networks: a fit sent back costs an annotation); false: "

@@ -171,8 +171,9 @@ def _to_annotators(session: Session, sample_ids: Sequence[int], from_state: Samp
 
 def route_fitted(ctx: WorkerContext, job_id: int, sample_ids: Sequence[int], rest: str) -> dict[str, int]:
     """The job's samples 'fitted' from their detector fit (those the detector's heuristic did not accept): ranked by
-    the detector's confidence and offered to the reviewers up to their capacity a round (`select_for_review`; with
-    `review_capacity_per_round` 0 the paper's fixed cut: from the median up, temporally spread); never flat
+    the detector's confidence and offered to the reviewers up to their capacity a round (`select_for_review`; the
+    capacity is `preannotation_review_capacity` where set, else `review_capacity_per_round`; 0 the paper's fixed
+    cut: from the median up, temporally spread); never flat
     hands. The rest go to the annotators when `rest` is "annotate", else stay fitted for round 1.
 
     The percentile cuts (as `review_percentile_cut` sets it) only once the heuristic gave D_0 enough labels to train
@@ -190,6 +191,8 @@ def route_fitted(ctx: WorkerContext, job_id: int, sample_ids: Sequence[int], res
         heuristic = {"fits": len(ours), "evaluated": len(verdicts),
                      "accepted": sum(bool(v.get("accepted")) for v in verdicts)}
         policy = ReviewPolicy.from_settings(ctx.settings)
+        if (capacity := ctx.settings.preannotation_review_capacity) is not None:  # round 0's own
+            policy = replace(policy, capacity=capacity or None)
         if heuristic["accepted"] < ctx.settings.round_min_training_samples:
             policy = replace(policy, percentile_cut=False)
         mine = [s for s in ours if s.state == SampleState.fitted]

@@ -226,6 +226,19 @@ def test_the_fixed_policy_stays_available(world):
     assert result["to_review"] == 2 and result["fitted_to_annotators"] == 2, result
 
 
+@pytest.mark.parametrize(("round0", "later", "reviewed"), [(1000, 0, 3), (0, 1000, 2), (None, 1000, 3)])
+def test_round_0_has_its_own_review_capacity_where_set(world, round0, later, reviewed):
+    """`preannotation_review_capacity` decides round 0's queue whatever the later rounds' capacity (1000: every fit
+    with a hand; 0: the paper's median cut); unset, round 0 follows `review_capacity_per_round`."""
+    ctx, queue, project_id, fake = world
+    ctx.settings = ctx.settings.model_copy(update={"preannotation_review_capacity": round0,
+                                                   "review_capacity_per_round": later})
+    fake.outliers_by_frame = {0: 0, 1: 1, 2: 2, 3: 3}  # four different confidences: the median cut takes 2
+    fake.no_hand_frames = {3}
+    result = preannotate.run_preannotation_job(ctx, _launch(ctx, queue, project_id))
+    assert result["to_review"] == reviewed, result
+
+
 def _with_detector_heuristic(ctx, **thresholds):
     ctx.settings = ctx.settings.model_copy(update={"detector_heuristic": True, **thresholds})
 

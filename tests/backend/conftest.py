@@ -253,7 +253,8 @@ class Helpers:
                 model_file="builtin", thresholds=HeuristicThresholds(), prediction_id=prediction_id,
                 detector_thresholds=HeuristicThresholds.from_settings(env.settings, "detector_heuristic_"),
                 cross_thresholds=cross_checks.thresholds_from_settings(env.settings)[0],
-                earlier_fit_thresholds=cross_checks.thresholds_from_settings(env.settings)[1])
+                earlier_fit_thresholds=cross_checks.thresholds_from_settings(env.settings)[1],
+                review_pre_annotation_fit=env.settings.review_pre_annotation_fit)
             return fit.id
 
     @staticmethod

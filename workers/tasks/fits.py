@@ -277,7 +277,8 @@ def _record_all(ctx: WorkerContext, fitted: list[tuple[FitInput, Any]], config: 
                         model_file=result.hand_model, thresholds=thresholds, job_id=fi.job_id,
                         prediction_id=fi.prediction_id, vertices_m=result.vertices,
                         detector_thresholds=detector_thresholds, cross_thresholds=cross_thresholds,
-                        earlier_fit_thresholds=earlier_fit_thresholds)
+                        earlier_fit_thresholds=earlier_fit_thresholds,
+                        review_pre_annotation_fit=ctx.settings.review_pre_annotation_fit)
                     session.flush()
                 summary.fitted.append(fit.id)
             except (DomainError, IntegrityError) as exc:  # cancelled, or recorded by a concurrent duplicate

@@ -15,6 +15,7 @@ import numpy as np
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
+from backend.models.capture import Sample
 from backend.models.enums import DecisionKind, JobKind, JobState, MaskKind, SampleState, Stream
 from backend.models.fits import Fit, Prediction
 from backend.models.labels import Mask
@@ -113,7 +114,8 @@ def record_fit(session: Session, sample_id: int, *, params: Sequence[float], key
                prediction_id: int | None = None, vertices_m: np.ndarray | None = None,
                detector_thresholds: HeuristicThresholds | None = None,
                cross_thresholds: HeuristicThresholds | None = None,
-               earlier_fit_thresholds: cross_checks.EarlierFitThresholds | None = None) -> Fit:
+               earlier_fit_thresholds: cross_checks.EarlierFitThresholds | None = None,
+               review_pre_annotation_fit: bool = False) -> Fit:
     """Store a fit of a sample in 'fitting' and route it: heuristic accept (D^h) when a prediction passes
     all criteria, or a pre-annotation's fit passes them with the detector in MVNet's role (`detector_thresholds`;
     None: detector fits are never accepted without a person); straight to review when fitted from annotations;
@@ -122,7 +124,8 @@ def record_fit(session: Session, sample_id: int, *, params: Sequence[float], key
     A fit from a prediction that fails the paper's heuristic is accepted when it passes `cross_thresholds` against the
     detector's lift left by the sample's pre-annotation; else the sample is accepted with that pre-annotation's fit
     when it passes `earlier_fit_thresholds` against MVNet's prediction (None: that check is off;
-    workers.tasks.cross_checks)."""
+    workers.tasks.cross_checks). With `review_pre_annotation_fit`, a fit from a prediction that nothing accepted leaves
+    the sample's pre-annotation fit (if no person decided on it) as the one the reviewers see."""
     theta = _finite_array(params, (NUM_PARAMS,), "params")
     kp = _finite_array(keypoints_m, (NUM_KEYPOINTS, 3), "keypoints_m")
     vertices = None
@@ -166,6 +169,8 @@ def record_fit(session: Session, sample_id: int, *, params: Sequence[float], key
         fit.heuristic = _record(verdict, inputs, MVNET)
         if not verdict.accepted:
             estimator, label = _cross_check(session, fit, prediction, ious, cross_thresholds, earlier_fit_thresholds)
+            if estimator == MVNET and review_pre_annotation_fit:
+                _show_pre_annotation_fit(session, sample, fit)
     elif detector_thresholds is not None and ious and detection is not None:
         estimator = DETECTOR_SOURCE
         verdict = cross_checks.against_lift(fit, detection, ious, detector_thresholds)
@@ -186,6 +191,17 @@ def record_fit(session: Session, sample_id: int, *, params: Sequence[float], key
         transition(session, sample, SampleState.in_review, None, reason="fitted from annotations")
     audit.record(session, None, "fit.create", "sample", sample_id, fit_id=fit.id, state=sample.state)
     return fit
+
+
+def _show_pre_annotation_fit(session: Session, sample: Sample, fit: Fit) -> None:
+    """The reviewers see the sample's pre-annotation fit instead of MVNet's `fit` (recorded in fit.heuristic as
+    "reviewed_fit_id"): where no heuristic took MVNet's fit, round 0's fit from the detector's keypoints and the chroma
+    key is the likelier to be right (docs/evaluation.md, "Cross-estimator checks"). The reviewer still decides."""
+    earlier = cross_checks.pre_annotation_fit(session, fit)
+    if earlier is None:
+        return
+    sample.current_fit_id, sample.pose_distance = earlier.id, earlier.pose_distance
+    fit.heuristic = {**(fit.heuristic or {}), "reviewed_fit_id": earlier.id}
 
 
 def _record(verdict: HeuristicResult, inputs: dict[str, Any], estimator: str) -> dict[str, Any]:

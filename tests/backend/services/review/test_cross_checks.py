@@ -183,3 +183,35 @@ def test_by_default_the_pre_annotation_fit_is_not_taken_however_mvnet_agrees(env
     heuristic = _heuristic(env, h.record_fit(env, sample_id, prediction=UNSURE_MVNET, offset_m=0.01))
     assert not heuristic["accepted"] and "earlier_fit" not in heuristic, heuristic
     assert _state(env, sample_id) == "fitted"
+
+
+def _current_fit(env, sample_id: int) -> int:
+    with env.session() as s:
+        return s.execute(text("SELECT current_fit_id FROM samples WHERE id = :i"), {"i": sample_id}).scalar_one()
+
+
+def test_where_nothing_took_mvnets_fit_the_reviewers_may_see_the_pre_annotation_fit(env, h):
+    """`review_pre_annotation_fit`: MVNet's fit far from the lift is taken by no check; the sample waits for a reviewer
+    with its pre-annotation fit, and the reviewer's accept labels it with that fit (D^m). A sample without one keeps
+    MVNet's fit; with the setting off, so does every sample."""
+    shown, plain, off = h.seed(env, frames=3, cameras=2, state="fitting")
+    env.settings.review_pre_annotation_fit = True
+    _preannotated(env, h, shown)
+    earlier = _current_fit(env, shown)
+    fit_id = h.record_fit(env, shown, prediction=UNSURE_MVNET, offset_m=0.02)
+    heuristic = _heuristic(env, fit_id)
+    assert not heuristic["accepted"] and heuristic["reviewed_fit_id"] == earlier, heuristic
+    assert _state(env, shown) == "fitted" and _current_fit(env, shown) == earlier
+    plain_fit = h.record_fit(env, plain, prediction=UNSURE_MVNET, offset_m=0.02)
+    assert _current_fit(env, plain) == plain_fit and "reviewed_fit_id" not in _heuristic(env, plain_fit)
+    env.settings.review_pre_annotation_fit = False
+    _preannotated(env, h, off)
+    off_fit = h.record_fit(env, off, prediction=UNSURE_MVNET, offset_m=0.02)
+    assert _current_fit(env, off) == off_fit
+    h.set_state(env, [shown], "in_review")
+    task = h.next_task(env, Role.reviewer, "review")
+    assert task["sample_id"] == shown
+    response = env.client.post(f"/api/review/samples/{shown}/decision", json={"decision": "accept"},
+                               headers=env.headers(Role.reviewer))
+    assert response.status_code == 201, response.text
+    assert response.json()["fit_id"] == earlier and response.json()["stream"] == "manual", response.json()

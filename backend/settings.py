@@ -169,7 +169,7 @@ class Settings(BaseSettings):
         default=None, ge=0, le=1_000_000, description="Round 0's own review capacity: the detector's fits the "
         "reviewers can verify in the pre-annotation (0: the fixed policy), ranked as `review_capacity_per_round` "
         "ranks; unset (the default): as the later rounds (review_capacity_per_round). The matrix measured 1000: a "
-        "larger D_0 but fewer labels per human hour on every seed (docs/evaluation.md, 'The review queue').")
+        "larger D_0 but fewer labels per human hour on each unseen seed (docs/evaluation.md, 'The review queue').")
     review_percentile_cut: bool = Field(
         default=True, description="With a capacity, rounds 1 on: the queue is filled only from the confidence "
         "percentile up (the rest waits for the next round's networks: a fit sent back costs an annotation); false: "

@@ -133,11 +133,6 @@ class Settings(BaseSettings):
     earlier_fit_check: bool = Field(default=False, description="Accept a sample with its pre-annotation's fit when "
                                     "MVNet's prediction agrees with it (off by default: it failed the precision "
                                     "target on an unseen capture); off: never.")
-    # Rounds >= 1: where no heuristic took MVNet's fit, the reviewers see the pre-annotation's fit instead (no person
-    # decided on it). Offline on tuning seeds 11 and 57, of the 10-13 MVNet fits reviewed in rounds 1-2 that had one,
-    # the pre-annotation's fit was within the reviewers' 8 mm for 7-9, MVNet's for 4-6. Off until the matrix judges it.
-    review_pre_annotation_fit: bool = Field(default=False, description="Show reviewers the sample's pre-annotation "
-                                            "fit where no heuristic took MVNet's fit (rounds 1 on); off: MVNet's fit.")
     earlier_fit_check_min_mean_confidence: float = Field(default=0.5, ge=0, le=1, description="Mean must be above.")
     earlier_fit_check_min_keypoint_confidence: float = Field(default=0.0, ge=0, le=1, description="Each at least.")
     earlier_fit_check_min_mean_iou: float = Field(default=0.6, ge=0, le=1, description="Mean IoU, at least.")
@@ -148,6 +143,11 @@ class Settings(BaseSettings):
                                                              description="Each 3D distance (1 m: no limit).")
     earlier_fit_check_min_lift_confidence: float = Field(default=0.4, ge=0, le=1, description="The detector's lift "
                                                          "the earlier fit was made from: mean confidence above.")
+    # Rounds >= 1: where no heuristic took MVNet's fit, the reviewers see the pre-annotation's fit instead (no person
+    # decided on it). Offline on tuning seeds 11 and 57, of the 10-13 MVNet fits reviewed in rounds 1-2 that had one,
+    # the pre-annotation's fit was within the reviewers' 8 mm for 7-9, MVNet's for 4-6. Off until the matrix judges it.
+    review_pre_annotation_fit: bool = Field(default=False, description="Show reviewers the sample's pre-annotation "
+                                            "fit where no heuristic took MVNet's fit (rounds 1 on); off: MVNet's fit.")
 
     # Reviewer queue policy (paper, "Manual Verification and Annotation").
     review_min_confidence_percentile: float = Field(default=50.0, ge=0, le=100)

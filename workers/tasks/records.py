@@ -168,9 +168,11 @@ def record_fit(session: Session, sample_id: int, *, params: Sequence[float], key
                                     thresholds)
         fit.heuristic = _record(verdict, inputs, MVNET)
         if not verdict.accepted:
-            estimator, label = _cross_check(session, fit, prediction, ious, cross_thresholds, earlier_fit_thresholds)
-            if estimator == MVNET and review_pre_annotation_fit:
-                _show_pre_annotation_fit(session, sample, fit)
+            checked = cross_thresholds is not None or earlier_fit_thresholds is not None or review_pre_annotation_fit
+            earlier = cross_checks.pre_annotation_fit(session, fit) if checked else None
+            estimator, label = _cross_check(fit, earlier, prediction, ious, cross_thresholds, earlier_fit_thresholds)
+            if estimator == MVNET and review_pre_annotation_fit and earlier is not None:
+                _show_pre_annotation_fit(sample, fit, earlier)
     elif detector_thresholds is not None and ious and detection is not None:
         estimator = DETECTOR_SOURCE
         verdict = cross_checks.against_lift(fit, detection, ious, detector_thresholds)
@@ -193,13 +195,11 @@ def record_fit(session: Session, sample_id: int, *, params: Sequence[float], key
     return fit
 
 
-def _show_pre_annotation_fit(session: Session, sample: Sample, fit: Fit) -> None:
-    """The reviewers see the sample's pre-annotation fit instead of MVNet's `fit` (recorded in fit.heuristic as
-    "reviewed_fit_id"): where no heuristic took MVNet's fit, round 0's fit from the detector's keypoints and the chroma
-    key is the likelier to be right (docs/evaluation.md, "Cross-estimator checks"). The reviewer still decides."""
-    earlier = cross_checks.pre_annotation_fit(session, fit)
-    if earlier is None:
-        return
+def _show_pre_annotation_fit(sample: Sample, fit: Fit, earlier: Fit) -> None:
+    """The reviewers see the sample's pre-annotation fit `earlier` instead of MVNet's `fit` (recorded in
+    fit.heuristic as "reviewed_fit_id"): where no heuristic took MVNet's fit, round 0's fit from the detector's
+    keypoints and the chroma key is the likelier to be right (docs/evaluation.md, "Cross-estimator checks"). The
+    reviewer still decides."""
     sample.current_fit_id, sample.pose_distance = earlier.id, earlier.pose_distance
     fit.heuristic = {**(fit.heuristic or {}), "reviewed_fit_id": earlier.id}
 
@@ -210,17 +210,16 @@ def _record(verdict: HeuristicResult, inputs: dict[str, Any], estimator: str) ->
             "iou_reference": iou_reference(inputs), "estimator": estimator}
 
 
-def _cross_check(session: Session, fit: Fit, prediction: Prediction, ious: Mapping[int, float],
+def _cross_check(fit: Fit, earlier: Fit | None, prediction: Prediction, ious: Mapping[int, float],
                  cross_thresholds: HeuristicThresholds | None,
                  earlier_fit_thresholds: cross_checks.EarlierFitThresholds | None
                  ) -> tuple[str, Fit]:
     """After the paper's heuristic failed MVNet's `fit`: the two cross-estimator checks against the sample's
     pre-annotation (workers.tasks.cross_checks), the pre-annotation's fit against MVNet's prediction first, then MVNet's
     fit against the lift; each recorded in fit.heuristic ("earlier_fit", "cross"). Returns
-    the estimator that accepted and the fit to label the sample with, or (MVNET, fit) when neither did."""
-    earlier = (cross_checks.pre_annotation_fit(session, fit)
-               if cross_thresholds is not None or earlier_fit_thresholds is not None else None)
-    if earlier is None:
+    the estimator that accepted and the fit to label the sample with, or (MVNET, fit) when neither did. `earlier`: the
+    sample's pre-annotation fit no person decided on (cross_checks.pre_annotation_fit), or None."""
+    if earlier is None or (cross_thresholds is None and earlier_fit_thresholds is None):
         return MVNET, fit
     record = dict(fit.heuristic)
     outcome: tuple[str, Fit] = (MVNET, fit)

@@ -18,7 +18,7 @@ import shutil
 import statistics
 import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -270,6 +270,8 @@ def _load_results(path: Path, config: dict[str, Any], resume: bool) -> dict[str,
         raise ValueError(f"{path} is not a sim-matrix results file ({exc}); pass another --out") from exc
     if not isinstance(data, dict) or data.get("version") != RESULTS_VERSION or not isinstance(data.get("runs"), dict):
         raise ValueError(f"{path} is not a sim-matrix results file of version {RESULTS_VERSION}; pass another --out")
+    if isinstance(reviewer := (data.get("config") or {}).get("reviewer"), dict):
+        reviewer.setdefault("discards_before_annotation", 0)  # a file from before the option: nobody discarded
     if data.get("config") != config:
         differ = sorted(k for k in set(config) | set(data.get("config") or {})
                         if config.get(k) != (data.get("config") or {}).get(k))
@@ -285,7 +287,7 @@ def run_key(cell: Cell, seed: int) -> str:
 def run(*, cells: list[Cell], seeds: tuple[int, ...], out_dir: Path | None = None, resume: bool = False,
         quick: bool = False, rounds: int | None = None, frames: int | None = None,
         train_steps: int | None = None, handsegnet_steps: int | None = None,
-        detector: str = "on", emit_json: bool = True) -> dict[str, Any]:
+        detector: str = "on", reviewer_discards: int = 0, emit_json: bool = True) -> dict[str, Any]:
     """Run every (cell, seed) not yet in `<out_dir>/matrix.json`, one after the other, writing each as it finishes;
     then the per-cell summaries, the markdown table, `<out_dir>/matrix.png`, and (with `emit_json`) the JSON line.
 
@@ -297,11 +299,14 @@ def run(*, cells: list[Cell], seeds: tuple[int, ...], out_dir: Path | None = Non
         train_steps, handsegnet_steps: a round's training steps (None: the issue's TRAIN_STEPS and
             HANDSEGNET_STEPS); the matrix is always step-counted, so its runs repeat on one machine.
         detector: "on" (round 0 pre-annotated, as users run the loop; refused where it cannot run) or "off".
+        reviewer_discards: the simulated reviewers' `discards_before_annotation` (0: every bad fit to the
+            annotators); recorded in the results' config like the people.
     ValueError names a bad option, a results file of other settings, or a detector that cannot run.
     """
     started = time.perf_counter()
     if detector not in ("on", "off"):
         raise ValueError(f"detector must be on or off, not {detector!r}")
+    reviewer = ReviewerConfig(discards_before_annotation=reviewer_discards)  # raises on a value out of range
     if detector == "on" and (problem := preannotation.detector_problem()) is not None:
         raise ValueError(f"--detector on needs the pretrained detector: {problem} (or pass --detector off)")
     if not cells or not seeds:
@@ -319,7 +324,7 @@ def run(*, cells: list[Cell], seeds: tuple[int, ...], out_dir: Path | None = Non
     config = json.loads(json.dumps({  # as the results file holds it, to compare on --resume
         "plan": {k: v for k, v in base.items() if k not in ("settings", "width")}, "stack_settings": base["settings"],
         "detector": detector, "quick": quick, "people": people, "proposals": PROPOSALS,
-        "reviewer": unseeded(ReviewerConfig())}))
+        "reviewer": unseeded(reviewer)}))
     results = _load_results(results_path, config, resume)
     todo = [(c, s) for c in cells for s in seeds if run_key(c, s) not in results["runs"]]
     with tqdm(total=len(cells) * len(seeds), initial=len(cells) * len(seeds) - len(todo), unit="run",
@@ -333,7 +338,7 @@ def run(*, cells: list[Cell], seeds: tuple[int, ...], out_dir: Path | None = Non
             if work.exists():  # an interrupted run of this matrix: its stack's database cannot be reused
                 shutil.rmtree(work)
             summary = sim.simulate(capture, work, plan, detector=detector == "on", annotator=cell.annotator(seed),
-                               reviewer=ReviewerConfig(seed=seed), label=f"{cell.name} seed {seed}",
+                               reviewer=replace(reviewer, seed=seed), label=f"{cell.name} seed {seed}",
                                    leave=False)
             results["runs"][run_key(cell, seed)] = {**run_record(cell, seed, summary, work),
                                                     "commit": git_commit(), "finished_at": time.time()}

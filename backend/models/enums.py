@@ -77,6 +77,9 @@ class DecisionKind(StrEnum):
     accept = "accept"
     reject = "reject"
     annotate = "annotate"
+    # The paper's "discarding the sample": the fit from predictions is not good enough; the sample stays in the pool
+    # for the next round's networks (no annotators' time, nothing final).
+    discard = "discard"
 
 
 class Stream(StrEnum):

@@ -162,18 +162,24 @@ class FitFailurePublic(Public):
     at: datetime
 
 
+NEEDS_REASON = frozenset({DecisionKind.reject, DecisionKind.annotate})
+
+
 class DecisionCreate(Strict):
     model_config = ConfigDict(json_schema_extra={
-        "if": {"properties": {"decision": {"not": {"const": "accept"}}}},
+        "if": {"properties": {"decision": {"enum": ["reject", "annotate"]}}},
         "then": {"required": ["reason"], "properties": {"reason": {"pattern": "\\S"}}}})
 
-    decision: DecisionKind
+    decision: DecisionKind = Field(description="'accept'; 'reject' (final); 'annotate' (to the annotators); 'discard' "
+                                               "(a fit from predictions only: the sample waits for the next round's "
+                                               "networks; on a blind audit, as 'annotate').")
     reason: str = Field(default="", max_length=2000)
     lease_token: LeaseToken | None = None
 
     @model_validator(mode="after")
-    def _reason_when_not_accepting(self) -> DecisionCreate:
-        if self.decision is not DecisionKind.accept and not self.reason.strip():
+    def _reason_when_sending_on(self) -> DecisionCreate:
+        # A discard is the quick "not good enough" (the paper's ~5 s look): its reason is optional.
+        if self.decision in NEEDS_REASON and not self.reason.strip():
             raise ValueError(f"a '{self.decision.value}' decision needs a reason")
         return self
 
@@ -186,7 +192,7 @@ class DecisionPublic(Public):
     reason: str
     state: SampleState = Field(description="The sample's state after the decision (for a gold answer: unchanged).")
     stream: str | None = Field(description="The dataset stream the label joined with this decision; null when "
-                                           "nothing joined (a reject, a send-back, a gold answer).")
+                                           "nothing joined (a reject, a send-back, a discard, a gold answer).")
     created_at: datetime
     recorded_as: Literal["review", "gold_answer"] = Field(
         default="review",

@@ -42,6 +42,7 @@ class RoundEffort:
     accepts: int = 0
     rejects: int = 0
     sent_to_annotation: int = 0
+    discards: int = 0
     reviewer_mistakes: int = 0
     accepted_proposals: int = 0  # keypoints set by accepting a proposal instead of a click
     proposal_views: int = 0  # views where proposals were accepted (one key each)

@@ -1,8 +1,11 @@
 """A simulated reviewer: takes fits from the reviewer queue through the API and judges them by their true
 error: accept when the fit's mean vertex error against the ground truth is under `accept_below_mm`, with a
-decision flipped at `error_rate` (a mistake). A fit judged bad is sent back for annotation until the
-sample has had `max_annotation_attempts` annotation passes, then rejected. Each decision costs one
-verification of the unit costs."""
+decision flipped at `error_rate` (a mistake). From round 1 on, a fit from predictions judged bad is discarded (the
+sample waits for the next round's fit, as the paper's reviewers discarded most fits they did not accept) while the
+sample has been discarded fewer than `discards_before_annotation` times; in round 0 every bad fit goes to the
+annotators, D_0 being all that round 1 trains on. Any other bad fit is sent back for annotation until the
+sample has had `max_annotation_attempts` annotation passes, then rejected. Each decision costs one verification of
+the unit costs."""
 
 from __future__ import annotations
 
@@ -24,6 +27,8 @@ class ReviewerConfig:
     accept_below_mm: float = 8.0
     error_rate: float = 0.02
     max_annotation_attempts: int = 2
+    # 0: every bad fit goes to the annotators (as before the discard decision existed).
+    discards_before_annotation: int = 0
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -33,6 +38,8 @@ class ReviewerConfig:
             raise ValueError(f"error_rate must be in [0, 1], not {self.error_rate}")
         if not 0 <= self.max_annotation_attempts <= 100:
             raise ValueError(f"max_annotation_attempts must be in 0..100, not {self.max_annotation_attempts}")
+        if not 0 <= self.discards_before_annotation <= 100:
+            raise ValueError(f"discards_before_annotation must be in 0..100, not {self.discards_before_annotation}")
 
 
 @dataclass(frozen=True)
@@ -60,11 +67,13 @@ class SimulatedReviewer:
         self.config = config or ReviewerConfig()
         self.rng = np.random.default_rng([self.config.seed, *name.encode()])
 
-    def review_next(self, round_index: int, annotation_attempts: Mapping[int, int]) -> ReviewOutcome | None:
+    def review_next(self, round_index: int, annotation_attempts: Mapping[int, int],
+                    discards: Mapping[int, int] | None = None) -> ReviewOutcome | None:
         """Decide the next fit in the reviewer queue; None when the queue is empty.
 
         Args:
             annotation_attempts: sample id -> annotation passes it has had (decides annotate vs reject).
+            discards: sample id -> times its fit was discarded (decides discard vs annotate).
         """
         task = self.client.next_review()
         if task is None:
@@ -77,8 +86,12 @@ class SimulatedReviewer:
         mistake = bool(self.rng.random() < self.config.error_rate)
         if mistake:
             good = not good
+        from_predictions = not task["fit"].get("from_annotation", False)
         if good:
             decision, reason = "accept", ""
+        elif (round_index > 0 and from_predictions
+              and (discards or {}).get(sample_id, 0) < self.config.discards_before_annotation):
+            decision, reason = "discard", ""
         elif annotation_attempts.get(sample_id, 0) < self.config.max_annotation_attempts:
             decision, reason = "annotate", "the fit is off; needs clicks"
         else:
@@ -86,6 +99,7 @@ class SimulatedReviewer:
         result = self.client.decide(sample_id, decision, task["lease_token"], reason)
         self.ledger.add(round_index, verifications=1, accepts=int(decision == "accept"),
                         rejects=int(decision == "reject"), sent_to_annotation=int(decision == "annotate"),
+                        discards=int(decision == "discard"),
                         reviewer_mistakes=int(mistake))
         return ReviewOutcome(sample_id=sample_id, decision=decision, vertex_mm=error.vertex_mm, mistake=mistake,
                              stream=result.get("stream"), after_annotation=annotation_attempts.get(sample_id, 0) > 0)

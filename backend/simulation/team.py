@@ -75,6 +75,7 @@ class Team:
         self.reviewers = list(reviewers)
         self.max_annotation_passes = max_annotation_passes
         self.annotation_attempts: Counter[int] = Counter()
+        self.discards: Counter[int] = Counter()
 
     def annotate_all(self, round_index: int, work: TeamWork, limit: int | None = None) -> int:
         """Annotators take tasks in turn until none of them gets one (or `limit` submissions): a sample waiting for an
@@ -100,12 +101,15 @@ class Team:
         accepted the label, so one may find nothing while another still can)."""
         done, turn, idle = 0, 0, 0
         while idle < len(self.reviewers):
-            outcome = self.reviewers[turn % len(self.reviewers)].review_next(round_index, self.annotation_attempts)
+            outcome = self.reviewers[turn % len(self.reviewers)].review_next(round_index, self.annotation_attempts,
+                                                                             self.discards)
             turn += 1
             if outcome is None:
                 idle += 1
                 continue
             idle = 0
+            if outcome.decision == "discard":
+                self.discards[outcome.sample_id] += 1
             work.reviews.append(outcome)
             done += 1
         return done

@@ -1,6 +1,6 @@
 // The review page: the fit's outline, wireframe, keypoints and skeleton over every view (toggleable), with
-// per-view IoU and residuals; the sample's 3D scene in viser's client; accept / reject / needs annotation
-// with one key (a reason for the last two); the next sample is prefetched and drawn ahead.
+// per-view IoU and residuals; the sample's 3D scene in viser's client; accept / reject / needs annotation /
+// discard with one key (a reason for reject and annotation); the next sample is prefetched and drawn ahead.
 import { fitCanvas, fmt, h, handSide, isTyping, toast, fill } from "./dom.js";
 import { marker, segment } from "./draw.js";
 import { loadViews } from "./images.js";
@@ -24,6 +24,7 @@ const LAYERS = [
 ];
 const HELP = [
   ["A", "accept"],
+  ["D", "discard: not good enough, the sample waits for the next round's networks (fits from predictions only)"],
   ["R / N", "reject / needs annotation: then 1-5 a common reason (while the note is empty) or type one, " +
     "Enter sends, Esc cancels"],
   ["O S W K C P", "outline, silhouette, wireframe, keypoints, annotators' clicks, MVNet"],
@@ -198,7 +199,8 @@ class ReviewPage extends QueuePage {
         time_spent_s: Math.round(this.spentSeconds() * 1000) / 1000, actions: this.timer.actions });
       // A gold label (known right) does not move: the decision was recorded as the reviewer's answer to it.
       const effect = result.recorded_as === "gold_answer" ? " (a gold check: recorded as your answer; the label stays)"
-        : result.stream ? ` (joins D as ${result.stream})` : "";
+        : result.stream ? ` (joins D as ${result.stream})` : decision === "discard" && result.state === "fitted"
+          ? " (waits for the next round's fit)" : "";
       toast(`sample ${task.sample_id}: ${decision}${effect}`, "ok", 2000);
       this.deciding = false;
       this.justDecided = true;
@@ -322,6 +324,8 @@ class ReviewPage extends QueuePage {
     if (lower === "a") {
       this.keyAt = performance.now();
       this.decide("accept");
+    } else if (lower === "d") {
+      this.discard();
     } else if (lower === "r") {
       this.openReason("reject");
     } else if (lower === "n") {
@@ -638,7 +642,8 @@ class ReviewPage extends QueuePage {
       this.reason ? this.reasonBox() : h("div", { class: "decide" },
         h("button", { class: "accept", onclick: () => { this.keyAt = performance.now(); this.decide("accept"); } }, "Accept (A)"),
         h("button", { class: "reject", onclick: () => this.openReason("reject") }, "Reject (R)"),
-        h("button", { class: "annotate", onclick: () => this.openReason("annotate") }, "Needs annotation (N)")),
+        h("button", { class: "annotate", onclick: () => this.openReason("annotate") }, "Needs annotation (N)"),
+        this.canDiscard() ? h("button", { class: "discard", onclick: () => this.discard() }, "Discard (D)") : null),
       h("div", { class: "layers" }, LAYERS.map(([name, key, label]) => h("label", {},
         h("input", { type: "checkbox", checked: this.layers[name], onchange: (e) => {
           this.layers[name] = e.target.checked;
@@ -654,6 +659,20 @@ class ReviewPage extends QueuePage {
       this.render3d(),
     );
     this.renderClock();
+  }
+
+  // A fit that used annotators' clicks is not discarded: back in the pool, the next round would fit predictions
+  // instead of their clicks (the server refuses it too).
+  canDiscard() {
+    return Boolean(this.current && this.current.task.fit && !this.current.task.fit.from_annotation);
+  }
+
+  discard() {
+    if (!this.canDiscard()) {
+      return toast("this fit used annotators' clicks: accept it, send it back (N) or reject it (R)", "warn", 3000);
+    }
+    this.keyAt = performance.now();
+    this.decide("discard");
   }
 
   reasonBox() {

@@ -31,8 +31,9 @@ def next_task(session: SessionDep, settings: SettingsDep, user: ReviewerUser) ->
 
 @router.post("/samples/{sample_id}/decision", response_model=DecisionPublic, status_code=201)
 def decide(sample_id: Id, body: DecisionCreate, session: SessionDep, user: ReviewerUser) -> DecisionPublic:
-    """Accept, reject, or send back for annotation (with a reason) a sample whose review lease you hold. On a gold
-    label (`recorded_as` 'gold_answer') the decision is your answer to it and the sample does not move."""
+    """Accept, reject, or send back for annotation (with a reason) a sample whose review lease you hold, or discard
+    a fit from predictions (the sample waits for the next round's fit; 409 for a fit that used annotators' clicks).
+    On a gold label (`recorded_as` 'gold_answer') the decision is your answer to it and the sample does not move."""
     row, sample, stream, gold_answer = review.decide(session, user, sample_id, body.decision, body.reason,
                                                      body.lease_token)
     return DecisionPublic(id=row.id, sample_id=sample_id, fit_id=row.fit_id, decision=row.decision,

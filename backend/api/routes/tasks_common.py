@@ -40,8 +40,10 @@ def task_of(session: Session, lease: Lease, with_fit: bool = False) -> TaskPubli
         if row is not None:
             # No heuristic verdict on a review task: a blind audit of a heuristic accept would show 'passed'
             # (services.review.label_audits, issue 40); the reviewer judges the fit, not the heuristic's word.
+            # from_annotation: the fit used annotators' clicks, so it cannot be discarded (services.review.review).
             fit = {"id": row.id, "keypoints_m": row.keypoints_m, "params": row.params, "view_ious": row.view_ious,
-                   "heuristic": None, "pose_distance": row.pose_distance, "model_file": row.model_file}
+                   "heuristic": None, "pose_distance": row.pose_distance, "model_file": row.model_file,
+                   "from_annotation": bool((row.inputs or {}).get("submission_ids"))}
     if lease.views is not None:  # PostgreSQL's one-statement acquire returned them with the lease
         sequence, side = lease.sequence, lease.side or "right"
     else:

@@ -32,6 +32,10 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
                                                     help="HandSegNet's own training steps a round (default 1650)."),
         detector: str = typer.Option("on", "--detector", help="on (round 0 pre-annotated by the pretrained "
                                      "detector, as the loop runs; refused where it cannot run) or off."),
+        reviewer_discards: int = typer.Option(
+            0, "--reviewer-discards", min=0, max=100, help="How many times the simulated reviewers discard a sample's "
+            "bad fit from predictions (it waits for the next round's fit) before they send it to the annotators; "
+            "0: every bad fit goes to the annotators."),
     ) -> None:
         """Step-counted bootstrap simulations per cell and seed, one after the other: a markdown table of the
         median and worst seed per cell, a plot, and one JSON object as the last stdout line."""
@@ -42,7 +46,7 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         try:
             run(cells=parse_cells(cells), seeds=parse_seeds(seeds), out_dir=out, resume=resume, quick=quick,
                 rounds=rounds, frames=frames, train_steps=train_steps, handsegnet_steps=handsegnet_steps,
-                detector=detector)
+                detector=detector, reviewer_discards=reviewer_discards)
         except ValueError as exc:
             typer.echo(f"error: {exc}", err=True)
             raise typer.Exit(code=2) from exc

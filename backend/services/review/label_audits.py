@@ -385,8 +385,10 @@ def _recount(session: Session, round_id: int | None) -> None:
 def decide(session: Session, user: Actor, sample: Sample, decision: DecisionKind, reason: str,
            round_: Round) -> tuple[Decision, Sample, Stream | None, bool]:
     """The reviewer's decision on an audit they hold (services.review.review.decide hands it here for an accepted
-    sample): the verdict beside the label; a wrong label leaves the dataset. Returns the decision row, the sample,
-    the stream a regular accept would report for an audit (so the page cannot tell), and whether it was a gold look.
+    sample): the verdict beside the label; a wrong label leaves the dataset (rejected on 'reject', else to the
+    annotators: a discard too, since the label was one and is fixed now rather than left to the next round).
+    Returns the decision row, the sample, the stream a regular accept would report for an audit (so the page cannot
+    tell), and whether it was a gold look.
 
     A gold look is a test of the reviewer, not of the label (known right): the sample's state and label never move,
     the verdict is the reviewer's answer ('correct': agreed), the stream None (nothing joined the dataset), and the

@@ -22,9 +22,13 @@ from backend.services.rounds import rounds
 
 
 def build_queue(session: Session, policy: ReviewPolicy, actor_id: int | None) -> list[int]:
-    """Move the samples the policy picks from 'fitted' (not accepted by the heuristic) to 'in_review'."""
+    """Move the samples the policy picks from 'fitted' (not accepted by the heuristic) to 'in_review'; a fit a
+    reviewer discarded is not offered again (its sample waits for the next round's fit)."""
+    discarded = select(Decision.id).where(Decision.sample_id == Sample.id, Decision.fit_id == Sample.current_fit_id,
+                                          Decision.decision == DecisionKind.discard)
     rows = session.execute(
-        select(Sample).where(Sample.state == SampleState.fitted, Sample.current_fit_id.is_not(None))
+        select(Sample).where(Sample.state == SampleState.fitted, Sample.current_fit_id.is_not(None),
+                             ~discarded.exists())
         .with_for_update(skip_locked=True)
     ).scalars().all()
     candidates = [Candidate(s.id, s.sequence_id, s.time_s, s.confidence, s.pose_distance or 0.0) for s in rows]
@@ -80,6 +84,13 @@ def decide(session: Session, user: Actor, sample_id: int, decision: DecisionKind
         label_audits.schedule(session, round_, sample_id, sample.current_fit_id, stream, user.id)
     elif decision is DecisionKind.reject:
         transition(session, sample, SampleState.rejected, user.id, reason=reason)
+    elif decision is DecisionKind.discard:
+        if fit is not None and (fit.inputs or {}).get("submission_ids"):
+            # Back in the pool, the next round would fit predictions over the annotators' clicks: their work lost.
+            raise ConflictError(f"sample {sample_id}'s fit used annotators' clicks, so it cannot be discarded (the "
+                                "next round would fit predictions instead): accept it, send it back for annotation, "
+                                "or reject it")
+        transition(session, sample, SampleState.fitted, user.id, reason=f"discarded: {reason or 'fit not good enough'}")
     else:
         transition(session, sample, SampleState.needs_annotation, user.id, reason=reason)
     queues.clear(sample)

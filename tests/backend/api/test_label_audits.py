@@ -75,14 +75,19 @@ def test_heuristic_accept_is_audited_blind_and_a_wrong_label_leaves_the_dataset(
     assert figures["rounds"] == [{"round": 0, "stream": "heuristic", **heuristic}]
 
 
-def test_sent_back_by_an_audit_goes_to_the_annotators(env, h):
+@pytest.mark.parametrize("decision", ["annotate", "discard"])
+def test_sent_back_by_an_audit_goes_to_the_annotators(env, h, decision):
+    # A discard on a blind audit too: the label was one, so it is fixed now, not left to the next round.
     _share(env, 1.0)
     ids = _heuristic_accepts(env, h, frames=1)
     task = h.next_task(env, Role.reviewer, "review")
+    assert task["fit"]["from_annotation"] is False  # the page offers the discard, as for any fit from predictions
     response = env.client.post(f"/api/review/samples/{ids[0]}/decision",
-                               json={"decision": "annotate", "reason": "wrist too far out"},
+                               json={"decision": decision, "reason": "wrist too far out"},
                                headers=env.headers(Role.reviewer))
     assert response.status_code == 201 and response.json()["state"] == "needs_annotation"
+    with env.session() as s:
+        assert s.execute(text("SELECT verdict FROM label_audits")).scalar_one() == "wrong"
     assert task["sample_id"] == ids[0]
     assert h.next_task(env)["sample_id"] == ids[0] and h.count(env, "round_members") == 0
 

@@ -45,7 +45,8 @@ def fakes(monkeypatch, tmp_path):
 
     def fake_simulate(capture, work, plan, *, detector, annotator, reviewer, label, leave):
         calls.append({"width": plan["width"], "rounds": plan["rounds"], "seed": annotator.seed,
-                      "reviewer_seed": reviewer.seed, "detector": detector, "label": label,
+                      "reviewer_seed": reviewer.seed, "discards": reviewer.discards_before_annotation,
+                      "detector": detector, "label": label,
                       "settings": plan["settings"], "capture": capture})
         if getattr(fake_simulate, "interrupt_at", None) == len(calls):
             raise KeyboardInterrupt
@@ -137,6 +138,28 @@ def test_an_interrupted_matrix_keeps_its_finished_runs_and_resumes_the_rest(fake
     assert record["cells"][0]["runs"] == 4 and len(json.loads((out / "matrix.json").read_text())["runs"]) == 4
     result = _invoke(*args[:-2], "--rounds", "3", "--resume")
     assert result.exit_code == 2 and "other settings (plan differ)" in result.output, result.output
+
+
+def test_the_reviewers_discards_reach_each_run_and_are_part_of_the_results_config(fakes, tmp_path):
+    _, calls = fakes
+    out = tmp_path / "m"
+    args = ("--cells", "320-default-proposals", "--seeds", "11", "--out", str(out), "--rounds", "2")
+    assert _invoke(*args, "--reviewer-discards", "1").exit_code == 0
+    assert [c["discards"] for c in calls] == [1]
+    config = json.loads((out / "matrix.json").read_text())["config"]
+    assert config["reviewer"]["discards_before_annotation"] == 1
+    result = _invoke(*args, "--resume")  # the default, 0, is another setting
+    assert result.exit_code == 2 and "other settings (reviewer differ)" in result.output, result.output
+    # A results file from before the option: its reviewers never discarded, so it resumes under the default.
+    data = json.loads((out / "matrix.json").read_text())
+    del data["config"]["reviewer"]["discards_before_annotation"]
+    data["runs"] = {}
+    (out / "matrix.json").write_text(json.dumps(data))
+    assert _invoke(*args, "--resume", "--reviewer-discards", "1").exit_code == 2
+    result = _invoke(*args, "--resume")
+    assert result.exit_code == 0, result.output[-3000:]
+    assert [c["discards"] for c in calls] == [1, 0]
+    assert _invoke(*args, "--reviewer-discards", "-1").exit_code == 2
 
 
 def test_a_stopped_run_counts_in_its_cell(fakes, tmp_path, monkeypatch):

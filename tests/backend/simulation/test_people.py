@@ -172,6 +172,44 @@ def test_reviewer_judges_by_true_vertex_error_with_mistakes_and_costs(world):
     assert sorted(states.values()) == ["needs_annotation", "needs_annotation", "rejected"]
 
 
+def test_reviewer_discards_bad_fits_from_predictions_up_to_the_limit_then_sends_them_to_annotation(world):
+    env, _, truth = world
+    ids = truth.sample_ids[:3]
+    with env.session() as s, s.begin():  # fits from predictions (no clicks), 20 mm off: the heuristic has none
+        for sample_id in ids:
+            s.execute(text("UPDATE samples SET state = 'fitting' WHERE id = :id"), {"id": sample_id})
+            gt = truth.truth(sample_id)
+            move = np.array([0.02, 0.0, 0.0])
+            records.record_fit(s, sample_id, params=np.concatenate([gt.betas, gt.pose, gt.global_orient,
+                                                                    gt.transl + move]),
+                               keypoints_m=gt.keypoints_3d + move,
+                               view_ious={v.id: 0.9 for v in views_of(s, sample_id, with_masks=False)},
+                               diagnostics={}, inputs={}, model_file="handloop-builtin v1",
+                               thresholds=HeuristicThresholds())
+    with env.session() as s, s.begin():
+        for sample_id in ids:  # both in review (the queue policy would space them out)
+            s.execute(text("UPDATE samples SET state = 'in_review' WHERE id = :id AND state = 'fitted'"),
+                      {"id": sample_id})
+    ledger = HumanLedger()
+    reviewer = SimulatedReviewer("rev", ApiClient(env.client, token_of(env, Role.reviewer)), truth, ledger,
+                                 ReviewerConfig(error_rate=0.0, discards_before_annotation=1))
+    in_round_0 = reviewer.review_next(0, annotation_attempts={}, discards={})
+    assert in_round_0.decision == "annotate"  # D_0 is all round 1 trains on: round 0 never discards
+    discarded_once = reviewer.review_next(1, annotation_attempts={}, discards={})
+    assert discarded_once.decision == "discard" and discarded_once.vertex_mm > 8.0
+    at_the_limit = reviewer.review_next(1, annotation_attempts={}, discards={s: 1 for s in ids})
+    assert at_the_limit.decision == "annotate"
+    assert reviewer.review_next(1, {}, {}) is None
+    effort = ledger.effort(1)
+    assert (effort.verifications, effort.discards, effort.sent_to_annotation) == (2, 1, 1)
+    with env.session() as s:
+        states = dict(s.execute(text("SELECT id, state FROM samples")).all())
+    assert states == {in_round_0.sample_id: "needs_annotation", discarded_once.sample_id: "fitted",
+                      at_the_limit.sample_id: "needs_annotation"}
+    with pytest.raises(ValueError, match="discards_before_annotation"):
+        ReviewerConfig(discards_before_annotation=-1)
+
+
 def test_team_works_until_the_queues_are_empty_and_the_books_add_up(world):
     env, admin, truth = world
     ledger = HumanLedger()

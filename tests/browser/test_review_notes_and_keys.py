@@ -82,7 +82,7 @@ def test_keys_work_after_a_click_in_the_3d_view_and_esc_returns_the_focus(live_s
     page.keyboard.press("z")  # and the page has the keys again
     assert page.evaluate("() => document.body.dataset.crop") == "whole"
     listed = page.eval_on_selector_all(".help td kbd", "els => els.map((e) => e.textContent)")
-    assert listed == ["A", "R / N", "O S W K C P", "1 … 8", "Esc", "Z", "V", "F", "?"], listed
+    assert listed == ["A", "D", "R / N", "O S W K C P", "1 … 8", "Esc", "Z", "V", "F", "?"], listed
     layers = "() => document.body.dataset.layers.split(' ')"
     for key, name in zip("oswkcp", ("outline", "silhouette", "wireframe", "keypoints", "clicks", "mvnet"), strict=True):
         before = name in page.evaluate(layers)

@@ -46,6 +46,10 @@ PROPOSALS = {"proposals": 4.0, "no-proposals": None}
 # The issue's step counts: MVNet (every network's cap) and HandSegNet's own, a round.
 TRAIN_STEPS, HANDSEGNET_STEPS = 650, 1650
 ROUNDS = 4
+# The simulated reviewers discard a bad fit from predictions once (it waits for the next round's fit) before they send
+# it to the annotators, as the paper's reviewers discarded most fits they did not accept (`--reviewer-discards`;
+# ReviewerConfig.discards_before_annotation; until 2026-12-07 every bad fit went to the annotators: 0).
+REVIEWER_DISCARDS = 1
 
 
 @dataclass(frozen=True)
@@ -151,10 +155,13 @@ def _at_round(run: dict[str, Any], index: int) -> float | None:
 
 
 def additions_grow(additions: list[float | None]) -> bool | None:
-    """Each round adds at least as many labels as the round before; None with fewer than two rounds."""
-    if len(additions) < 2 or any(a is None for a in additions):
+    """From round 1 on, each round adds at least as many labels as the round before (the issue's "from round 1 to
+    round 2, and to round 4"; round 0's additions are the detector's bulk, which the paper's rounds also fell from:
+    691 then 456). `additions` by round, round 0 first; None before round 2."""
+    later = additions[1:]
+    if len(later) < 2 or any(a is None for a in later):
         return None
-    return all(b >= a for a, b in itertools.pairwise(additions))
+    return all(b >= a for a, b in itertools.pairwise(later))
 
 
 def cell_summary(cell: Cell, runs: list[dict[str, Any]]) -> dict[str, Any]:
@@ -272,6 +279,7 @@ def _load_results(path: Path, config: dict[str, Any], resume: bool) -> dict[str,
         raise ValueError(f"{path} is not a sim-matrix results file of version {RESULTS_VERSION}; pass another --out")
     if isinstance(reviewer := (data.get("config") or {}).get("reviewer"), dict):
         reviewer.setdefault("discards_before_annotation", 0)  # a file from before the option: nobody discarded
+        # (resumed with --reviewer-discards 0)
     if data.get("config") != config:
         differ = sorted(k for k in set(config) | set(data.get("config") or {})
                         if config.get(k) != (data.get("config") or {}).get(k))
@@ -287,7 +295,7 @@ def run_key(cell: Cell, seed: int) -> str:
 def run(*, cells: list[Cell], seeds: tuple[int, ...], out_dir: Path | None = None, resume: bool = False,
         quick: bool = False, rounds: int | None = None, frames: int | None = None,
         train_steps: int | None = None, handsegnet_steps: int | None = None,
-        detector: str = "on", reviewer_discards: int = 0, emit_json: bool = True) -> dict[str, Any]:
+        detector: str = "on", reviewer_discards: int = REVIEWER_DISCARDS, emit_json: bool = True) -> dict[str, Any]:
     """Run every (cell, seed) not yet in `<out_dir>/matrix.json`, one after the other, writing each as it finishes;
     then the per-cell summaries, the markdown table, `<out_dir>/matrix.png`, and (with `emit_json`) the JSON line.
 
@@ -299,8 +307,8 @@ def run(*, cells: list[Cell], seeds: tuple[int, ...], out_dir: Path | None = Non
         train_steps, handsegnet_steps: a round's training steps (None: the issue's TRAIN_STEPS and
             HANDSEGNET_STEPS); the matrix is always step-counted, so its runs repeat on one machine.
         detector: "on" (round 0 pre-annotated, as users run the loop; refused where it cannot run) or "off".
-        reviewer_discards: the simulated reviewers' `discards_before_annotation` (0: every bad fit to the
-            annotators); recorded in the results' config like the people.
+        reviewer_discards: the simulated reviewers' `discards_before_annotation` (REVIEWER_DISCARDS; 0: every
+            bad fit to the annotators); recorded in the results' config like the people.
     ValueError names a bad option, a results file of other settings, or a detector that cannot run.
     """
     started = time.perf_counter()

@@ -33,9 +33,10 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         detector: str = typer.Option("on", "--detector", help="on (round 0 pre-annotated by the pretrained "
                                      "detector, as the loop runs; refused where it cannot run) or off."),
         reviewer_discards: int = typer.Option(
-            0, "--reviewer-discards", min=0, max=100, help="How many times the simulated reviewers discard a sample's "
-            "bad fit from predictions (it waits for the next round's fit) before they send it to the annotators; "
-            "0: every bad fit goes to the annotators."),
+            1, "--reviewer-discards", min=0, max=100, help="How many times the simulated reviewers discard a sample's "
+            "bad fit from predictions from round 1 on (it waits for the next round's fit) before they send it to the "
+            "annotators, as the paper's reviewers discarded most fits; 0: every bad fit goes to the annotators (the "
+            "matrix's reviewers until 2026-12-07)."),
     ) -> None:
         """Step-counted bootstrap simulations per cell and seed, one after the other: a markdown table of the
         median and worst seed per cell, a plot, and one JSON object as the last stdout line."""

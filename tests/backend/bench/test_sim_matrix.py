@@ -144,19 +144,19 @@ def test_the_reviewers_discards_reach_each_run_and_are_part_of_the_results_confi
     _, calls = fakes
     out = tmp_path / "m"
     args = ("--cells", "320-default-proposals", "--seeds", "11", "--out", str(out), "--rounds", "2")
-    assert _invoke(*args, "--reviewer-discards", "1").exit_code == 0
-    assert [c["discards"] for c in calls] == [1]
+    assert _invoke(*args).exit_code == 0
+    assert [c["discards"] for c in calls] == [sim_matrix.REVIEWER_DISCARDS] == [1]
     config = json.loads((out / "matrix.json").read_text())["config"]
     assert config["reviewer"]["discards_before_annotation"] == 1
-    result = _invoke(*args, "--resume")  # the default, 0, is another setting
+    result = _invoke(*args, "--resume", "--reviewer-discards", "0")  # another setting
     assert result.exit_code == 2 and "other settings (reviewer differ)" in result.output, result.output
     # A results file from before the option: its reviewers never discarded, so it resumes under the default.
     data = json.loads((out / "matrix.json").read_text())
     del data["config"]["reviewer"]["discards_before_annotation"]
     data["runs"] = {}
     (out / "matrix.json").write_text(json.dumps(data))
-    assert _invoke(*args, "--resume", "--reviewer-discards", "1").exit_code == 2
-    result = _invoke(*args, "--resume")
+    assert _invoke(*args, "--resume").exit_code == 2
+    result = _invoke(*args, "--resume", "--reviewer-discards", "0")
     assert result.exit_code == 0, result.output[-3000:]
     assert [c["discards"] for c in calls] == [1, 0]
     assert _invoke(*args, "--reviewer-discards", "-1").exit_code == 2
@@ -180,10 +180,12 @@ def test_a_stopped_run_counts_in_its_cell(fakes, tmp_path, monkeypatch):
     assert "| 640-default-proposals | 1 (1) | 100.0 / 100.0 | - / - | - / - | - / - | 10 |" in result.stdout
 
 
-def test_additions_grow_round_on_round():
+def test_additions_grow_round_on_round_from_round_1():
     assert sim_matrix.additions_grow([10, 20, 20, 30]) is True
     assert sim_matrix.additions_grow([10, 40, 30]) is False
-    assert sim_matrix.additions_grow([10]) is None
+    assert sim_matrix.additions_grow([66, 9, 12]) is True  # round 0's bulk (the detector's) is not the bar
+    assert sim_matrix.additions_grow([66, 9, 12, 11]) is False
+    assert sim_matrix.additions_grow([10, 20]) is None and sim_matrix.additions_grow([10]) is None
 
 
 def test_the_matrix_refuses_bad_options(fakes, tmp_path, monkeypatch):

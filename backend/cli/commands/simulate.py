@@ -46,6 +46,10 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         accept_below_mm: float = typer.Option(8.0, help="Reviewers accept fits with a true mean vertex error "
                                                         "below this (mm)."),
         review_error_rate: float = typer.Option(0.02, help="Share of review decisions that are wrong."),
+        reviewer_discards: int = typer.Option(0, help="From round 1 on, reviewers discard a sample's bad fit from "
+                                              "predictions this many times (it waits for the next round's fit) "
+                                              "before sending it to the annotators (bench sim-matrix uses 1); 0: "
+                                              "every bad fit goes to the annotators."),
         click_s: float = typer.Option(2.0, help="Seconds per click."),
         mask_s: float = typer.Option(12.0, help="Seconds per mask correction."),
         verify_s: float = typer.Option(5.0, help="Seconds per verification."),
@@ -115,7 +119,8 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
                                           max_mask_corrections=max_mask_corrections,
                                           boundary_noise_px=boundary_noise_px,
                                           accept_proposals_within_px=accept_proposals_px, seed=seed),
-                reviewer=ReviewerConfig(accept_below_mm=accept_below_mm, error_rate=review_error_rate, seed=seed),
+                reviewer=ReviewerConfig(accept_below_mm=accept_below_mm, error_rate=review_error_rate,
+                                        discards_before_annotation=reviewer_discards, seed=seed),
                 costs=UnitCosts(click_s=click_s, mask_correction_s=mask_s, verification_s=verify_s,
                                 proposal_view_s=proposal_s),
                 round_timeout_s=round_timeout_s, detector=None if detector is None else detector == "on")

@@ -53,3 +53,8 @@ class Fit(Base):
     vertices_f32: Mapped[bytes | None] = mapped_column(LargeBinary, deferred=True)
     heuristic: Mapped[dict[str, Any] | None]
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+    @property
+    def from_annotation(self) -> bool:
+        """The fit used annotators' clicks (D^l when accepted), not only predictions."""
+        return bool((self.inputs or {}).get("submission_ids"))

@@ -43,7 +43,7 @@ def task_of(session: Session, lease: Lease, with_fit: bool = False) -> TaskPubli
             # from_annotation: the fit used annotators' clicks, so it cannot be discarded (services.review.review).
             fit = {"id": row.id, "keypoints_m": row.keypoints_m, "params": row.params, "view_ious": row.view_ious,
                    "heuristic": None, "pose_distance": row.pose_distance, "model_file": row.model_file,
-                   "from_annotation": bool((row.inputs or {}).get("submission_ids"))}
+                   "from_annotation": row.from_annotation}
     if lease.views is not None:  # PostgreSQL's one-statement acquire returned them with the lease
         sequence, side = lease.sequence, lease.side or "right"
     else:

@@ -401,7 +401,7 @@ def decide(session: Session, user: Actor, sample: Sample, decision: DecisionKind
     if row.accepted_by_id is not None and row.accepted_by_id == user.id:
         raise ConflictError(f"sample {sample.id} is not yours to judge; ask for the next task")
     fit = session.get(Fit, row.fit_id) if row.fit_id is not None else None
-    shown_stream = Stream.annotated if fit is not None and (fit.inputs or {}).get("submission_ids") else Stream.manual
+    shown_stream = Stream.annotated if fit is not None and fit.from_annotation else Stream.manual
     now = utcnow()
     row.auditor_id = user.id
     row.decided_at = now

@@ -79,13 +79,13 @@ def decide(session: Session, user: Actor, sample_id: int, decision: DecisionKind
     if decision is DecisionKind.accept:
         transition(session, sample, SampleState.accepted, user.id, reason=reason or "verified")
         # D^l: fits that used annotators' clicks; D^m: fits from predictions that a human verified.
-        stream = Stream.annotated if fit is not None and fit.inputs.get("submission_ids") else Stream.manual
+        stream = Stream.annotated if fit is not None and fit.from_annotation else Stream.manual
         rounds.add_member(session, round_, sample_id, sample.current_fit_id, stream)
         label_audits.schedule(session, round_, sample_id, sample.current_fit_id, stream, user.id)
     elif decision is DecisionKind.reject:
         transition(session, sample, SampleState.rejected, user.id, reason=reason)
     elif decision is DecisionKind.discard:
-        if fit is not None and (fit.inputs or {}).get("submission_ids"):
+        if fit is not None and fit.from_annotation:
             # Back in the pool, the next round would fit predictions over the annotators' clicks: their work lost.
             raise ConflictError(f"sample {sample_id}'s fit used annotators' clicks, so it cannot be discarded (the "
                                 "next round would fit predictions instead): accept it, send it back for annotation, "

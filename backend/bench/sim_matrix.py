@@ -50,6 +50,9 @@ ROUNDS = 4
 # it to the annotators, as the paper's reviewers discarded most fits they did not accept (`--reviewer-discards`;
 # ReviewerConfig.discards_before_annotation; until 2026-12-07 every bad fit went to the annotators: 0).
 REVIEWER_DISCARDS = 1
+# In round 0 they discard a bad detector fit the same way once D_0 holds this many labels (`--reviewer-round0-floor`;
+# ReviewerConfig.round0_discard_floor); None: round 0's bad fits all go to the annotators.
+REVIEWER_ROUND0_FLOOR: int | None = None
 
 
 @dataclass(frozen=True)
@@ -280,6 +283,7 @@ def _load_results(path: Path, config: dict[str, Any], resume: bool) -> dict[str,
     if isinstance(reviewer := (data.get("config") or {}).get("reviewer"), dict):
         reviewer.setdefault("discards_before_annotation", 0)  # a file from before the option: nobody discarded
         # (resumed with --reviewer-discards 0)
+        reviewer.setdefault("round0_discard_floor", None)  # before that option: round 0 never discarded
     if data.get("config") != config:
         differ = sorted(k for k in set(config) | set(data.get("config") or {})
                         if config.get(k) != (data.get("config") or {}).get(k))
@@ -295,7 +299,8 @@ def run_key(cell: Cell, seed: int) -> str:
 def run(*, cells: list[Cell], seeds: tuple[int, ...], out_dir: Path | None = None, resume: bool = False,
         quick: bool = False, rounds: int | None = None, frames: int | None = None,
         train_steps: int | None = None, handsegnet_steps: int | None = None,
-        detector: str = "on", reviewer_discards: int = REVIEWER_DISCARDS, emit_json: bool = True) -> dict[str, Any]:
+        detector: str = "on", reviewer_discards: int = REVIEWER_DISCARDS,
+        reviewer_round0_floor: int | None = REVIEWER_ROUND0_FLOOR, emit_json: bool = True) -> dict[str, Any]:
     """Run every (cell, seed) not yet in `<out_dir>/matrix.json`, one after the other, writing each as it finishes;
     then the per-cell summaries, the markdown table, `<out_dir>/matrix.png`, and (with `emit_json`) the JSON line.
 
@@ -309,12 +314,15 @@ def run(*, cells: list[Cell], seeds: tuple[int, ...], out_dir: Path | None = Non
         detector: "on" (round 0 pre-annotated, as users run the loop; refused where it cannot run) or "off".
         reviewer_discards: the simulated reviewers' `discards_before_annotation` (REVIEWER_DISCARDS; 0: every
             bad fit to the annotators); recorded in the results' config like the people.
+        reviewer_round0_floor: the reviewers' `round0_discard_floor` (REVIEWER_ROUND0_FLOOR; None: round 0 never
+            discards); recorded likewise.
     ValueError names a bad option, a results file of other settings, or a detector that cannot run.
     """
     started = time.perf_counter()
     if detector not in ("on", "off"):
         raise ValueError(f"detector must be on or off, not {detector!r}")
-    reviewer = ReviewerConfig(discards_before_annotation=reviewer_discards)  # raises on a value out of range
+    reviewer = ReviewerConfig(discards_before_annotation=reviewer_discards,  # raises on a value out of range
+                              round0_discard_floor=reviewer_round0_floor)
     if detector == "on" and (problem := preannotation.detector_problem()) is not None:
         raise ValueError(f"--detector on needs the pretrained detector: {problem} (or pass --detector off)")
     if not cells or not seeds:

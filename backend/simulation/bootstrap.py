@@ -314,7 +314,7 @@ class BootstrapSimulation:
                                                          f"{job.get('error') or job['message']}"}
                         self._report_stopped_round(reports, index, job_info, round_started)
                         break
-                work = team.work_until_done(index, self.wait_for_workers)
+                work = team.work_until_done(index, self.wait_for_workers, labels_so_far=self.dataset_size_now)
             except (ApiError, SimulationTimeoutError) as exc:
                 # The rounds measured so far are still worth reporting; say where and why it stopped.
                 stopped = {"round": index, "reason": str(exc)}
@@ -327,6 +327,11 @@ class BootstrapSimulation:
         if stopped:
             log.error("stopped in round %d: %s", stopped["round"], stopped["reason"])
         return self.summary(reports, time.perf_counter() - started, stopped)
+
+    def dataset_size_now(self) -> int:
+        """Accepted labels so far, the open round's included (the server's statistics)."""
+        rounds = self.admin.statistics()["rounds"]
+        return int(rounds[-1]["dataset_size_after"]) if rounds else 0
 
     def _report_stopped_round(self, reports: list[RoundReport], index: int, job_info: dict[str, Any] | None,
                               started: float) -> None:

@@ -2,15 +2,16 @@
 error: accept when the fit's mean vertex error against the ground truth is under `accept_below_mm`, with a
 decision flipped at `error_rate` (a mistake). From round 1 on, a fit from predictions judged bad is discarded (the
 sample waits for the next round's fit, as the paper's reviewers discarded most fits they did not accept) while the
-sample has been discarded fewer than `discards_before_annotation` times; in round 0 every bad fit goes to the
-annotators, D_0 being all that round 1 trains on. Any other bad fit is sent back for annotation until the
+sample has been discarded fewer than `discards_before_annotation` times. In round 0 a bad detector fit is discarded
+the same way only once D_0 already holds `round0_discard_floor` labels (None: never; every bad fit goes to the
+annotators, D_0 being all that round 1 trains on). Any other bad fit is sent back for annotation until the
 sample has had `max_annotation_attempts` annotation passes, then rejected. Each decision costs one verification of
 the unit costs."""
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -29,6 +30,8 @@ class ReviewerConfig:
     max_annotation_attempts: int = 2
     # 0: every bad fit goes to the annotators (as before the discard decision existed).
     discards_before_annotation: int = 0
+    # Round 0: discard (as above) once D_0 holds this many labels; None: round 0 never discards.
+    round0_discard_floor: int | None = None
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -40,6 +43,19 @@ class ReviewerConfig:
             raise ValueError(f"max_annotation_attempts must be in 0..100, not {self.max_annotation_attempts}")
         if not 0 <= self.discards_before_annotation <= 100:
             raise ValueError(f"discards_before_annotation must be in 0..100, not {self.discards_before_annotation}")
+        if self.round0_discard_floor is not None and not 0 <= self.round0_discard_floor <= 1_000_000:
+            raise ValueError(f"round0_discard_floor must be in 0..1000000 or None, not {self.round0_discard_floor}")
+
+    def may_discard(self, round_index: int, discards_so_far: int, labels_so_far: int | None) -> bool:
+        """Whether a bad fit from predictions is discarded (else it goes to the annotators): fewer than
+        `discards_before_annotation` discards of the sample so far, and in round 0 D_0 at its floor already
+        (`labels_so_far`: the dataset's size now; None where not known)."""
+        if discards_so_far >= self.discards_before_annotation:
+            return False
+        if round_index > 0:
+            return True
+        return (self.round0_discard_floor is not None and labels_so_far is not None
+                and labels_so_far >= self.round0_discard_floor)
 
 
 @dataclass(frozen=True)
@@ -68,12 +84,14 @@ class SimulatedReviewer:
         self.rng = np.random.default_rng([self.config.seed, *name.encode()])
 
     def review_next(self, round_index: int, annotation_attempts: Mapping[int, int],
-                    discards: Mapping[int, int] | None = None) -> ReviewOutcome | None:
+                    discards: Mapping[int, int] | None = None,
+                    labels_so_far: Callable[[], int] | None = None) -> ReviewOutcome | None:
         """Decide the next fit in the reviewer queue; None when the queue is empty.
 
         Args:
             annotation_attempts: sample id -> annotation passes it has had (decides annotate vs reject).
             discards: sample id -> times its fit was discarded (decides discard vs annotate).
+            labels_so_far: the dataset's size now (read only in round 0, for `round0_discard_floor`).
         """
         task = self.client.next_review()
         if task is None:
@@ -89,8 +107,9 @@ class SimulatedReviewer:
         from_predictions = not task["fit"].get("from_annotation", False)
         if good:
             decision, reason = "accept", ""
-        elif (round_index > 0 and from_predictions
-              and (discards or {}).get(sample_id, 0) < self.config.discards_before_annotation):
+        elif from_predictions and self.config.may_discard(
+                round_index, (discards or {}).get(sample_id, 0),
+                labels_so_far() if round_index == 0 and labels_so_far is not None else None):
             decision, reason = "discard", ""
         elif annotation_attempts.get(sample_id, 0) < self.config.max_annotation_attempts:
             decision, reason = "annotate", "the fit is off; needs clicks"

@@ -96,13 +96,14 @@ class Team:
         work.stuck_samples |= {s for s, n in self.annotation_attempts.items() if n >= self.max_annotation_passes}
         return done
 
-    def review_all(self, round_index: int, work: TeamWork) -> int:
+    def review_all(self, round_index: int, work: TeamWork, labels_so_far: Callable[[], int] | None = None) -> int:
         """Reviewers take tasks in turn until none of them gets one (an audit is never handed to the reviewer who
-        accepted the label, so one may find nothing while another still can)."""
+        accepted the label, so one may find nothing while another still can). `labels_so_far`: the dataset's size
+        now, for the reviewers' round-0 discard floor."""
         done, turn, idle = 0, 0, 0
         while idle < len(self.reviewers):
             outcome = self.reviewers[turn % len(self.reviewers)].review_next(round_index, self.annotation_attempts,
-                                                                             self.discards)
+                                                                             self.discards, labels_so_far)
             turn += 1
             if outcome is None:
                 idle += 1
@@ -115,19 +116,21 @@ class Team:
         return done
 
     def work_until_done(self, round_index: int, wait: Callable[[], None], *, max_passes: int = 20,
-                        annotation_limit: int | None = None) -> TeamWork:
+                        annotation_limit: int | None = None,
+                        labels_so_far: Callable[[], int] | None = None) -> TeamWork:
         """Annotate, wait for the fits, review; again while either queue had work.
 
         Args:
             wait: blocks until the workers have processed what was queued (e.g. `wait_until_idle`).
             annotation_limit: most submissions in the first pass (e.g. the size of D_0's budget).
+            labels_so_far: the dataset's size now (the reviewers' round-0 discard floor reads it).
         """
         work = TeamWork()
         for pass_index in range(max_passes):
             annotated = self.annotate_all(round_index, work, annotation_limit if pass_index == 0 else None)
             if annotated:
                 wait()
-            reviewed = self.review_all(round_index, work)
+            reviewed = self.review_all(round_index, work, labels_so_far)
             work.passes = pass_index + 1
             log.info("round %d pass %d: %d annotations, %d reviews", round_index, pass_index + 1, annotated, reviewed)
             if not annotated and not reviewed:

@@ -37,6 +37,10 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
             "bad fit from predictions from round 1 on (it waits for the next round's fit) before they send it to the "
             "annotators, as the paper's reviewers discarded most fits; 0: every bad fit goes to the annotators (the "
             "matrix's reviewers until 2026-12-07)."),
+        reviewer_round0_floor: int | None = typer.Option(
+            None, "--reviewer-round0-floor", min=0, max=1_000_000, help="In round 0 the simulated reviewers discard "
+            "a bad detector fit the same way once D_0 holds this many labels; unset: round 0's bad fits all go to "
+            "the annotators."),
     ) -> None:
         """Step-counted bootstrap simulations per cell and seed, one after the other: a markdown table of the
         median and worst seed per cell, a plot, and one JSON object as the last stdout line."""
@@ -47,7 +51,7 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         try:
             run(cells=parse_cells(cells), seeds=parse_seeds(seeds), out_dir=out, resume=resume, quick=quick,
                 rounds=rounds, frames=frames, train_steps=train_steps, handsegnet_steps=handsegnet_steps,
-                detector=detector, reviewer_discards=reviewer_discards)
+                detector=detector, reviewer_discards=reviewer_discards, reviewer_round0_floor=reviewer_round0_floor)
         except ValueError as exc:
             typer.echo(f"error: {exc}", err=True)
             raise typer.Exit(code=2) from exc

@@ -46,6 +46,7 @@ def fakes(monkeypatch, tmp_path):
     def fake_simulate(capture, work, plan, *, detector, annotator, reviewer, label, leave):
         calls.append({"width": plan["width"], "rounds": plan["rounds"], "seed": annotator.seed,
                       "reviewer_seed": reviewer.seed, "discards": reviewer.discards_before_annotation,
+                      "round0_floor": reviewer.round0_discard_floor,
                       "detector": detector, "label": label,
                       "settings": plan["settings"], "capture": capture})
         if getattr(fake_simulate, "interrupt_at", None) == len(calls):
@@ -160,6 +161,27 @@ def test_the_reviewers_discards_reach_each_run_and_are_part_of_the_results_confi
     assert result.exit_code == 0, result.output[-3000:]
     assert [c["discards"] for c in calls] == [1, 0]
     assert _invoke(*args, "--reviewer-discards", "-1").exit_code == 2
+
+
+def test_the_reviewers_round0_floor_reaches_each_run_and_old_results_resume_without_it(fakes, tmp_path):
+    _, calls = fakes
+    out = tmp_path / "m"
+    args = ("--cells", "320-default-proposals", "--seeds", "11", "--out", str(out), "--rounds", "2")
+    assert _invoke(*args, "--reviewer-round0-floor", "30").exit_code == 0
+    assert calls[-1]["round0_floor"] == 30
+    data = json.loads((out / "matrix.json").read_text())
+    assert data["config"]["reviewer"]["round0_discard_floor"] == 30
+    result = _invoke(*args, "--resume")  # the default has no floor: another setting
+    assert result.exit_code == 2 and "other settings (reviewer differ)" in result.output, result.output
+    # A results file from before the option: round 0 never discarded, so it resumes without a floor.
+    del data["config"]["reviewer"]["round0_discard_floor"]
+    data["runs"] = {}
+    (out / "matrix.json").write_text(json.dumps(data))
+    assert _invoke(*args, "--resume", "--reviewer-round0-floor", "30").exit_code == 2
+    result = _invoke(*args, "--resume")
+    assert result.exit_code == 0, result.output[-3000:]
+    assert [c["round0_floor"] for c in calls] == [30, sim_matrix.REVIEWER_ROUND0_FLOOR]
+    assert _invoke(*args, "--reviewer-round0-floor", "-1").exit_code == 2
 
 
 def test_a_stopped_run_counts_in_its_cell(fakes, tmp_path, monkeypatch):

@@ -210,6 +210,51 @@ def test_reviewer_discards_bad_fits_from_predictions_up_to_the_limit_then_sends_
         ReviewerConfig(discards_before_annotation=-1)
 
 
+def test_reviewer_discards_in_round_0_only_once_d0_holds_its_floor(world):
+    env, _, truth = world
+    ids = truth.sample_ids[:3]
+    with env.session() as s, s.begin():  # detector-like fits (no clicks), 20 mm off, all in review
+        for sample_id in ids:
+            s.execute(text("UPDATE samples SET state = 'fitting' WHERE id = :id"), {"id": sample_id})
+            gt = truth.truth(sample_id)
+            move = np.array([0.02, 0.0, 0.0])
+            records.record_fit(s, sample_id, params=np.concatenate([gt.betas, gt.pose, gt.global_orient,
+                                                                    gt.transl + move]),
+                               keypoints_m=gt.keypoints_3d + move,
+                               view_ious={v.id: 0.9 for v in views_of(s, sample_id, with_masks=False)},
+                               diagnostics={}, inputs={}, model_file="handloop-builtin v1",
+                               thresholds=HeuristicThresholds())
+    with env.session() as s, s.begin():
+        for sample_id in ids:
+            s.execute(text("UPDATE samples SET state = 'in_review' WHERE id = :id AND state = 'fitted'"),
+                      {"id": sample_id})
+    ledger = HumanLedger()
+    reviewer = SimulatedReviewer("rev", ApiClient(env.client, token_of(env, Role.reviewer)), truth, ledger,
+                                 ReviewerConfig(error_rate=0.0, discards_before_annotation=1, round0_discard_floor=5))
+    below = reviewer.review_next(0, {}, {}, labels_so_far=lambda: 4)
+    assert below.decision == "annotate"  # D_0 short of its floor: the annotators make it up
+    at_floor = reviewer.review_next(0, {}, {}, labels_so_far=lambda: 5)
+    assert at_floor.decision == "discard"
+    unknown = reviewer.review_next(0, {}, {})  # no count to compare: as without a floor
+    assert unknown.decision == "annotate"
+    assert ledger.effort(0).discards == 1
+    with env.session() as s:
+        assert s.execute(text("SELECT state FROM samples WHERE id = :id"),
+                         {"id": at_floor.sample_id}).scalar_one() == "fitted"
+    with pytest.raises(ValueError, match="round0_discard_floor"):
+        ReviewerConfig(round0_discard_floor=-1)
+
+
+@pytest.mark.parametrize(("round_index", "discards_so_far", "labels", "expected"), [
+    (1, 0, None, True), (1, 1, None, False),  # rounds >= 1: the per-sample limit only
+    (0, 0, None, False), (0, 0, 29, False), (0, 0, 30, True), (0, 1, 30, False),  # round 0: the floor as well
+])
+def test_reviewer_discard_policy(round_index, discards_so_far, labels, expected):
+    config = ReviewerConfig(discards_before_annotation=1, round0_discard_floor=30)
+    assert config.may_discard(round_index, discards_so_far, labels) is expected
+    assert ReviewerConfig(discards_before_annotation=1).may_discard(0, 0, 10_000) is False  # no floor: never
+
+
 def test_team_works_until_the_queues_are_empty_and_the_books_add_up(world):
     env, admin, truth = world
     ledger = HumanLedger()

@@ -13,7 +13,7 @@ from backend.models.enums import DecisionKind, RoundState, Stream, enum_check
 
 
 class Decision(Base):
-    """Accept / reject / annotate, by a reviewer or (user_id NULL, by_heuristic) the heuristic."""
+    """Accept / reject / annotate / discard, by a reviewer or (user_id NULL, by_heuristic) the heuristic."""
 
     __tablename__ = "decisions"
     __table_args__ = (enum_check("decision", DecisionKind),)

@@ -61,6 +61,15 @@ class StreamCounts(Public):
     annotated: int = 0
 
 
+class DecisionCounts(Public):
+    """People's decisions in a round, by kind (the heuristic's accepts are its D^h)."""
+
+    accept: int = 0
+    discard: int = 0  # back to the pool for the next round's fit
+    annotate: int = 0  # sent to the annotators
+    reject: int = 0
+
+
 class RoundStats(Public):
     round_id: int
     index: int
@@ -68,6 +77,8 @@ class RoundStats(Public):
     added: StreamCounts
     added_total: int
     dataset_size_after: int  # |D_{i+1}| = |D_i| + added
+    decisions: DecisionCounts = Field(default_factory=DecisionCounts,
+                                      description="Reviewers' (and auditors') decisions made in the round, by kind.")
 
 
 class Statistics(Public):

@@ -126,6 +126,7 @@ class AdminPage {
           meta.failure ? h("div", { class: "error round-failure" }, meta.failure) : null),
         ...STREAMS.map((st) => h("td", { class: "num" }, String(r.added[st.name]))),
         h("td", { class: "num" }, String(r.added_total)), h("td", { class: "num strong" }, String(r.dataset_size_after)),
+        h("td", { class: "muted round-decisions" }, decisionSummary(r.decisions)),
         h("td", { class: "muted" }, [meta.mvnet_version, meta.handsegnet_version].filter(Boolean).join(" / ") || "–"),
         h("td", {}, r.state === "running" ? h("button", { class: "danger small", onclick: () => this.cancelRound(r.round_id) },
           "Cancel") : ""));
@@ -139,8 +140,9 @@ class AdminPage {
       h("table", { class: "table rounds-table" },
         h("thead", {}, h("tr", {}, h("th", {}, "round"), h("th", {}, "state"),
           ...STREAMS.map((st) => h("th", { class: "num" }, st.label)), h("th", { class: "num" }, "added"),
-          h("th", { class: "num" }, "|D| after"), h("th", {}, "models"), h("th", {}, ""))),
-        h("tbody", {}, rows.length ? rows : h("tr", {}, h("td", { colspan: 9, class: "muted" },
+          h("th", { class: "num" }, "|D| after"), h("th", {}, "reviewers decided"), h("th", {}, "models"),
+          h("th", {}, ""))),
+        h("tbody", {}, rows.length ? rows : h("tr", {}, h("td", { colspan: 10, class: "muted" },
           "no round yet: the first accepted sample opens round 0")))),
       h("form", { class: "inline-form", onsubmit: (e) => { e.preventDefault(); this.launchRound(note.value); } },
         note, h("button", { class: "primary launch-round", type: "submit", disabled: Boolean(refusal),
@@ -427,6 +429,14 @@ export function progressBar(progress, large = false) {
   return h("div", { class: `progress${large ? " large" : ""}`, role: "progressbar", "aria-valuenow": pct,
     "aria-valuemin": 0, "aria-valuemax": 100 }, h("div", { class: "bar", style: { width: `${pct}%` } }),
   h("span", {}, `${pct}%`));
+}
+
+// A round's people's decisions, e.g. "4 accepted · 11 discarded"; discarded samples wait for the next round's fit.
+function decisionSummary(decisions) {
+  const d = decisions || {};
+  const parts = [["accept", "accepted"], ["discard", "discarded"], ["annotate", "to annotators"], ["reject", "rejected"]]
+    .filter(([kind]) => d[kind]).map(([kind, label]) => `${d[kind]} ${label}`);
+  return parts.length ? parts.join(" · ") : "–";
 }
 
 function sub(i) {

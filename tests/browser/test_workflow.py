@@ -130,6 +130,7 @@ def test_annotate_fit_review_and_round_in_the_browser(live_stack, tab):
     page = admin.page
     assert _state_count(page, "accepted") == 1
     assert page.inner_text(".rounds-table tr[data-round='0'] td:nth-child(5)") == "1"  # D^l annotated
+    assert page.inner_text(".rounds-table tr[data-round='0'] .round-decisions") == "1 accepted"
     admin.shot("05-admin-before-round")
     # Every state and progress the bar shows is recorded as the page sets it (not sampled), from the click on.
     page.evaluate(RECORD_LIVE_BAR)

@@ -16,8 +16,8 @@ from backend.models.capture import Sample
 from backend.models.enums import JobKind, JobState, RoundState, Stream
 from backend.models.jobs import Job
 from backend.models.labels import Click, Submission
-from backend.models.review import Round, RoundMember
-from backend.schemas.admin import RoundStats, Statistics, StreamCounts
+from backend.models.review import Decision, Round, RoundMember
+from backend.schemas.admin import DecisionCounts, RoundStats, Statistics, StreamCounts
 from backend.services import audit
 from backend.services.errors import ConflictError, NotFoundError
 from backend.services.jobs import jobs, round_failure
@@ -151,6 +151,11 @@ def statistics(session: Session) -> Statistics:
     per_round: dict[int, dict[str, int]] = {}
     for round_id, stream, n in members:
         per_round.setdefault(round_id, {})[stream] = int(n)
+    decided: dict[int, dict[str, int]] = {}
+    for round_id, kind, n in session.execute(select(Decision.round_id, Decision.decision, func.count())
+                                             .where(Decision.by_heuristic.is_(False), Decision.round_id.is_not(None))
+                                             .group_by(Decision.round_id, Decision.decision)):
+        decided.setdefault(round_id, {})[kind] = int(n)
     stats, size = [], 0
     for round_ in list_rounds(session):
         if round_.state == RoundState.cancelled:  # undone by its admin: its samples went back to the round before
@@ -159,7 +164,8 @@ def statistics(session: Session) -> Statistics:
         added = counts.heuristic + counts.manual + counts.annotated
         size += added
         stats.append(RoundStats(round_id=round_.id, index=round_.index, state=round_.state, added=counts,
-                                added_total=added, dataset_size_after=size))
+                                added_total=added, dataset_size_after=size,
+                                decisions=DecisionCounts(**decided.get(round_.id, {}))))
     return Statistics(
         samples_by_state={k: int(v) for k, v in by_state.items()},
         rounds=stats,

@@ -35,6 +35,10 @@ def test_discard_returns_the_sample_to_the_pool_until_a_new_fit(env, h):
     with env.session() as s:
         assert s.execute(text("SELECT decision FROM decisions")).scalars().all() == ["discard"]
         assert s.execute(text("SELECT count(*) FROM round_members")).scalar_one() == 0
+    # The admin's round statistics count it (the rounds table's "reviewers decided").
+    stats = env.client.get("/api/admin/rounds/statistics", headers=env.headers(Role.admin)).json()
+    assert [r["decisions"] for r in stats["rounds"]] == [{"accept": 0, "discard": 1, "annotate": 0, "reject": 0}]
+    assert stats["rounds"][0]["added_total"] == 0
     # The next round's fit of the same sample is a new candidate.
     with env.session() as s:
         s.execute(text("UPDATE samples SET state = 'fitting' WHERE id = :id"), {"id": sample_id})

@@ -50,6 +50,9 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
                                               "predictions this many times (it waits for the next round's fit) "
                                               "before sending it to the annotators (bench sim-matrix uses 1); 0: "
                                               "every bad fit goes to the annotators."),
+        reviewer_round0_floor: int | None = typer.Option(None, help="In round 0 reviewers discard a bad detector fit "
+                                                         "the same way once D_0 holds this many labels; unset: "
+                                                         "round 0's bad fits all go to the annotators."),
         click_s: float = typer.Option(2.0, help="Seconds per click."),
         mask_s: float = typer.Option(12.0, help="Seconds per mask correction."),
         verify_s: float = typer.Option(5.0, help="Seconds per verification."),
@@ -120,7 +123,8 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
                                           boundary_noise_px=boundary_noise_px,
                                           accept_proposals_within_px=accept_proposals_px, seed=seed),
                 reviewer=ReviewerConfig(accept_below_mm=accept_below_mm, error_rate=review_error_rate,
-                                        discards_before_annotation=reviewer_discards, seed=seed),
+                                        discards_before_annotation=reviewer_discards,
+                                        round0_discard_floor=reviewer_round0_floor, seed=seed),
                 costs=UnitCosts(click_s=click_s, mask_correction_s=mask_s, verification_s=verify_s,
                                 proposal_view_s=proposal_s),
                 round_timeout_s=round_timeout_s, detector=None if detector is None else detector == "on")

@@ -76,6 +76,7 @@ def test_simulate_refuses_bad_arguments(capture_dir, tmp_path):
          "unknown settings ['no_such_setting']"),
         (["--capture", str(capture_dir), "--review-error-rate", "2"], "error_rate must be in [0, 1]"),
         (["--capture", str(capture_dir), "--reviewer-discards", "-1"], "discards_before_annotation must be in 0..100"),
+        (["--capture", str(capture_dir), "--reviewer-round0-floor", "-1"], "round0_discard_floor must be in"),
         (["--capture", str(capture_dir), "--url", "http://127.0.0.1:9", "--out", str(tmp_path / "b")],
          "needs an admin's email and password"),
         (["--capture", str(capture_dir), "--detector", "maybe"], "--detector must be on or off, not 'maybe'"),

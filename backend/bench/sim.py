@@ -49,6 +49,10 @@ STEP_COUNTED_BUDGET_S = 7200.0
 # run()'s step counts -> (the setting that caps the steps, the budgets set out of its way)
 STEP_COUNTED = {"train_steps": ("round_max_train_steps", ("round_handsegnet_budget_s", "round_mvnet_budget_s")),
                 "handsegnet_steps": ("round_handsegnet_max_steps", ("round_handsegnet_budget_s",))}
+# Beyond a round's training budgets, how long the simulation waits for its prediction and fits (and for the fits
+# people queue): the wait must outlast the round's own limits, else a loaded machine stops a step-counted run that
+# would have finished with the same figures (2026-12-07: three matrix runs stopped after 3,600 s in round 1's fits).
+ROUND_WAIT_BEYOND_TRAINING_S = 3 * 3600.0
 TARGETS = {"minutes_max": 60.0, "accepted_vertex_mm_max": 8.0, "auto_accept_precision_min": 0.95}
 # Issue 15, with the detector: D_0 at least half from verification alone, the heuristic accepting >= 30 % of the
 # fitted samples by round 2 at >= 95 % precision, >= 100 labels per human hour, accepted labels <= 6 mm.
@@ -180,7 +184,7 @@ def simulate(capture: Path, work: Path, plan: dict[str, Any], *, detector: bool,
     accepts blind (two reviewers then, since nobody audits their own accepts); `agreement_share` > 0: that share of
     annotated samples is annotated twice, blind; the summary's `label_quality`."""
     config = BootstrapConfig(rounds=plan["rounds"], detector=detector, round0_rest=plan["round0_rest"],
-                             round0_frames=plan.get("round0_frames", "all"),
+                             round0_frames=plan.get("round0_frames", "all"), round_timeout_s=round_wait_s(plan),
                              annotator=annotator, reviewer=reviewer or ReviewerConfig(),
                              reviewers=2 if audit_share > 0 or gold_share > 0 else 1, audit_share=audit_share,
                              audit_seed=audit_seed, precision_target=precision_target, gold_labels=gold_labels,
@@ -193,6 +197,16 @@ def simulate(capture: Path, work: Path, plan: dict[str, Any], *, detector: bool,
 
         return run_simulation(capture, work, config, initial_every=plan["initial_every"],
                               server=ServerOptions(settings=plan["settings"]), on_round=on_round)
+
+
+def round_wait_s(plan: dict[str, Any]) -> float:
+    """Seconds the simulation waits for one round's job (and for people's fits): both networks' training budgets
+    (the plan's settings, else the server's defaults) and ROUND_WAIT_BEYOND_TRAINING_S for prediction and fitting."""
+    defaults = get_settings()
+    settings = plan.get("settings") or {}
+    return (float(settings.get("round_handsegnet_budget_s", defaults.round_handsegnet_budget_s))
+            + float(settings.get("round_mvnet_budget_s", defaults.round_mvnet_budget_s))
+            + ROUND_WAIT_BEYOND_TRAINING_S)
 
 
 def detector_values(summary: dict[str, Any]) -> dict[str, float | None]:

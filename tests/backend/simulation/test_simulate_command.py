@@ -182,10 +182,11 @@ def test_bench_sim_passes_the_round_0_plan_to_the_simulation(monkeypatch, tmp_pa
     from backend.bench import sim
     from backend.simulation.bootstrap import BootstrapConfig
 
-    seen = {}
+    seen, waits = {}, []
 
     def fake_run_simulation(capture, work, config, *, initial_every, server, on_round):
         seen.update(rest=config.round0_rest, every=initial_every)
+        waits.append(config.round_timeout_s)
         return _d0_summary(0.6, 150.0, 4)
 
     def fake_capture(root, sequences, frames, width, seed=None):
@@ -203,6 +204,10 @@ def test_bench_sim_passes_the_round_0_plan_to_the_simulation(monkeypatch, tmp_pa
     assert seen == {"rest": "keep", "every": sim.FULL["initial_every"], "frames": sim.FULL["frames"]}
     assert record["detector_targets_met"]["d0_verified_share"] is True
     assert BootstrapConfig().round0_rest == "keep"
+    # The wait for a round outlasts the round's own training budgets (a loaded machine must not stop a run).
+    assert waits[-1] == sim.round_wait_s(sim.FULL) > 90 + 240
+    sim.run(detector="on", rounds=0, emit_json=False, work_dir=tmp_path, train_steps=650, handsegnet_steps=1650)
+    assert waits[-1] == 2 * sim.STEP_COUNTED_BUDGET_S + sim.ROUND_WAIT_BEYOND_TRAINING_S
     with pytest.raises(ValueError, match="round0_rest must be one of"):
         BootstrapConfig(round0_rest="discard")
 

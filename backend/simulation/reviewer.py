@@ -109,7 +109,8 @@ class SimulatedReviewer:
             decision, reason = "accept", ""
         elif from_predictions and self.config.may_discard(
                 round_index, (discards or {}).get(sample_id, 0),
-                labels_so_far() if round_index == 0 and labels_so_far is not None else None):
+                labels_so_far() if (round_index == 0 and labels_so_far is not None
+                                    and self.config.round0_discard_floor is not None) else None):
             decision, reason = "discard", ""
         elif annotation_attempts.get(sample_id, 0) < self.config.max_annotation_attempts:
             decision, reason = "annotate", "the fit is off; needs clicks"

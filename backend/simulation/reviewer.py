@@ -46,16 +46,17 @@ class ReviewerConfig:
         if self.round0_discard_floor is not None and not 0 <= self.round0_discard_floor <= 1_000_000:
             raise ValueError(f"round0_discard_floor must be in 0..1000000 or None, not {self.round0_discard_floor}")
 
-    def may_discard(self, round_index: int, discards_so_far: int, labels_so_far: int | None) -> bool:
+    def may_discard(self, round_index: int, discards_so_far: int,
+                    labels_so_far: Callable[[], int] | None = None) -> bool:
         """Whether a bad fit from predictions is discarded (else it goes to the annotators): fewer than
         `discards_before_annotation` discards of the sample so far, and in round 0 D_0 at its floor already
-        (`labels_so_far`: the dataset's size now; None where not known)."""
+        (`labels_so_far`: the dataset's size now, asked only then; None where not known)."""
         if discards_so_far >= self.discards_before_annotation:
             return False
         if round_index > 0:
             return True
         return (self.round0_discard_floor is not None and labels_so_far is not None
-                and labels_so_far >= self.round0_discard_floor)
+                and labels_so_far() >= self.round0_discard_floor)
 
 
 @dataclass(frozen=True)
@@ -107,10 +108,8 @@ class SimulatedReviewer:
         from_predictions = not task["fit"].get("from_annotation", False)
         if good:
             decision, reason = "accept", ""
-        elif from_predictions and self.config.may_discard(
-                round_index, (discards or {}).get(sample_id, 0),
-                labels_so_far() if (round_index == 0 and labels_so_far is not None
-                                    and self.config.round0_discard_floor is not None) else None):
+        elif from_predictions and self.config.may_discard(round_index, (discards or {}).get(sample_id, 0),
+                                                          labels_so_far):
             decision, reason = "discard", ""
         elif annotation_attempts.get(sample_id, 0) < self.config.max_annotation_attempts:
             decision, reason = "annotate", "the fit is off; needs clicks"

@@ -172,10 +172,10 @@ def test_reviewer_judges_by_true_vertex_error_with_mistakes_and_costs(world):
     assert sorted(states.values()) == ["needs_annotation", "needs_annotation", "rejected"]
 
 
-def test_reviewer_discards_bad_fits_from_predictions_up_to_the_limit_then_sends_them_to_annotation(world):
-    env, _, truth = world
-    ids = truth.sample_ids[:3]
-    with env.session() as s, s.begin():  # fits from predictions (no clicks), 20 mm off: the heuristic has none
+def _bad_fits_in_review(env, truth, ids) -> None:
+    """Fits from predictions (no clicks), 20 mm off (the heuristic has none), in review (the queue policy would space
+    them out)."""
+    with env.session() as s, s.begin():
         for sample_id in ids:
             s.execute(text("UPDATE samples SET state = 'fitting' WHERE id = :id"), {"id": sample_id})
             gt = truth.truth(sample_id)
@@ -187,9 +187,15 @@ def test_reviewer_discards_bad_fits_from_predictions_up_to_the_limit_then_sends_
                                diagnostics={}, inputs={}, model_file="handloop-builtin v1",
                                thresholds=HeuristicThresholds())
     with env.session() as s, s.begin():
-        for sample_id in ids:  # both in review (the queue policy would space them out)
+        for sample_id in ids:
             s.execute(text("UPDATE samples SET state = 'in_review' WHERE id = :id AND state = 'fitted'"),
                       {"id": sample_id})
+
+
+def test_reviewer_discards_bad_fits_from_predictions_up_to_the_limit_then_sends_them_to_annotation(world):
+    env, _, truth = world
+    ids = truth.sample_ids[:3]
+    _bad_fits_in_review(env, truth, ids)
     ledger = HumanLedger()
     reviewer = SimulatedReviewer("rev", ApiClient(env.client, token_of(env, Role.reviewer)), truth, ledger,
                                  ReviewerConfig(error_rate=0.0, discards_before_annotation=1))
@@ -213,21 +219,7 @@ def test_reviewer_discards_bad_fits_from_predictions_up_to_the_limit_then_sends_
 def test_reviewer_discards_in_round_0_only_once_d0_holds_its_floor(world):
     env, _, truth = world
     ids = truth.sample_ids[:3]
-    with env.session() as s, s.begin():  # detector-like fits (no clicks), 20 mm off, all in review
-        for sample_id in ids:
-            s.execute(text("UPDATE samples SET state = 'fitting' WHERE id = :id"), {"id": sample_id})
-            gt = truth.truth(sample_id)
-            move = np.array([0.02, 0.0, 0.0])
-            records.record_fit(s, sample_id, params=np.concatenate([gt.betas, gt.pose, gt.global_orient,
-                                                                    gt.transl + move]),
-                               keypoints_m=gt.keypoints_3d + move,
-                               view_ious={v.id: 0.9 for v in views_of(s, sample_id, with_masks=False)},
-                               diagnostics={}, inputs={}, model_file="handloop-builtin v1",
-                               thresholds=HeuristicThresholds())
-    with env.session() as s, s.begin():
-        for sample_id in ids:
-            s.execute(text("UPDATE samples SET state = 'in_review' WHERE id = :id AND state = 'fitted'"),
-                      {"id": sample_id})
+    _bad_fits_in_review(env, truth, ids)
     ledger = HumanLedger()
     reviewer = SimulatedReviewer("rev", ApiClient(env.client, token_of(env, Role.reviewer)), truth, ledger,
                                  ReviewerConfig(error_rate=0.0, discards_before_annotation=1, round0_discard_floor=5))
@@ -251,8 +243,15 @@ def test_reviewer_discards_in_round_0_only_once_d0_holds_its_floor(world):
 ])
 def test_reviewer_discard_policy(round_index, discards_so_far, labels, expected):
     config = ReviewerConfig(discards_before_annotation=1, round0_discard_floor=30)
-    assert config.may_discard(round_index, discards_so_far, labels) is expected
-    assert ReviewerConfig(discards_before_annotation=1).may_discard(0, 0, 10_000) is False  # no floor: never
+    asked = []
+
+    def size() -> int:
+        asked.append(labels)
+        return labels
+
+    assert config.may_discard(round_index, discards_so_far, None if labels is None else size) is expected
+    assert len(asked) <= int(round_index == 0 and discards_so_far == 0)  # D_0's size asked only where it decides
+    assert ReviewerConfig(discards_before_annotation=1).may_discard(0, 0, lambda: 10_000) is False  # no floor: never
 
 
 def test_team_works_until_the_queues_are_empty_and_the_books_add_up(world):

@@ -53,6 +53,7 @@ REVIEWER_DISCARDS = 1
 # In round 0 they discard a bad detector fit the same way once D_0 holds this many labels (`--reviewer-round0-floor`;
 # ReviewerConfig.round0_discard_floor); None: round 0's bad fits all go to the annotators.
 REVIEWER_ROUND0_FLOOR: int | None = None
+MAX_REVIEW_CAPACITY = 1_000_000  # as the setting's own bound
 
 
 @dataclass(frozen=True)
@@ -300,7 +301,8 @@ def run(*, cells: list[Cell], seeds: tuple[int, ...], out_dir: Path | None = Non
         quick: bool = False, rounds: int | None = None, frames: int | None = None,
         train_steps: int | None = None, handsegnet_steps: int | None = None,
         detector: str = "on", reviewer_discards: int = REVIEWER_DISCARDS,
-        reviewer_round0_floor: int | None = REVIEWER_ROUND0_FLOOR, emit_json: bool = True) -> dict[str, Any]:
+        reviewer_round0_floor: int | None = REVIEWER_ROUND0_FLOOR, review_capacity: int | None = None,
+        emit_json: bool = True) -> dict[str, Any]:
     """Run every (cell, seed) not yet in `<out_dir>/matrix.json`, one after the other, writing each as it finishes;
     then the per-cell summaries, the markdown table, `<out_dir>/matrix.png`, and (with `emit_json`) the JSON line.
 
@@ -316,6 +318,8 @@ def run(*, cells: list[Cell], seeds: tuple[int, ...], out_dir: Path | None = Non
             bad fit to the annotators); recorded in the results' config like the people.
         reviewer_round0_floor: the reviewers' `round0_discard_floor` (REVIEWER_ROUND0_FLOOR; None: round 0 never
             discards); recorded likewise.
+        review_capacity: the stack's `review_capacity_per_round` (round 0's too), the fits the reviewers can verify
+            in a round (None: the setting's default, the fixed policy); recorded in the stack settings.
     ValueError names a bad option, a results file of other settings, or a detector that cannot run.
     """
     started = time.perf_counter()
@@ -330,6 +334,11 @@ def run(*, cells: list[Cell], seeds: tuple[int, ...], out_dir: Path | None = Non
     base = sim.plan_for(quick=quick, rounds=ROUNDS if rounds is None and not quick else rounds, frames=frames,
                         train_steps=TRAIN_STEPS if train_steps is None else train_steps,
                         handsegnet_steps=HANDSEGNET_STEPS if handsegnet_steps is None else handsegnet_steps)
+    if review_capacity is not None:
+        if not 0 <= review_capacity <= MAX_REVIEW_CAPACITY:
+            raise ValueError(f"review capacity must be in 0..{MAX_REVIEW_CAPACITY} samples a round, "
+                             f"not {review_capacity}")
+        base["settings"] = {**base["settings"], "review_capacity_per_round": review_capacity}
     out_dir = Path(out_dir) if out_dir else get_settings().data_dir.resolve() / "bench" / "sim-matrix"
     out_dir.mkdir(parents=True, exist_ok=True)
     results_path = out_dir / "matrix.json"

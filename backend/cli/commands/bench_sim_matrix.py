@@ -41,6 +41,10 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
             None, "--reviewer-round0-floor", min=0, max=1_000_000, help="In round 0 the simulated reviewers discard "
             "a bad detector fit the same way once D_0 holds this many labels; unset: round 0's bad fits all go to "
             "the annotators."),
+        review_capacity: int | None = typer.Option(
+            None, "--review-capacity", help="Fits the reviewers can verify in a round, round 0's too (the stack's "
+            "review_capacity_per_round, e.g. 1000 as the paper verified in its round 1): the queue filled to it by "
+            "confidence; unset: the setting's default (0, the fixed policy: median cut and time gap)."),
     ) -> None:
         """Step-counted bootstrap simulations per cell and seed, one after the other: a markdown table of the
         median and worst seed per cell, a plot, and one JSON object as the last stdout line."""
@@ -51,7 +55,8 @@ def register(app: typer.Typer, bench: typer.Typer) -> None:
         try:
             run(cells=parse_cells(cells), seeds=parse_seeds(seeds), out_dir=out, resume=resume, quick=quick,
                 rounds=rounds, frames=frames, train_steps=train_steps, handsegnet_steps=handsegnet_steps,
-                detector=detector, reviewer_discards=reviewer_discards, reviewer_round0_floor=reviewer_round0_floor)
+                detector=detector, reviewer_discards=reviewer_discards, reviewer_round0_floor=reviewer_round0_floor,
+                review_capacity=review_capacity)
         except ValueError as exc:
             typer.echo(f"error: {exc}", err=True)
             raise typer.Exit(code=2) from exc

@@ -184,6 +184,28 @@ def test_the_reviewers_round0_floor_reaches_each_run_and_old_results_resume_with
     assert _invoke(*args, "--reviewer-round0-floor", "-1").exit_code == 2
 
 
+def test_the_review_capacity_reaches_each_run_s_stack_and_old_results_resume_without_it(fakes, tmp_path):
+    _, calls = fakes
+    out = tmp_path / "m"
+    args = ("--cells", "640-default-proposals", "--seeds", "11", "--out", str(out), "--rounds", "2")
+    assert _invoke(*args, "--review-capacity", "1000").exit_code == 0
+    assert calls[-1]["settings"]["review_capacity_per_round"] == 1000
+    data = json.loads((out / "matrix.json").read_text())
+    assert data["config"]["stack_settings"]["review_capacity_per_round"] == 1000
+    result = _invoke(*args, "--resume")  # without it: the setting's default, another setting
+    assert result.exit_code == 2 and "other settings" in result.output, result.output
+    # A results file from before the option: its stack had the setting's default, so it resumes without one.
+    del data["config"]["stack_settings"]["review_capacity_per_round"]
+    data["runs"] = {}
+    (out / "matrix.json").write_text(json.dumps(data))
+    result = _invoke(*args, "--resume")
+    assert result.exit_code == 0, result.output[-3000:]
+    assert "review_capacity_per_round" not in calls[-1]["settings"]
+    result = _invoke(*args[:-2], "--out", str(tmp_path / "never"), "--review-capacity", "1000001")
+    assert result.exit_code == 2 and "review capacity must be in 0..1000000" in result.output, result.output
+    assert not (tmp_path / "never").exists()
+
+
 def test_a_stopped_run_counts_in_its_cell(fakes, tmp_path, monkeypatch):
     def stopped(capture, work, plan, *, detector, annotator, reviewer, label, leave):
         summary = fake_summary(annotator.seed, annotator)

@@ -203,8 +203,8 @@ def targets_met(cell: Cell, runs: list[dict[str, Any]], summary: dict[str, Any])
             value = _median([_at_round(r, index) for r in runs])
         else:
             value = summary[key]["median"]
-        met[f"{key}_by_round_{index}"] = value is not None and (value >= threshold if bound == "min"
-                                                               else value <= threshold)
+        name = key if key.endswith(f"_by_round_{index}") else f"{key}_by_round_{index}"  # not "..._2_by_round_2"
+        met[name] = value is not None and (value >= threshold if bound == "min" else value <= threshold)
     met["additions_grow"] = summary["additions_grow"] is True
     mm = summary["accepted_vertex_mm"]["median"]
     met["accepted_vertex_mm"] = mm is not None and mm <= ACCEPTED_VERTEX_MM_MAX

@@ -18,16 +18,18 @@ import shutil
 import statistics
 import sys
 import time
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
+from dotenv import dotenv_values
 from tqdm import tqdm
 
 from backend.bench import sim
 from backend.bench.common import emit, git_commit
 from backend.services.rounds import preannotation
-from backend.settings import get_settings
+from backend.settings import Settings, get_settings
 from backend.simulation.annotator import AnnotatorConfig
 from backend.simulation.reviewer import ReviewerConfig
 
@@ -54,6 +56,17 @@ REVIEWER_DISCARDS = 1
 # ReviewerConfig.round0_discard_floor); None: round 0's bad fits all go to the annotators.
 REVIEWER_ROUND0_FLOOR: int | None = None
 MAX_REVIEW_CAPACITY = 1_000_000  # as the setting's own bound
+# Settings that do not change what a run measures (places, accounts, the service's plumbing). Any other HANDLOOP_*
+# setting in the environment reaches the runs' stacks, so it is recorded with the results and must match on
+# --resume (`loop_environment`); names with these words are never recorded (secrets, addresses).
+PLUMBING_SETTINGS = frozenset({
+    "data_dir", "environment", "db_pool_size", "db_max_overflow", "access_token_minutes", "auth_cache_seconds",
+    "import_roots", "trusted_proxies", "max_upload_bytes", "image_cache_seconds", "sse_poll_seconds",
+    "broker_prefix", "broker_visibility_timeout_s", "broker_check_cache_s", "fit_dispatch_linger_s", "outbox_poll_s",
+    "job_redispatch_after_s", "job_heartbeat_timeout_s", "job_max_attempts", "task_time_limit_s",
+    "fit_task_time_limit_s", "worker_concurrency"})
+NEVER_RECORDED = ("secret", "password", "token", "url", "login_")
+ENV_PREFIX = str(Settings.model_config.get("env_prefix") or "").upper()
 
 
 @dataclass(frozen=True)
@@ -285,12 +298,33 @@ def _load_results(path: Path, config: dict[str, Any], resume: bool) -> dict[str,
         reviewer.setdefault("discards_before_annotation", 0)  # a file from before the option: nobody discarded
         # (resumed with --reviewer-discards 0)
         reviewer.setdefault("round0_discard_floor", None)  # before that option: round 0 never discarded
+    if isinstance(data.get("config"), dict):
+        data["config"].setdefault("environment", {})  # a file from before it was recorded: taken as none set
     if data.get("config") != config:
         differ = sorted(k for k in set(config) | set(data.get("config") or {})
                         if config.get(k) != (data.get("config") or {}).get(k))
         raise ValueError(f"{path} was made with other settings ({', '.join(differ)} differ): resume it with the "
                          f"same options, or pass another --out")
     return data
+
+
+def loop_environment(environ: Mapping[str, str] | None = None) -> dict[str, str]:
+    """The HANDLOOP_* settings in the environment that shape a run: setting name -> value as set, sorted; plumbing
+    (PLUMBING_SETTINGS) and anything secret-like (NEVER_RECORDED) left out. Default environment: the `.env` file the
+    settings read, overridden by os.environ (as the settings are)."""
+    if environ is None:
+        dot_env = Path(str(Settings.model_config.get("env_file") or ".env"))
+        environ = {**{k: v or "" for k, v in dotenv_values(dot_env).items()}, **os.environ} if dot_env.is_file() \
+            else os.environ
+    found = {}
+    for key, value in environ.items():
+        if not key.upper().startswith(ENV_PREFIX):
+            continue
+        name = key[len(ENV_PREFIX):].lower()
+        if name in Settings.model_fields and name not in PLUMBING_SETTINGS and not any(
+                word in name for word in NEVER_RECORDED):
+            found[name] = value
+    return dict(sorted(found.items()))
 
 
 def run_key(cell: Cell, seed: int) -> str:
@@ -349,7 +383,7 @@ def run(*, cells: list[Cell], seeds: tuple[int, ...], out_dir: Path | None = Non
     config = json.loads(json.dumps({  # as the results file holds it, to compare on --resume
         "plan": {k: v for k, v in base.items() if k not in ("settings", "width")}, "stack_settings": base["settings"],
         "detector": detector, "quick": quick, "people": people, "proposals": PROPOSALS,
-        "reviewer": unseeded(reviewer)}))
+        "reviewer": unseeded(reviewer), "environment": loop_environment()}))
     results = _load_results(results_path, config, resume)
     todo = [(c, s) for c in cells for s in seeds if run_key(c, s) not in results["runs"]]
     with tqdm(total=len(cells) * len(seeds), initial=len(cells) * len(seeds) - len(todo), unit="run",

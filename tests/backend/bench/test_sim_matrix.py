@@ -206,6 +206,37 @@ def test_the_review_capacity_reaches_each_run_s_stack_and_old_results_resume_wit
     assert not (tmp_path / "never").exists()
 
 
+def test_settings_set_in_the_environment_are_recorded_and_must_match_on_resume(fakes, tmp_path, monkeypatch):
+    out = tmp_path / "m"
+    args = ("--cells", "640-default-proposals", "--seeds", "11", "--out", str(out), "--rounds", "2")
+    monkeypatch.setenv("HANDLOOP_PREANNOTATION_REVIEW_CAPACITY", "1000")  # reaches the stack: recorded
+    monkeypatch.setenv("HANDLOOP_SECRET_KEY", "do-not-record-this-secret")  # secret-like, and plumbing: never recorded
+    monkeypatch.setenv("HANDLOOP_WORKER_CONCURRENCY", "2")
+    assert _invoke(*args).exit_code == 0
+    data = json.loads((out / "matrix.json").read_text())
+    assert data["config"]["environment"] == {"preannotation_review_capacity": "1000"}
+    assert "do-not-record-this-secret" not in (out / "matrix.json").read_text()
+    monkeypatch.delenv("HANDLOOP_PREANNOTATION_REVIEW_CAPACITY")
+    result = _invoke(*args, "--resume")
+    assert result.exit_code == 2 and "other settings (environment differ)" in result.output, result.output
+    # A results file from before the environment was recorded resumes where none is set.
+    del data["config"]["environment"]
+    data["runs"] = {}
+    (out / "matrix.json").write_text(json.dumps(data))
+    result = _invoke(*args, "--resume")
+    assert result.exit_code == 0, result.output[-3000:]
+    assert json.loads((out / "matrix.json").read_text())["config"]["environment"] == {}
+
+
+def test_the_recorded_environment_takes_the_settings_dot_env_and_lets_the_environment_override_it(
+        tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / ".env").write_text("HANDLOOP_REVIEW_CAPACITY_PER_ROUND=500\nHANDLOOP_NETS_CONFIG=tiny\n"
+                                   "HANDLOOP_DATABASE_URL=postgresql://u:p@h/db\n")
+    monkeypatch.setenv("HANDLOOP_NETS_CONFIG", "cpu-small")
+    assert sim_matrix.loop_environment() == {"nets_config": "cpu-small", "review_capacity_per_round": "500"}
+
+
 def test_a_stopped_run_counts_in_its_cell(fakes, tmp_path, monkeypatch):
     def stopped(capture, work, plan, *, detector, annotator, reviewer, label, leave):
         summary = fake_summary(annotator.seed, annotator)

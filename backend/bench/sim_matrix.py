@@ -212,11 +212,10 @@ def targets_met(cell: Cell, runs: list[dict[str, Any]], summary: dict[str, Any])
     additions growing round on round and accepted labels within ACCEPTED_VERTEX_MM_MAX."""
     met: dict[str, bool] = {}
     for key, index, bound, threshold in HEADLINE_TARGETS.get(cell.name, ()):
-        if key == "labels_per_human_hour":
-            value = _median([_at_round(r, index) for r in runs])
-        else:
-            value = summary[key]["median"]
-        name = key if key.endswith(f"_by_round_{index}") else f"{key}_by_round_{index}"  # not "..._2_by_round_2"
+        if key == "labels_per_human_hour":  # a figure of every round: the target's round named
+            name, value = f"{key}_by_round_{index}", _median([_at_round(r, index) for r in runs])
+        else:  # a summary figure whose name says its round
+            name, value = key, summary[key]["median"]
         met[name] = value is not None and (value >= threshold if bound == "min" else value <= threshold)
     met["additions_grow"] = summary["additions_grow"] is True
     mm = summary["accepted_vertex_mm"]["median"]

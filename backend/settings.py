@@ -170,6 +170,13 @@ class Settings(BaseSettings):
         "reviewers can verify in the pre-annotation (0: the fixed policy), ranked as `review_capacity_per_round` "
         "ranks; unset (the default): as the later rounds (review_capacity_per_round). The matrix measured 1000: a "
         "larger D_0 but fewer labels per human hour on each unseen seed (docs/evaluation.md, 'The review queue').")
+    review_rank: Literal["confidence", "agreement"] = Field(
+        default="confidence", description="What rounds 1 on rank the fits from predictions by for review (the "
+        "percentile and the order): 'confidence', MVNet's mean confidence (the paper's); 'agreement', how close the "
+        "fit came to the prediction it was fitted to (the heuristic's mean 3D distance). On tuning seeds 57 and 23 "
+        "the confidence of MVNet trained on D_0 did not rank the fits' true error (Spearman -0.27, -0.06), the "
+        "agreement did (0.85, 0.87); the sim-matrix judges it on unseen seeds (docs/evaluation.md, 'The review "
+        "queue').")
     review_percentile_cut: bool = Field(
         default=True, description="With a capacity, rounds 1 on: the queue is filled only from the confidence "
         "percentile up (the rest waits for the next round's networks: a fit sent back costs an annotation); false: "

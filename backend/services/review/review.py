@@ -17,7 +17,7 @@ from backend.services.captures.state_machine import transition
 from backend.services.errors import ConflictError
 from backend.services.leases import drafts, queues
 from backend.services.review import label_audits
-from backend.services.review.verification import Candidate, ReviewPolicy, select_for_review
+from backend.services.review.verification import Candidate, ReviewPolicy, review_score, select_for_review
 from backend.services.rounds import rounds
 
 
@@ -31,21 +31,36 @@ def build_queue(session: Session, policy: ReviewPolicy, actor_id: int | None) ->
                              ~discarded.exists())
         .with_for_update(skip_locked=True)
     ).scalars().all()
-    candidates = [Candidate(s.id, s.sequence_id, s.time_s, s.confidence, s.pose_distance or 0.0) for s in rows]
+    heuristics = _fit_heuristics(session, [s.current_fit_id for s in rows], policy)
+    candidates = [Candidate(s.id, s.sequence_id, s.time_s,
+                            review_score(policy.rank, s.confidence, heuristics.get(s.current_fit_id)),
+                            s.pose_distance or 0.0) for s in rows]
     queued: dict[int, list[float]] = {}
-    queued_confidences: list[float | None] = []
-    for sequence_id, time_s, confidence in session.execute(
-        select(Sample.sequence_id, Sample.time_s, Sample.confidence).where(Sample.state == SampleState.in_review)
-    ):
+    in_review = session.execute(select(Sample.sequence_id, Sample.time_s, Sample.confidence, Sample.current_fit_id)
+                                .where(Sample.state == SampleState.in_review)).all()
+    heuristics.update(_fit_heuristics(session, [row[3] for row in in_review], policy))
+    queued_scores: list[float | None] = []
+    for sequence_id, time_s, confidence, fit_id in in_review:
         queued.setdefault(sequence_id, []).append(time_s)
-        queued_confidences.append(confidence)
-    picked = select_for_review(candidates, policy, queued, queued_confidences)
+        queued_scores.append(review_score(policy.rank, confidence, heuristics.get(fit_id)))
+    picked = select_for_review(candidates, policy, queued, queued_scores)
     by_id = {s.id: s for s in rows}
     for sample_id in picked:
         transition(session, by_id[sample_id], SampleState.in_review, actor_id, reason="review policy")
     audit.record(session, actor_id, "review.build_queue", "round", rounds.open_round_id(session) or 0,
                  candidates=len(candidates), queued=len(picked))
     return picked
+
+
+def _fit_heuristics(session: Session, fit_ids: list[int | None], policy: ReviewPolicy) -> dict[int, dict | None]:
+    """fit id -> its heuristic record, where the policy ranks by one (ReviewPolicy.rank "agreement")."""
+    wanted = [i for i in fit_ids if i is not None]
+    if policy.rank == "confidence" or not wanted:
+        return {}
+    out: dict[int, dict | None] = {}
+    for start in range(0, len(wanted), 500):  # bounded IN lists
+        out.update(session.execute(select(Fit.id, Fit.heuristic).where(Fit.id.in_(wanted[start:start + 500]))).all())
+    return out
 
 
 class Decided(NamedTuple):

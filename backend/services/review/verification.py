@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -122,7 +123,9 @@ class ReviewPolicy:
     `capacity`: samples the reviewers can verify in a round (samples already in review count against it).
     None: the fixed policy (the percentile is a cut, the time gap a filter). A number: the queue is filled to
     it, the percentile and the time gap only ordering the candidates (`select_for_review`), unless
-    `percentile_cut`: then the queue is filled from the percentile up only, the time gap still an order."""
+    `percentile_cut`: then the queue is filled from the percentile up only, the time gap still an order.
+    `rank`: what the percentile and the order are over (`review_score`): "confidence", MVNet's mean confidence (the
+    paper's), or "agreement", how close the fit came to the prediction it was fitted to."""
 
     min_confidence_percentile: float = 50.0
     min_time_gap_s: float = 1.0
@@ -130,10 +133,13 @@ class ReviewPolicy:
     max_batch: int = 1000
     capacity: int | None = 1000
     percentile_cut: bool = True  # with a capacity: candidates under the percentile wait for the next round
+    rank: str = "confidence"
 
     def __post_init__(self) -> None:
         if self.capacity is not None and self.capacity < 0:
             raise ValueError(f"capacity must be at least 0 samples (or None), not {self.capacity}")
+        if self.rank not in REVIEW_RANKS:
+            raise ValueError(f"rank must be one of {', '.join(REVIEW_RANKS)}, not {self.rank!r}")
 
     @classmethod
     def from_settings(cls, settings: Settings) -> ReviewPolicy:
@@ -141,7 +147,33 @@ class ReviewPolicy:
                    min_time_gap_s=settings.review_min_time_gap_s,
                    min_pose_distance=settings.review_min_pose_distance, max_batch=settings.review_max_batch,
                    capacity=settings.review_capacity_per_round or None,
-                   percentile_cut=settings.review_percentile_cut)
+                   percentile_cut=settings.review_percentile_cut, rank=settings.review_rank)
+
+
+# What the review queue ranks fits from predictions by (ReviewPolicy.rank).
+REVIEW_RANKS = ("confidence", "agreement")
+
+
+def review_score(rank: str, confidence: float | None, heuristic: Mapping[str, Any] | None) -> float | None:
+    """The score the review policy ranks a fitted sample by, higher first; None where there is none (fits from clicks:
+    ranked after the scored ones).
+
+    "confidence": MVNet's mean confidence (the paper's "sorted based on the confidence score of MVNet").
+    "agreement": minus the mean 3D distance (mm) between the fit's keypoints and those it was fitted to (the
+    heuristic's third criterion, `heuristic["mean_distance_m"]`; for a pre-annotation's fit, the detector's lift).
+    Why: a network trained on a few dozen labels is not calibrated. On tuning seeds 57 (640 px) and 23 (320 px),
+    round 1's fits from predictions that the heuristic did not accept, the mean confidence ranked their true
+    vertex error at Spearman -0.27 and -0.06 (the most confident half held the cluttered sequences' worst fits), the
+    fit's distance to its prediction at 0.85 and 0.87: a fit that strays from its keypoints is one the hand model and
+    the masks would not follow (docs/evaluation.md, "The review queue")."""
+    if rank == "confidence":
+        return confidence
+    if rank != "agreement":
+        raise ValueError(f"rank must be one of {', '.join(REVIEW_RANKS)}, not {rank!r}")
+    distance = (heuristic or {}).get("mean_distance_m")
+    if not isinstance(distance, (int, float)) or isinstance(distance, bool) or not math.isfinite(distance):
+        return None
+    return -1000.0 * float(distance)
 
 
 @dataclass(frozen=True)
@@ -149,39 +181,40 @@ class Candidate:
     sample_id: int
     sequence_id: int
     time_s: float
-    confidence: float | None  # mean MVNet confidence; None when the fit came from clicks only
+    score: float | None  # what the policy ranks by, higher first (review_score); None when the fit came from clicks
     pose_distance: float
 
 
 def _scored(c: Candidate) -> bool:
-    return c.confidence is not None and math.isfinite(c.confidence)
+    return c.score is not None and math.isfinite(c.score)
 
 
 def _ranked(candidates: Sequence[Candidate], threshold: float) -> tuple[list[Candidate], list[Candidate]]:
-    """(confidence from `threshold` up, the rest), each sorted by confidence, highest first; candidates without
-    a confidence (fits from clicks, round 0) after the scored ones of the rest."""
+    """(score from `threshold` up, the rest), each sorted by score, highest first; candidates without a score
+    (fits from clicks, round 0) after the scored ones of the rest."""
     scored = [c for c in candidates if _scored(c)]
 
-    def by_confidence(c: Candidate) -> tuple[float, int]:
-        return -(c.confidence or 0.0), c.sample_id
+    def by_score(c: Candidate) -> tuple[float, int]:
+        return -(c.score or 0.0), c.sample_id
 
-    upper = sorted((c for c in scored if c.confidence >= threshold), key=by_confidence)
-    lower = sorted((c for c in scored if c.confidence < threshold), key=by_confidence)
+    upper = sorted((c for c in scored if c.score >= threshold), key=by_score)
+    lower = sorted((c for c in scored if c.score < threshold), key=by_score)
     unscored = sorted((c for c in candidates if not _scored(c)), key=lambda c: c.sample_id)
     return upper, lower + unscored
 
 
 def select_for_review(candidates: Sequence[Candidate], policy: ReviewPolicy,
                       already_queued: Mapping[int, Sequence[float]] | None = None,
-                      queued_confidences: Sequence[float | None] = ()) -> list[int]:
+                      queued_scores: Sequence[float | None] = ()) -> list[int]:
     """Sample ids to put in front of reviewers, in the order picked.
 
     Candidates are the fitted samples the heuristic did not accept; flat hands (pose distance below the
     minimum) are never picked. `already_queued`: sequence id -> times (s) of its frames already in review;
-    `queued_confidences`: their confidences (None where a fit has none).
+    `queued_scores`: their scores (None where a fit has none).
 
-    Fixed policy (`capacity` None, the paper's "Manual Verification"): those with a confidence are kept from the
-    given percentile upwards (computed over these candidates) and sorted by confidence, highest first;
+    Fixed policy (`capacity` None, the paper's "Manual Verification"): those with a score (`review_score`: the
+    paper's MVNet confidence, or the fit's agreement) are kept from the given percentile upwards (computed over
+    these candidates) and sorted by score, highest first;
     candidates without one (fits from clicks, round 0) are all kept, after them. Frames are picked greedily,
     skipping any closer than `min_time_gap_s` to a frame already picked or queued in the same sequence; at most
     `max_batch`.
@@ -194,15 +227,15 @@ def select_for_review(candidates: Sequence[Candidate], policy: ReviewPolicy,
     percentile spend the reviewers' capacity on the most confident, most varied frames first; they no longer
     leave capacity unused while fits wait.
     """
-    scores = [c.confidence for c in candidates if _scored(c)]  # the percentile over all candidates, flat ones too
+    scores = [c.score for c in candidates if _scored(c)]  # the percentile over all candidates, flat ones too
     if policy.capacity is not None:
-        scores += [q for q in queued_confidences if q is not None and math.isfinite(q)]
+        scores += [q for q in queued_scores if q is not None and math.isfinite(q)]
     threshold = float(np.percentile(scores, policy.min_confidence_percentile)) if scores else 0.0
     eligible = [c for c in candidates if c.pose_distance >= policy.min_pose_distance]
     upper, rest = _ranked(eligible, threshold)
     picked_times: dict[int, list[float]] = {k: list(v) for k, v in (already_queued or {}).items()}
     if policy.capacity is None:
-        limit, passes = policy.max_batch, [(upper + [c for c in rest if c.confidence is None], True)]
+        limit, passes = policy.max_batch, [(upper + [c for c in rest if c.score is None], True)]
     else:
         queued = sum(len(v) for v in picked_times.values())
         limit = max(0, min(policy.max_batch, policy.capacity - queued))

@@ -10,6 +10,7 @@ from backend.services.review.verification import (
     HeuristicThresholds,
     ReviewPolicy,
     heuristic_verdict,
+    review_score,
     select_for_review,
 )
 from backend.settings import Settings
@@ -89,7 +90,7 @@ def test_shape_errors():
 
 
 def _c(i, t, conf, pose=1.0, seq=1):
-    return Candidate(sample_id=i, sequence_id=seq, time_s=t, confidence=conf, pose_distance=pose)
+    return Candidate(sample_id=i, sequence_id=seq, time_s=t, score=conf, pose_distance=pose)
 
 
 FIXED = {"capacity": None}  # the fixed policy: the percentile a cut, the time gap a filter
@@ -176,7 +177,7 @@ def test_a_second_build_in_a_round_keeps_the_percentile_of_the_first():
     queued = {1: [0.0, 10.0, 20.0, 30.0]}
     policy = ReviewPolicy(capacity=100)
     assert select_for_review(left, policy, queued) == [5, 6]  # without their confidences: the floor drops
-    assert select_for_review(left, policy, queued, queued_confidences=[0.9, 0.8, 0.7, 0.6]) == []
+    assert select_for_review(left, policy, queued, queued_scores=[0.9, 0.8, 0.7, 0.6]) == []
     assert select_for_review(left, ReviewPolicy(capacity=100, **FILL), queued, [0.9, 0.8, 0.7, 0.6]) == [5, 6, 7, 8]
 
 
@@ -213,3 +214,21 @@ def test_records_names_the_detector_source_as_the_pre_annotation_does():
     from workers.tasks.records import DETECTOR_SOURCE
 
     assert DETECTOR_SOURCE == SOURCE
+
+
+def test_review_score_by_confidence_or_by_the_fits_agreement_with_its_prediction():
+    heuristic = {"mean_distance_m": 0.0042, "mean_confidence": 0.5}
+    assert review_score("confidence", 0.7, heuristic) == 0.7
+    assert review_score("agreement", 0.7, heuristic) == pytest.approx(-4.2)  # minus millimetres: nearer is higher
+    assert review_score("agreement", 0.7, None) is None  # a fit from clicks has no prediction to agree with
+    assert review_score("agreement", 0.7, {"mean_distance_m": float("nan")}) is None
+    assert review_score("agreement", 0.7, {"mean_distance_m": True}) is None
+    with pytest.raises(ValueError, match="rank must be one of confidence, agreement"):
+        review_score("loss", 0.7, heuristic)
+    with pytest.raises(ValueError, match="rank must be one of"):
+        ReviewPolicy(rank="loss")
+
+
+def test_agreement_puts_an_unscored_fit_after_the_scored_ones_as_confidence_does():
+    cands = [_c(1, 0.0, None), _c(2, 10.0, -30.0), _c(3, 20.0, -2.0), _c(4, 30.0, -8.0)]
+    assert select_for_review(cands, ReviewPolicy(min_confidence_percentile=0, **FIXED)) == [3, 4, 2, 1]

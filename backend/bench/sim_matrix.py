@@ -28,6 +28,7 @@ from tqdm import tqdm
 
 from backend.bench import sim
 from backend.bench.common import emit, git_commit
+from backend.services.review.verification import REVIEW_RANKS
 from backend.services.rounds import preannotation
 from backend.settings import Settings, get_settings
 from backend.simulation.annotator import AnnotatorConfig
@@ -153,7 +154,15 @@ def run_record(cell: Cell, seed: int, summary: dict[str, Any], work: Path) -> di
             "auto_accept_precision": summary["auto_accept_precision"],
             "additions": [r["added_total"] for r in rounds], "added": [r["added"] for r in rounds],
             "mvnet_keypoint_mm": _mvnet_mm(rounds), "accepted_vertex_mm": summary["accepted_vertex_mm"],
+            "rank_spearman_by_round": [rank_spearman(r) for r in rounds],
             "bookkeeping_ok": summary["bookkeeping_ok"], "minutes": summary["minutes"], "work_dir": str(work)}
+
+
+def rank_spearman(report: dict[str, Any]) -> dict[str, float | None] | None:
+    """A round's review ranks -> how well each ordered its candidate fits by true error (Spearman, +1 best-first;
+    backend.simulation.ranking); None where the round had none (round 0, or a run recorded before the figure)."""
+    quality = report.get("rank_quality")
+    return None if quality is None else {rank: f["spearman"] for rank, f in quality["by_rank"].items()}
 
 
 def _median(values: list[float | None]) -> float | None:
@@ -203,6 +212,9 @@ def cell_summary(cell: Cell, runs: list[dict[str, Any]]) -> dict[str, Any]:
            "additions_per_round": additions, "additions_grow": additions_grow(additions),
            "mvnet_keypoint_mm": {"median": _median(mvnet), "worst": _worst(mvnet, False)},
            "accepted_vertex_mm": {"median": _median(accepted), "worst": _worst(accepted, False)}}
+    round_1 = [dict(enumerate(r.get("rank_spearman_by_round") or [])).get(1) or {} for r in runs]
+    out["rank_spearman_round_1"] = {rank: _median([by_rank.get(rank) for by_rank in round_1])
+                                    for rank in REVIEW_RANKS}
     out["targets_met"] = targets_met(cell, runs, out)
     return out
 
@@ -235,7 +247,8 @@ def _pair(figures: dict[str, float | None], fmt: str) -> str:
 def markdown_table(cells: list[dict[str, Any]]) -> str:
     """One row per cell: median / worst seed of each figure."""
     head = ("| cell | runs (stopped) | labels / human h | labels / human h by round 2 | heuristic share by round 2 "
-            "| true precision | additions per round (median) | MVNet mm, last round | accepted mm |")
+            "| true precision | additions per round (median) | MVNet mm, last round | accepted mm "
+            "| round 1's review rank vs true error, Spearman: confidence / agreement (median) |")
     lines = [head, "|" + "---|" * head.count(" | ") + "---|"]
     for c in cells:
         additions = " / ".join(_num(a, ".0f") for a in c["additions_per_round"]) or "-"
@@ -243,7 +256,8 @@ def markdown_table(cells: list[dict[str, Any]]) -> str:
                      f"| {_pair(c['labels_per_human_hour_by_round_2'], '.1f')} "
                      f"| {_pair(c['heuristic_share_by_round_2'], '.1%')} "
                      f"| {_pair(c['auto_accept_precision'], '.3f')} | {additions} "
-                     f"| {_pair(c['mvnet_keypoint_mm'], '.1f')} | {_pair(c['accepted_vertex_mm'], '.2f')} |")
+                     f"| {_pair(c['mvnet_keypoint_mm'], '.1f')} | {_pair(c['accepted_vertex_mm'], '.2f')} "
+                     f"| {' / '.join(_num(c['rank_spearman_round_1'][k], '.2f') for k in REVIEW_RANKS)} |")
     return "\n".join(lines)
 
 

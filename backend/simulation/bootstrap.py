@@ -27,10 +27,12 @@ from typing import Any
 import httpx
 import numpy as np
 
+from backend.services.review.verification import REVIEW_RANKS, review_score
 from backend.services.rounds.preannotation import DEFAULT_REST, RESTS
 from backend.simulation.annotator import AnnotatorConfig, SimulatedAnnotator
 from backend.simulation.client import ApiClient, ApiError
 from backend.simulation.costs import PAPER_FULL_ANNOTATION_S, HumanLedger, UnitCosts
+from backend.simulation.ranking import rank_quality
 from backend.simulation.reviewer import ReviewerConfig, SimulatedReviewer
 from backend.simulation.team import SimulationTimeoutError, Team, TeamWork, wait_for_job, wait_until_idle
 from backend.simulation.truth import SEQUENCE_KINDS, GroundTruthIndex
@@ -152,6 +154,9 @@ class RoundReport:
     minutes: float
     bookkeeping_ok: bool
     preannotation: dict[str, Any] | None = None  # round 0 with the detector: the pre-annotation job's result
+    # Rounds >= 1: how well each review rank orders the round's fits from predictions that the heuristic did not
+    # accept by their true error (backend.simulation.ranking.rank_quality); None without such fits.
+    rank_quality: dict[str, Any] | None = None
 
 
 def _mean(values: list[float]) -> float | None:
@@ -346,6 +351,12 @@ class BootstrapSimulation:
         log.info("D_%d: %d samples (+%d: %s), %.2f human hours, accepted %.2f mm", report.index, report.dataset_size,
                  report.added_total, report.added, report.human_hours,
                  report.accepted_vertex_mm if report.accepted_vertex_mm is not None else float("nan"))
+        if report.rank_quality is not None:
+            q = report.rank_quality
+            ranks = ", ".join(f"{rank} {'-' if f['spearman'] is None else format(f['spearman'], '.2f')}"
+                              for rank, f in q["by_rank"].items())
+            log.info("D_%d: review ranks against the true error of %d fits (%.0f %% under %g mm), Spearman: %s",
+                     report.index, q["fits"], 100 * (q["good_share"] or 0.0), q["good_below_mm"], ranks)
         if self.on_round is not None:
             self.on_round(report)
 
@@ -377,6 +388,8 @@ class BootstrapSimulation:
                                  for p in predictions]) if predictions else None
         kinds = np.array([self.truth.sequence_kind(p["sample_id"]) for p in predictions])
         mvnet = mvnet_errors_summary(mvnet_errors)
+        by_heuristic = {m["sample_id"] for m in heuristic}
+        candidates = [p for p in predictions if p["fit"] is not None and p["sample_id"] not in by_heuristic]
         size = int(row["dataset_size_after"])
         # D_{i+1} = D_i + D^h + D^m + D^l: the server's cumulative count, its per-stream additions and the
         # dataset export must agree.
@@ -412,7 +425,15 @@ class BootstrapSimulation:
             mvnet_by_kind={kind: mvnet_errors_summary(mvnet_errors[kinds == kind] if predictions else None)
                            for kind in SEQUENCE_KINDS},
             round_job=job, minutes=(time.perf_counter() - started) / 60, bookkeeping_ok=bookkeeping_ok,
-            preannotation=self.preannotation if index == 0 else None)
+            preannotation=self.preannotation if index == 0 else None,
+            rank_quality=self._rank_quality(candidates) if candidates else None)
+
+    def _rank_quality(self, candidates: list[dict]) -> dict[str, Any]:
+        """`rank_quality` over a round's predictions whose fits did not join the dataset this round."""
+        errors = self.truth.fit_errors([p["sample_id"] for p in candidates], [p["fit"]["params"] for p in candidates])
+        scores = {rank: [review_score(rank, p["mean_confidence"], p["fit"]["heuristic"]) for p in candidates]
+                  for rank in REVIEW_RANKS}
+        return rank_quality([e.vertex_mm for e in errors], scores, self.config.reviewer.accept_below_mm)
 
     def summary(self, reports: list[RoundReport], seconds: float, stopped: dict[str, Any] | None) -> dict[str, Any]:
         """The run's figures: per round, and over the run (the keys `handloop bench sim` reports). `stopped`:

@@ -96,16 +96,23 @@ def sample_index(session: Session, project: str | None = None) -> dict[str, Any]
 
 
 def predictions(session: Session, round_index: int | None = None) -> dict[str, Any]:
-    """MVNet's predictions (keypoints, confidences, model versions), optionally of one round only."""
-    query = (select(Prediction, Round.index).outerjoin(Round, Round.id == Prediction.round_id)
+    """MVNet's predictions (keypoints, confidences, model versions), optionally of one round only, each with the
+    newest fit made from it ("fit": id, params (61,), the heuristic's record; None where none was made)."""
+    newest = (select(Fit.prediction_id, func.max(Fit.id).label("fit_id")).where(Fit.prediction_id.is_not(None))
+              .group_by(Fit.prediction_id).subquery())
+    query = (select(Prediction, Round.index, Fit.id, Fit.params, Fit.heuristic)
+             .outerjoin(Round, Round.id == Prediction.round_id)
+             .outerjoin(newest, newest.c.prediction_id == Prediction.id)
+             .outerjoin(Fit, Fit.id == newest.c.fit_id)
              .order_by(Prediction.id))
     if round_index is not None:
         query = query.where(Round.index == round_index)
     rows = [
         {"id": p.id, "sample_id": p.sample_id, "round": index, "mvnet_version": p.mvnet_version,
          "handsegnet_version": p.handsegnet_version, "keypoints_m": p.keypoints_m, "confidences": p.confidences,
-         "mean_confidence": p.mean_confidence}
-        for p, index in session.execute(query)
+         "mean_confidence": p.mean_confidence,
+         "fit": None if fit_id is None else {"id": fit_id, "params": params, "heuristic": heuristic}}
+        for p, index, fit_id, params, heuristic in session.execute(query)
     ]
     return {"count": len(rows), "predictions": rows}
 

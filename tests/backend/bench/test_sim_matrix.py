@@ -21,9 +21,12 @@ SEEDS = (11, 12, 13)  # the tests' own: never the matrix's UNSEEN_SEEDS
 
 def _round(index: int, added: int, hours: float, evaluated: int = 0, accepted: int = 0,
            mvnet_mm: float | None = None) -> dict:
+    # The review ranks' Spearman (rounds >= 1): the confidence's falls with the round's heuristic accepts.
+    quality = {"by_rank": {"confidence": {"spearman": 0.5 - accepted / 100}, "agreement": {"spearman": 0.8}}}
     return {"index": index, "added": {"heuristic": accepted, "manual": 0, "annotated": added - accepted},
             "added_total": added, "human_hours": hours, "mvnet_keypoint_mm": mvnet_mm,
-            "round_job": {"heuristic": {"evaluated": evaluated, "accepted": accepted}} if index else None}
+            "round_job": {"heuristic": {"evaluated": evaluated, "accepted": accepted}} if index else None,
+            "rank_quality": quality if index else None}
 
 
 def fake_summary(seed: int, annotator) -> dict:
@@ -104,7 +107,11 @@ def test_the_matrix_runs_each_cell_and_seed_and_reports_median_and_worst(fakes, 
     lines = result.stdout.splitlines()
     row = next(line for line in lines if line.startswith("| 640-default-proposals |"))
     assert "| 3 (0) | 300.0 / 300.0 | 300.0 / 300.0 | 17.0% / 16.0% | 0.880 / 0.870 | 10 / 20 / 30 |" in row
-    assert row.endswith("| 32.0 / 33.0 | 5.20 / 5.30 |") and record["table"].splitlines()[2] == row
+    assert row.endswith("| 32.0 / 33.0 | 5.20 / 5.30 | 0.38 / 0.80 |") and record["table"].splitlines()[2] == row
+    # Round 1's review ranks against the fits' true error: per run by round, the cell's median of round 1.
+    assert runs[("640-default-proposals", 12)]["rank_spearman_by_round"] == [
+        None, {"confidence": pytest.approx(0.38), "agreement": 0.8}, {"confidence": 0.45, "agreement": 0.8}]
+    assert headline["rank_spearman_round_1"] == pytest.approx({"confidence": 0.38, "agreement": 0.8})
     assert Path(record["plot"]).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 

@@ -58,6 +58,7 @@ class FakeWorkers:
         self.env, self.sim, self.done = env, sim, set()
         self.shifted: dict[int, float] = {}  # sample id -> how far its round fit is from the truth, m
         self.predicted_mm: list[dict[int, float]] = []  # per round job: sample id -> its prediction's error, mm
+        self.fit_mm: list[dict[int, float]] = []  # per round job: sample id -> its fit's true error, mm
 
     def _fit(self, session, sample_id: int, shift_m: float, job_id: int, prediction_id: int | None = None) -> None:
         gt = self.sim.truth.truth(sample_id)
@@ -87,12 +88,17 @@ class FakeWorkers:
                                   "JOIN projects p ON p.id = q.project_id WHERE p.name = 'sim' "
                                   "AND s.state IN ('unlabeled', 'fitted') ORDER BY s.id")).scalars().all()
         self.predicted_mm.append({})
+        self.fit_mm.append({})
         for n, sample_id in enumerate(todo):
             gt = self.sim.truth.truth(sample_id)
             wrong = 0.015 if n % 4 == 0 else 0.0
-            self.shifted[sample_id] = 0.003 + wrong
-            self.predicted_mm[-1][sample_id] = (0.001 + wrong) * 1000  # every keypoint moved as far
             confidences = [0.95 if n % 3 else 0.7] * 21
+            # The fit lies ~2 mm beyond its prediction; a wrong, unconfident one (which the heuristic refuses) ~4 mm
+            # (10 um more per sample: no two alike, so the rank has no ties).
+            stray = (0.004 if wrong and n % 3 == 0 else 0.002) + 1e-5 * n
+            self.shifted[sample_id] = 0.001 + wrong + stray
+            self.predicted_mm[-1][sample_id] = (0.001 + wrong) * 1000  # every keypoint moved as far
+            self.fit_mm[-1][sample_id] = self.shifted[sample_id] * 1000
             with env.session() as s, s.begin():
                 prediction = records.record_prediction(
                     s, storage, sample_id, keypoints_m=gt.keypoints_3d + np.array([0.001 + wrong, 0, 0]),
@@ -101,7 +107,7 @@ class FakeWorkers:
                                             payload={"prediction_id": prediction.id})
                 s.flush()
                 self.done.add(fit_job.id)
-                self._fit(s, sample_id, 0.003 + wrong, fit_job.id, prediction.id)
+                self._fit(s, sample_id, self.shifted[sample_id], fit_job.id, prediction.id)
         with env.session() as s, s.begin():
             review.build_queue(s, ReviewPolicy.from_settings(env.settings), None)
             jobs.finish(s, job_id, JobState.succeeded, result={"predicted": len(todo)})
@@ -155,6 +161,19 @@ def test_bootstrap_books_add_up_round_by_round(env_with, sqlite_url, capture_dir
         assert got["keypoint_mm"] == pytest.approx(np.mean(expected))
         assert got["keypoint_mm_median"] == pytest.approx(np.median(expected)) and 0 < got["auc"] <= 1
     assert rounds[1]["mvnet_keypoint_mm_median"] == pytest.approx(np.median(list(workers.predicted_mm[0].values())))
+    # The ranks' quality over round 1's fits from predictions the heuristic did not take (the unconfident ones): the
+    # agreement ranks the wrong ones (4 mm from their predictions) last; the confidence, the same for all, ranks none.
+    by_heuristic = {m["sample_id"] for m in members if m["round"] == 1 and m["stream"] == "heuristic"}
+    predictions = admin.predictions(round_index=1)["predictions"]
+    assert all(p["fit"]["id"] and len(p["fit"]["params"]) == 61 for p in predictions)
+    true_mm = np.array([workers.fit_mm[0][p["sample_id"]] for p in predictions if p["sample_id"] not in by_heuristic])
+    quality = rounds[1]["rank_quality"]
+    assert rounds[0]["rank_quality"] is None and quality["fits"] == len(true_mm) > 3
+    assert quality["good_share"] == pytest.approx(np.mean(true_mm < 8.0)) and 0 < quality["good_share"] < 1
+    assert quality["by_rank"]["agreement"] == {"scored": len(true_mm), "spearman": pytest.approx(1.0),
+                                               "upper_half_good_share": 1.0}
+    assert quality["by_rank"]["confidence"] == {"scored": len(true_mm), "spearman": None,
+                                                "upper_half_good_share": quality["good_share"]}
     assert rounds[0]["mvnet_by_kind"]["cluttered"] == {"predictions": 0, "keypoint_mm": None,
                                                        "keypoint_mm_median": None, "auc": None}
     # Human time: the unit costs of what the ledger counted, which the server's records confirm.

@@ -362,6 +362,8 @@ class BootstrapSimulation:
 
     # --- measuring -------------------------------------------------------------------------------------
     def _fit_errors(self, members: list[dict]) -> None:
+        """True errors of the fits of `members` (rows with "sample_id" and "fit": {"id", "params"}), cached by fit
+        id: the dataset's members and the predictions' fits share them."""
         todo = [m for m in members if m["fit"] and m["fit"]["id"] not in self._errors and m["sample_id"] in self.truth]
         errors = self.truth.fit_errors([m["sample_id"] for m in todo], [m["fit"]["params"] for m in todo])
         for member, error in zip(todo, errors, strict=True):
@@ -430,10 +432,11 @@ class BootstrapSimulation:
 
     def _rank_quality(self, candidates: list[dict]) -> dict[str, Any]:
         """`rank_quality` over a round's predictions whose fits did not join the dataset this round."""
-        errors = self.truth.fit_errors([p["sample_id"] for p in candidates], [p["fit"]["params"] for p in candidates])
+        self._fit_errors(candidates)
         scores = {rank: [review_score(rank, p["mean_confidence"], p["fit"]["heuristic"]) for p in candidates]
                   for rank in REVIEW_RANKS}
-        return rank_quality([e.vertex_mm for e in errors], scores, self.config.reviewer.accept_below_mm)
+        return rank_quality([self._errors[p["fit"]["id"]][0] for p in candidates], scores,
+                            self.config.reviewer.accept_below_mm)
 
     def summary(self, reports: list[RoundReport], seconds: float, stopped: dict[str, Any] | None) -> dict[str, Any]:
         """The run's figures: per round, and over the run (the keys `handloop bench sim` reports). `stopped`:

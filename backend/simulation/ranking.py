@@ -48,7 +48,7 @@ def rank_quality(errors_mm: Sequence[float], scores: Mapping[str, Sequence[float
         if len(values) != len(errors):
             raise ValueError(f"rank {rank!r}: {len(values)} scores for {len(errors)} fits")
         known = np.array([v is not None and np.isfinite(v) for v in values], dtype=bool)
-        score = np.array([v if k else 0.0 for v, k in zip(values, known, strict=True)], dtype=np.float64)[known]
+        score = np.array([v for v, k in zip(values, known, strict=True) if k], dtype=np.float64)
         err, ok = errors[known], good[known]
         figures: dict[str, Any] = {"scored": int(known.sum()), "spearman": None, "upper_half_good_share": None}
         if len(score) >= MIN_FITS:
